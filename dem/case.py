@@ -1,0 +1,245 @@
+"""A granular column-collapse case, described once.
+
+The paper's set-up (Jiang et al. 2024, section 3.1): a 500 x 350 mm two-dimensional box, a column
+of L_i x H_i grains held against the left wall by a gate at x = L_i, removed at t = 0. Every engine
+(builtin, LIGGGHTS, MFIX) and every downstream stage reads its physics from a `CollapseCase`.
+
+Units are SI throughout: metres, kilograms, seconds.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+
+GRAVITY = 9.81  # m/s^2
+
+
+class CaseError(ValueError):
+    """A case field has a value no simulation can use; the message names the field."""
+
+
+@dataclass(frozen=True)
+class Material:
+    """Grain material: mean diameter (m), solid density (kg/m^3), column solid (volume) fraction."""
+
+    name: str
+    diameter: float
+    density: float
+    solid_fraction: float
+
+    def __post_init__(self):
+        for key in ("diameter", "density", "solid_fraction"):
+            value = getattr(self, key)
+            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                raise CaseError(f"material {self.name!r}: {key} must be a positive finite number, got {value!r}")
+        if self.solid_fraction >= 1:
+            raise CaseError(f"material {self.name!r}: solid_fraction must be below 1, got {self.solid_fraction}")
+
+
+# Table 1 of the paper (after Biroun et al. 2023).
+MATERIALS = {
+    "quartz": Material("quartz", diameter=425e-6, density=2650.0, solid_fraction=0.58),
+    "copper": Material("copper", diameter=325e-6, density=8960.0, solid_fraction=0.50),
+}
+
+
+def get_material(spec) -> Material:
+    """A material from its name ("quartz", "copper"), a mapping of its fields, or a Material."""
+    if isinstance(spec, Material):
+        return spec
+    if isinstance(spec, str):
+        if spec not in MATERIALS:
+            raise CaseError(f"material: unknown material {spec!r}; known: {sorted(MATERIALS)} "
+                            "(or give a mapping with name, diameter, density, solid_fraction)")
+        return MATERIALS[spec]
+    if isinstance(spec, dict):
+        missing = {"name", "diameter", "density", "solid_fraction"} - set(spec)
+        if missing:
+            raise CaseError(f"material: custom material is missing {sorted(missing)}")
+        return Material(**{k: spec[k] for k in ("name", "diameter", "density", "solid_fraction")})
+    raise CaseError(f"material: expected a name or a mapping, got {type(spec).__name__}")
+
+
+@dataclass(frozen=True)
+class CollapseCase:
+    """One DEM column-collapse case.
+
+    Contact law (every engine): linear spring-dashpot, normal stiffness `normal_stiffness` (N/m),
+    tangential stiffness `tangential_stiffness_ratio` * kn with history and Coulomb limit
+    `friction`, normal damping from `restitution`, tangential damping
+    `tangential_damping_ratio` * normal damping. `*_wall` values apply to particle-wall contacts.
+    """
+
+    material: Material
+    column_length: float                 # L_i (m)
+    aspect_ratio: float                  # a = H_i / L_i
+    friction: float                      # mu, particle-particle
+    restitution: float                   # e, particle-particle
+    friction_wall: float | None = None   # mu_w; None: follows `friction` (see wall_friction)
+    restitution_wall: float | None = None
+    seed: int = 0
+    size_scale: float = 1.0              # coarse-graining factor on the grain diameter
+    polydispersity: float = 0.10         # diameters uniform in d (1 +- polydispersity)
+    box_width: float = 0.500             # m
+    box_height: float = 0.350            # m
+    normal_stiffness: float = 1000.0     # kn (N/m)
+    tangential_stiffness_ratio: float = 2.0 / 7.0
+    tangential_damping_ratio: float = 0.5
+    dt_over_contact_time: float = 1.0 / 50.0
+    duration_over_tstar: float = 4.0     # simulated collapse time in units of t*
+    output_interval: float | None = None # s between output frames; None: t* / 25
+    name: str = field(default="", compare=False)
+
+    def __post_init__(self):
+        object.__setattr__(self, "material", get_material(self.material))
+        positive = ("column_length", "aspect_ratio", "size_scale", "box_width", "box_height",
+                    "normal_stiffness", "tangential_stiffness_ratio", "dt_over_contact_time",
+                    "duration_over_tstar")
+        for key in positive:
+            _check_finite(key, getattr(self, key))
+            if getattr(self, key) <= 0:
+                raise CaseError(f"{key} must be positive, got {getattr(self, key)}")
+        for key in ("friction", "friction_wall", "tangential_damping_ratio", "polydispersity"):
+            if key == "friction_wall" and self.friction_wall is None:
+                continue
+            _check_finite(key, getattr(self, key))
+            if getattr(self, key) < 0:
+                raise CaseError(f"{key} must be >= 0, got {getattr(self, key)}")
+        for key in ("restitution", "restitution_wall"):
+            value = getattr(self, key)
+            if value is None:
+                continue
+            _check_finite(key, value)
+            if not 0 < value <= 1:
+                raise CaseError(f"{key} must lie in (0, 1], got {value}")
+        if self.polydispersity >= 0.5:
+            raise CaseError(f"polydispersity must be below 0.5, got {self.polydispersity}")
+        if self.dt_over_contact_time > MAX_DT_OVER_CONTACT_TIME:
+            raise CaseError(f"dt_over_contact_time = {self.dt_over_contact_time} is above the stable bound "
+                            f"{MAX_DT_OVER_CONTACT_TIME} (time step must resolve a contact in >= 10 steps)")
+        if self.output_interval is not None:
+            _check_finite("output_interval", self.output_interval)
+            if not self.time_step < self.output_interval <= self.t_star * self.duration_over_tstar:
+                raise CaseError(f"output_interval = {self.output_interval} s must exceed the time step "
+                                f"({self.time_step:.3g} s) and not the simulated duration")
+        if not isinstance(self.seed, int) or self.seed < 0:
+            raise CaseError(f"seed must be a non-negative integer, got {self.seed!r}")
+        if self.column_length > 0.8 * self.box_width:
+            raise CaseError(f"column_length = {self.column_length} m leaves no room to flow in a "
+                            f"{self.box_width} m box (at most 80% of box_width)")
+        if self.initial_height * FILL_HEIGHT_FACTOR > self.box_height:
+            raise CaseError(f"column of height {self.initial_height:.4g} m (aspect_ratio x column_length) does not "
+                            f"fit the {self.box_height} m box once poured (needs {FILL_HEIGHT_FACTOR} x its height)")
+        if self.column_length < 4 * self.diameter:
+            raise CaseError(f"column_length = {self.column_length} m is under 4 grain diameters ({self.diameter:.3g} m)")
+
+    # -- resolved wall contact parameters (a wall value left None follows the grain value) -----
+    @property
+    def wall_friction(self) -> float:
+        return self.friction if self.friction_wall is None else self.friction_wall
+
+    @property
+    def wall_restitution(self) -> float:
+        return self.restitution if self.restitution_wall is None else self.restitution_wall
+
+    # -- derived geometry and scales ---------------------------------------------------------
+    @property
+    def initial_height(self) -> float:
+        """H_i = a L_i (m)."""
+        return self.aspect_ratio * self.column_length
+
+    @property
+    def t_star(self) -> float:
+        """Free-fall time scale sqrt(H_i / g) (s)."""
+        return math.sqrt(self.initial_height / GRAVITY)
+
+    @property
+    def diameter(self) -> float:
+        """Mean simulated grain diameter (m), after coarse-graining."""
+        return self.material.diameter * self.size_scale
+
+    @property
+    def density(self) -> float:
+        return self.material.density
+
+    @property
+    def min_diameter(self) -> float:
+        return self.diameter * (1.0 - self.polydispersity)
+
+    def sphere_mass(self, diameter: float) -> float:
+        """Mass (kg) of a sphere of `diameter`: 2D discs carry sphere mass and inertia."""
+        return self.density * math.pi * diameter ** 3 / 6.0
+
+    @property
+    def contact_time(self) -> float:
+        """Undamped particle-particle contact duration of the lightest pair, pi sqrt(m_eff / kn) (s)."""
+        m_eff = 0.5 * self.sphere_mass(self.min_diameter)
+        return math.pi * math.sqrt(m_eff / self.normal_stiffness)
+
+    @property
+    def time_step(self) -> float:
+        return self.contact_time * self.dt_over_contact_time
+
+    @property
+    def frame_interval(self) -> float:
+        """Physical time between output frames (s): output_interval, or t*/25 when unset.
+
+        A dataset for the GNS sets one output_interval for all its cases, so that one GNS step is
+        the same physical time everywhere.
+        """
+        return self.output_interval if self.output_interval is not None else self.t_star / 25.0
+
+    @property
+    def n_frames(self) -> int:
+        """Output frames including t = 0, covering duration_over_tstar * t*."""
+        return int(math.floor(self.duration_over_tstar * self.t_star / self.frame_interval + 1e-9)) + 1
+
+    @property
+    def n_particles(self) -> int:
+        """Grains in the column: solid fraction times the column volume at a depth of one diameter.
+
+        This is how a 2D MFIX DEM deck (no_k, domain depth one diameter) fills a region at a given
+        solids volume fraction; the settled 2D packing then sets the actual column height.
+        """
+        volume = self.column_length * self.initial_height * self.diameter
+        return max(1, int(round(self.material.solid_fraction * volume / (math.pi * self.diameter ** 3 / 6.0))))
+
+    # -- serialisation ------------------------------------------------------------------------
+    def physical_parameters(self) -> dict:
+        """Flat dict of every physical parameter (for HDF5 attributes, decks and logs)."""
+        out = {k: v for k, v in dataclasses.asdict(self).items() if k != "material"}
+        out.update(material=self.material.name, material_diameter=self.material.diameter,
+                   material_density=self.material.density,
+                   material_solid_fraction=self.material.solid_fraction,
+                   L_i=self.column_length, H_i=self.initial_height, t_star=self.t_star,
+                   diameter=self.diameter, time_step=self.time_step,
+                   friction_wall=self.wall_friction, restitution_wall=self.wall_restitution,
+                   output_interval=self.frame_interval)
+        return out
+
+    def to_dict(self) -> dict:
+        out = dataclasses.asdict(self)
+        out["material"] = dataclasses.asdict(self.material)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "CollapseCase":
+        """Build from a mapping; unknown keys are an error naming them."""
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(data) - known
+        if unknown:
+            raise CaseError(f"unknown case field(s) {sorted(unknown)}; known: {sorted(known)}")
+        return cls(**data)
+
+    def replace(self, **changes) -> "CollapseCase":
+        return dataclasses.replace(self, **changes)
+
+
+MAX_DT_OVER_CONTACT_TIME = 0.1
+FILL_HEIGHT_FACTOR = 1.6  # the column is poured from up to this multiple of H_i before settling
+
+
+def _check_finite(key, value):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise CaseError(f"{key} must be a finite number, got {value!r}")

@@ -1,0 +1,39 @@
+"""The builtin engine's collapse run: settle behind the gate, remove it at t = 0, record frames."""
+from __future__ import annotations
+
+import numpy as np
+
+from dem.case import CollapseCase
+from dem.integrate import ContactLaw, State, record
+from dem.packing import blowup_box, engine_attrs, settle_column, walls_open
+from dem.trajectory import GRAIN, Trajectory, TrajectoryError
+
+ENGINE_VERSION = "builtin-1"
+
+
+def state_from_packing(case: CollapseCase, packing: Trajectory) -> State:
+    """Grains at rest at the last frame of `packing` (a settled-column trajectory)."""
+    if packing.n_particles != case.n_particles:
+        raise TrajectoryError(f"packing has {packing.n_particles} grains, case {case.name or '?'} "
+                              f"needs {case.n_particles}: it was settled for another case")
+    return State.at_rest(packing.positions[-1], packing.radius, case.density)
+
+
+def simulate_collapse(case: CollapseCase, packing: Trajectory | None = None, progress=None) -> Trajectory:
+    """Collapse trajectory: case.n_frames frames every case.frame_interval, gate removed at t = 0.
+
+    packing: the settled column (dem.packing.settle_column); settled here when None.
+    progress: callable(fraction_done) or None.
+    """
+    if packing is None:
+        packing = settle_column(case)
+    state = state_from_packing(case, packing)
+    frames, stats = record(state, ContactLaw.from_case(case), walls_open(case), blowup_box(case),
+                           case.time_step, case.frame_interval, case.n_frames,
+                           label=f"case {case.name or '?'}", progress=progress)
+    attrs = engine_attrs(case, "builtin", ENGINE_VERSION)
+    attrs.update(dt=stats.extra["dt"], steps=stats.steps, wall_time_s=stats.wall_time,
+                 particle_steps_per_second=stats.particle_steps_per_second,
+                 settled_height=packing.attrs.get("settled_height", np.nan))
+    return Trajectory(positions=frames, radius=packing.radius.copy(),
+                      particle_type=np.full(packing.n_particles, GRAIN, np.int32), attrs=attrs)

@@ -1,0 +1,55 @@
+"""Contact law: linear spring-dashpot with tangential history and a Coulomb limit.
+
+Pure functions of overlap and relative velocity (jax-md style), compiled with numba and lifted
+over particle pairs and particle-wall pairs by dem.integrate. The same law in every engine
+(ARCHITECTURE.md, "Engines"): kn (N/m), kt = ratio * kn, normal damping from restitution,
+tangential damping = ratio * normal damping, Coulomb friction mu |Fn|.
+
+Sign conventions: `overlap` > 0 in contact (m); `normal_speed` > 0 when approaching (m/s);
+`tangential_speed` is the slip speed of the contact point along the tangent (m/s).
+"""
+from __future__ import annotations
+
+import math
+
+import numba as nb
+
+# fastmath without the no-NaN/no-Inf assumptions, so that blow-up checks still see NaN and Inf.
+FAST_MATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
+
+
+def restitution_factor(restitution: float) -> float:
+    """|ln e| / sqrt(pi^2 + ln^2 e): normal damping is 2 sqrt(m_eff kn) times this."""
+    log_e = math.log(restitution)
+    return abs(log_e) / math.sqrt(math.pi ** 2 + log_e ** 2)
+
+
+@nb.njit(inline="always", fastmath=FAST_MATH, cache=True)
+def normal_damping(m_eff, kn, restitution_factor):
+    """eta_n (kg/s) = 2 sqrt(m_eff kn) |ln e| / sqrt(pi^2 + ln^2 e)."""
+    return 2.0 * math.sqrt(m_eff * kn) * restitution_factor
+
+
+@nb.njit(inline="always", fastmath=FAST_MATH, cache=True)
+def normal_force(overlap, normal_speed, kn, eta_n):
+    """Repulsive normal force magnitude (N). Not clamped at zero (as LIGGGHTS hooke and MFIX),
+    so a linear spring-dashpot pair separates with exactly e times its approach speed."""
+    return kn * overlap + eta_n * normal_speed
+
+
+@nb.njit(inline="always", fastmath=FAST_MATH, cache=True)
+def tangential_force(spring, tangential_speed, dt, kt, eta_t, friction, normal_force_magnitude):
+    """Tangential force (N) on the first body along the tangent, and the updated spring (m).
+
+    The spring stretches by the slip of the contact point. Below the Coulomb limit the force is
+    spring plus dashpot; at the limit the spring is shortened so that kt |spring| = mu |Fn| and
+    the dashpot is dropped (LIGGGHTS `tangential history`), which keeps the history consistent.
+    """
+    spring = spring + tangential_speed * dt
+    limit = friction * abs(normal_force_magnitude)
+    spring_force = kt * abs(spring)
+    if spring_force > limit:
+        if spring != 0.0:
+            spring = math.copysign(limit / kt, spring)
+        return -kt * spring, spring
+    return -kt * spring - eta_t * tangential_speed, spring

@@ -1,0 +1,288 @@
+"""The builtin engine's time stepping: forces from the contact law, symplectic Euler steps.
+
+State is plain arrays (positions, velocities, spins, pair list with spring history). One call of
+`advance` runs many small steps in compiled code and returns a status, so the Python driver only
+runs between output frames: it records frames, checks for blow-up and reports progress.
+
+Discs move in 2D but carry sphere mass m = rho pi d^3 / 6 and inertia 2/5 m r^2, as MFIX 2D DEM
+and LIGGGHTS `enforce2d` do.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numba as nb
+import numpy as np
+
+from dem.case import GRAVITY, CollapseCase
+from dem.contact import FAST_MATH, normal_damping, normal_force, restitution_factor, tangential_force
+from dem.neighbours import build_pairs, default_skin, empty_pairs
+
+# status codes from `advance`
+OK, NON_FINITE, OVERLAP, LEFT_BOX = 0, 1, 2, 3
+MAX_OVERLAP_RATIO = 0.25  # overlap / smaller diameter beyond which the run has blown up
+N_WALLS = 4               # left, right, floor, gate
+
+
+class SimulationError(RuntimeError):
+    """The run blew up; the message names the case and the step."""
+
+
+@dataclass
+class ContactLaw:
+    """Contact parameters as the compiled kernel takes them (SI units)."""
+
+    kn: float
+    kt: float
+    tangential_damping_ratio: float
+    restitution_factor: float        # particle-particle, see dem.contact.restitution_factor
+    restitution_factor_wall: float
+    friction: float
+    friction_wall: float
+
+    @classmethod
+    def from_case(cls, case: CollapseCase) -> "ContactLaw":
+        return cls(kn=case.normal_stiffness, kt=case.tangential_stiffness_ratio * case.normal_stiffness,
+                   tangential_damping_ratio=case.tangential_damping_ratio,
+                   restitution_factor=restitution_factor(case.restitution),
+                   restitution_factor_wall=restitution_factor(case.wall_restitution),
+                   friction=case.friction, friction_wall=case.wall_friction)
+
+    def as_array(self) -> np.ndarray:
+        return np.array([self.kn, self.kt, self.tangential_damping_ratio, self.restitution_factor,
+                         self.restitution_factor_wall, self.friction, self.friction_wall])
+
+
+@dataclass
+class State:
+    """Grains: x [N, 2] (m), v [N, 2] (m/s), spin [N] (rad/s), radius [N] (m), mass [N] (kg)."""
+
+    x: np.ndarray
+    v: np.ndarray
+    spin: np.ndarray
+    radius: np.ndarray
+    mass: np.ndarray
+    skin: float = 0.0
+    pairs: tuple = field(default_factory=empty_pairs)   # (start, partner, spring)
+    wall_spring: np.ndarray | None = None               # [N, N_WALLS] (m)
+    x_built: np.ndarray | None = None
+    steps: int = 0
+    rebuilds: int = 0
+
+    @classmethod
+    def at_rest(cls, positions, radius, density) -> "State":
+        positions = np.ascontiguousarray(positions, np.float64)
+        radius = np.ascontiguousarray(radius, np.float64)
+        n = len(radius)
+        return cls(x=positions.copy(), v=np.zeros((n, 2)), spin=np.zeros(n), radius=radius,
+                   mass=density * math.pi * (2 * radius) ** 3 / 6.0, skin=default_skin(radius),
+                   wall_spring=np.zeros((n, N_WALLS)))
+
+    @property
+    def inertia(self) -> np.ndarray:
+        return 0.4 * self.mass * self.radius ** 2
+
+    def kinetic_energy(self) -> float:
+        return float(0.5 * np.sum(self.mass[:, None] * self.v ** 2) + 0.5 * np.sum(self.inertia * self.spin ** 2))
+
+
+@nb.njit(inline="always", fastmath=FAST_MATH, cache=True)
+def _wall_contact(overlap, nx, ny, vx, vy, spin, r, spring, dt, kn, kt, eta_ratio, mass, ce, mu):
+    """Force (fx, fy) on a grain, torque (N m) and new spring for a wall whose outward normal
+    from the grain is (nx, ny). Walls are static and infinitely heavy: m_eff = m."""
+    eta_n = normal_damping(mass, kn, ce)
+    fn = normal_force(overlap, vx * nx + vy * ny, kn, eta_n)
+    tx, ty = -ny, nx
+    ft, spring = tangential_force(spring, vx * tx + vy * ty + spin * r, dt, kt, eta_ratio * eta_n, mu, fn)
+    return -fn * nx + ft * tx, -fn * ny + ft * ty, r * ft, spring
+
+
+@nb.njit(fastmath=FAST_MATH, cache=True)
+def _forces(x, v, spin, radius, mass, start, partner, spring, wall_spring, law, walls, dt, gravity,
+            force, torque):
+    """Fill force [N, 2] (N) and torque [N] (N m); update springs. Returns max overlap / diameter."""
+    kn, kt, eta_ratio, ce, ce_wall, mu, mu_wall = law[0], law[1], law[2], law[3], law[4], law[5], law[6]
+    x_left, x_right, y_floor, x_gate = walls[0], walls[1], walls[2], walls[3]
+    n = x.shape[0]
+    worst = 0.0
+    for i in range(n):
+        force[i, 0] = 0.0
+        force[i, 1] = -mass[i] * gravity
+        torque[i] = 0.0
+    for i in range(n):
+        xi, yi, ri = x[i, 0], x[i, 1], radius[i]
+        for k in range(start[i], start[i + 1]):
+            j = partner[k]
+            dx = x[j, 0] - xi
+            dy = x[j, 1] - yi
+            reach = ri + radius[j]
+            dist2 = dx * dx + dy * dy
+            if dist2 >= reach * reach:
+                spring[k] = 0.0  # out of contact: the history is forgotten
+                continue
+            dist = math.sqrt(dist2)
+            nx, ny = dx / dist, dy / dist            # unit normal from i to j
+            tx, ty = -ny, nx
+            overlap = reach - dist
+            worst = max(worst, overlap / (2.0 * min(ri, radius[j])))
+            rvx = v[i, 0] - v[j, 0]
+            rvy = v[i, 1] - v[j, 1]
+            m_eff = mass[i] * mass[j] / (mass[i] + mass[j])
+            eta_n = normal_damping(m_eff, kn, ce)
+            fn = normal_force(overlap, rvx * nx + rvy * ny, kn, eta_n)
+            slip = rvx * tx + rvy * ty + spin[i] * ri + spin[j] * radius[j]
+            ft, spring[k] = tangential_force(spring[k], slip, dt, kt, eta_ratio * eta_n, mu, fn)
+            fx = -fn * nx + ft * tx
+            fy = -fn * ny + ft * ty
+            force[i, 0] += fx
+            force[i, 1] += fy
+            force[j, 0] -= fx
+            force[j, 1] -= fy
+            torque[i] += ri * ft
+            torque[j] += radius[j] * ft
+        # walls: left, right, floor, gate (gate at +inf once removed)
+        for w in range(4):
+            if w == 0:
+                overlap, nx, ny = ri - (xi - x_left), -1.0, 0.0
+            elif w == 1:
+                overlap, nx, ny = ri - (x_right - xi), 1.0, 0.0
+            elif w == 2:
+                overlap, nx, ny = ri - (yi - y_floor), 0.0, -1.0
+            else:
+                overlap, nx, ny = ri - (x_gate - xi), 1.0, 0.0
+            if overlap <= 0.0:
+                wall_spring[i, w] = 0.0
+                continue
+            worst = max(worst, overlap / (2.0 * ri))
+            fx, fy, tq, wall_spring[i, w] = _wall_contact(overlap, nx, ny, v[i, 0], v[i, 1], spin[i], ri,
+                                                          wall_spring[i, w], dt, kn, kt, eta_ratio,
+                                                          mass[i], ce_wall, mu_wall)
+            force[i, 0] += fx
+            force[i, 1] += fy
+            torque[i] += tq
+    return worst
+
+
+@nb.njit(fastmath=FAST_MATH, cache=True)
+def advance(x, v, spin, radius, mass, x_built, skin, start, partner, spring, wall_spring, law, walls,
+            box, dt, n_steps, gravity):
+    """Run up to n_steps symplectic Euler steps (kick, then drift).
+
+    Returns (status, steps_done, start, partner, spring, rebuilds, worst_overlap_ratio); the pair
+    list is returned because a rebuild replaces it.
+    """
+    n = x.shape[0]
+    force = np.empty((n, 2))
+    torque = np.empty(n)
+    inv_mass = 1.0 / mass
+    inv_inertia = 1.0 / (0.4 * mass * radius * radius)
+    rebuilds = 0
+    worst_all = 0.0
+    half_skin2 = 0.25 * skin * skin
+    for step in range(n_steps):
+        worst = _forces(x, v, spin, radius, mass, start, partner, spring, wall_spring, law, walls, dt,
+                        gravity, force, torque)
+        worst_all = max(worst_all, worst)
+        if worst > MAX_OVERLAP_RATIO:
+            return 2, step, start, partner, spring, rebuilds, worst_all
+        rebuild = False
+        for i in range(n):
+            v[i, 0] += force[i, 0] * inv_mass[i] * dt
+            v[i, 1] += force[i, 1] * inv_mass[i] * dt
+            spin[i] += torque[i] * inv_inertia[i] * dt
+            x[i, 0] += v[i, 0] * dt
+            x[i, 1] += v[i, 1] * dt
+            ddx = x[i, 0] - x_built[i, 0]
+            ddy = x[i, 1] - x_built[i, 1]
+            if not ddx * ddx + ddy * ddy < half_skin2:  # also true for NaN
+                rebuild = True
+        if rebuild:
+            for i in range(n):
+                if not (math.isfinite(x[i, 0]) and math.isfinite(x[i, 1])):
+                    return 1, step + 1, start, partner, spring, rebuilds, worst_all
+                if (x[i, 0] < box[0] or x[i, 0] > box[1] or x[i, 1] < box[2] or x[i, 1] > box[3]):
+                    return 3, step + 1, start, partner, spring, rebuilds, worst_all
+            start, partner, spring = build_pairs(x, radius, skin, start, partner, spring)
+            x_built[:, :] = x
+            rebuilds += 1
+    return 0, n_steps, start, partner, spring, rebuilds, worst_all
+
+
+STATUS_TEXT = {NON_FINITE: "non-finite position", OVERLAP: f"overlap beyond {MAX_OVERLAP_RATIO} of a diameter",
+               LEFT_BOX: "a grain left the box"}
+
+
+def run(state: State, law: ContactLaw, walls, box, dt: float, n_steps: int, label: str = "",
+        gravity: float = GRAVITY) -> None:
+    """Advance `state` by n_steps of dt (s). walls = (x_left, x_right, y_floor, x_gate) (m);
+    box = (x_min, x_max, y_min, y_max) (m) outside which a grain means blow-up.
+    Raises SimulationError naming `label` and the step."""
+    if state.x_built is None:
+        state.pairs = build_pairs(state.x, state.radius, state.skin, *state.pairs)
+        state.x_built = state.x.copy()
+    status, done, start, partner, spring, rebuilds, worst = advance(
+        state.x, state.v, state.spin, state.radius, state.mass, state.x_built, state.skin, *state.pairs,
+        state.wall_spring, law.as_array(), np.asarray(walls, np.float64), np.asarray(box, np.float64),
+        float(dt), int(n_steps), float(gravity))
+    state.pairs = (start, partner, spring)
+    state.steps += done
+    state.rebuilds += rebuilds
+    if status != OK:
+        raise SimulationError(f"{label or 'simulation'}: blew up at step {state.steps} "
+                              f"(t = {state.steps * dt:.6g} s): {STATUS_TEXT[status]}")
+
+
+def frame_steps(interval: float, max_dt: float) -> tuple[int, float]:
+    """Steps per output interval and the step (s) that divides it exactly, never above max_dt."""
+    steps = max(1, math.ceil(interval / max_dt - 1e-9))
+    return steps, interval / steps
+
+
+@dataclass
+class RunStats:
+    steps: int = 0
+    wall_time: float = 0.0
+    particle_steps_per_second: float = 0.0
+    extra: dict = field(default_factory=dict)
+
+
+def record(state: State, law: ContactLaw, walls, box, dt_max: float, interval: float, n_frames: int,
+           label: str = "", progress=None):
+    """Frames [n_frames, N, 2] (float32, m) every `interval` s, the first at the current state."""
+    steps, dt = frame_steps(interval, dt_max)
+    frames = np.empty((n_frames, len(state.radius), 2), np.float32)
+    frames[0] = state.x
+    t0, s0 = time.perf_counter(), state.steps
+    for k in range(1, n_frames):
+        run(state, law, walls, box, dt, steps, label=f"{label} frame {k}")
+        frames[k] = state.x
+        if progress is not None:
+            progress(k / (n_frames - 1))
+    elapsed = time.perf_counter() - t0
+    done = state.steps - s0
+    stats = RunStats(steps=done, wall_time=elapsed,
+                     particle_steps_per_second=done * len(state.radius) / max(elapsed, 1e-12),
+                     extra={"dt": dt})
+    return frames, stats
+
+
+def mechanical_energy(state: State, law: ContactLaw, walls, gravity: float = GRAVITY) -> float:
+    """Kinetic + gravitational + normal-spring energy (J) of `state` against `walls`.
+
+    Tangential springs are left out: the energy check runs frictionless (mu = 0), where they
+    carry no force. Used by the physics tests and benchmarks.
+    """
+    from scipy.spatial import cKDTree
+
+    x, r = state.x, state.radius
+    energy = state.kinetic_energy() + float(np.sum(state.mass * gravity * x[:, 1]))
+    pairs = cKDTree(x).query_pairs(2 * r.max(), output_type="ndarray")
+    if len(pairs):
+        gap = np.linalg.norm(x[pairs[:, 0]] - x[pairs[:, 1]], axis=1) - r[pairs[:, 0]] - r[pairs[:, 1]]
+        energy += 0.5 * law.kn * float(np.sum(np.minimum(gap, 0.0) ** 2))
+    x_left, x_right, y_floor, x_gate = walls
+    for gap in (x[:, 0] - x_left - r, x_right - x[:, 0] - r, x[:, 1] - y_floor - r, x_gate - x[:, 0] - r):
+        energy += 0.5 * law.kn * float(np.sum(np.minimum(gap, 0.0) ** 2))
+    return energy

@@ -1,0 +1,118 @@
+"""The initial column: grains poured on a jittered lattice behind the gate, settled at rest.
+
+Diameters are uniform in d (1 +- polydispersity), about +-10% by default, so that the 2D packing
+does not crystallise. Grains start on a triangular lattice whose pitch clears the largest grain,
+with a random jitter, so nothing overlaps; gravity then settles them against the floor, the left
+wall and the gate at x = L_i, with the case's own contact law. Deterministic for a given seed.
+
+The settled column is a one-frame trajectory (engine "builtin", stage "settled"), so every
+engine can start from the same packing and it is stored and read like any other trajectory.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from dem.case import FILL_HEIGHT_FACTOR, CaseError, CollapseCase
+from dem.integrate import ContactLaw, SimulationError, State, run
+from dem.trajectory import GRAIN, Trajectory
+
+LATTICE_CLEARANCE = 1.02     # lattice pitch / largest diameter
+REST_SPEED = 1e-3            # settled when the RMS grain speed is below this fraction of sqrt(g H_i)
+SETTLE_CHECK_TSTAR = 0.05    # check for rest every this many t*
+MAX_SETTLE_TSTAR = 20.0      # give up (error) after this many t*
+
+
+def grain_radii(case: CollapseCase, rng: np.random.Generator) -> np.ndarray:
+    """[N] radii (m), uniform in d/2 (1 +- polydispersity)."""
+    spread = case.polydispersity
+    return 0.5 * case.diameter * rng.uniform(1 - spread, 1 + spread, case.n_particles)
+
+
+def pour_column(case: CollapseCase) -> tuple[np.ndarray, np.ndarray]:
+    """Non-overlapping start: positions [N, 2] (m) on a jittered triangular lattice in
+    [0, L_i] x [0, FILL_HEIGHT_FACTOR H_i], radius [N] (m)."""
+    rng = np.random.default_rng(case.seed)
+    radius = grain_radii(case, rng)
+    d_max = 2 * radius.max()
+    pitch = LATTICE_CLEARANCE * d_max
+    row_height = pitch * math.sqrt(3) / 2
+    per_row = int((case.column_length - d_max) / pitch) + 1
+    sites = []
+    row = 0
+    while len(sites) < case.n_particles:
+        offset = 0.5 * pitch * (row % 2)
+        for k in range(per_row - (row % 2)):
+            sites.append((0.5 * d_max + offset + k * pitch, 0.5 * d_max + row * row_height))
+        row += 1
+    positions = np.array(sites[: case.n_particles])
+    top = positions[:, 1].max() + 0.5 * d_max
+    if top > FILL_HEIGHT_FACTOR * case.initial_height:
+        raise CaseError(f"solid_fraction: {case.n_particles} grains of {case.material.name} need a pour of "
+                        f"{top:.4g} m, over {FILL_HEIGHT_FACTOR} x H_i; lower solid_fraction or polydispersity")
+    # jitter within the clearance left by each grain's own size
+    slack = np.maximum(0.5 * pitch - radius, 0.0)[:, None]
+    positions = positions + rng.uniform(-1, 1, positions.shape) * slack * 0.5
+    order = np.lexsort((positions[:, 0], positions[:, 1]))
+    return positions[order], radius[order]
+
+
+def walls_with_gate(case: CollapseCase) -> tuple:
+    """(x_left, x_right, y_floor, x_gate) in m, gate closed at L_i."""
+    return (0.0, case.box_width, 0.0, case.column_length)
+
+
+def walls_open(case: CollapseCase) -> tuple:
+    return (0.0, case.box_width, 0.0, math.inf)
+
+
+def blowup_box(case: CollapseCase) -> tuple:
+    """Bounds (m) outside which a grain means the run blew up."""
+    margin = case.diameter
+    return (-margin, case.box_width + margin, -margin, case.box_height + margin)
+
+
+def settle_state(case: CollapseCase, progress=None) -> State:
+    """Pour and settle the column behind the gate; the settled State (velocities near zero)."""
+    positions, radius = pour_column(case)
+    state = State.at_rest(positions, radius, case.density)
+    law = ContactLaw.from_case(case)
+    chunk = SETTLE_CHECK_TSTAR * case.t_star
+    steps = max(1, math.ceil(chunk / case.time_step))
+    rest_speed = REST_SPEED * math.sqrt(9.81 * case.initial_height)
+    for k in range(int(MAX_SETTLE_TSTAR / SETTLE_CHECK_TSTAR)):
+        run(state, law, walls_with_gate(case), blowup_box(case), case.time_step, steps,
+            label=f"case {case.name or '?'} settling")
+        # RMS, not max: a lone rattler in a pore can keep bouncing long after the column is at rest
+        speed = float(np.sqrt(np.mean(np.sum(state.v ** 2, axis=1) + (state.spin * state.radius) ** 2)))
+        if progress is not None:
+            progress(min(1.0, rest_speed / max(speed, 1e-30)))
+        if k >= 2 and speed < rest_speed:
+            break
+    else:
+        raise SimulationError(f"case {case.name or '?'}: column not at rest after {MAX_SETTLE_TSTAR} t* of "
+                              f"settling (RMS speed {speed:.3g} m/s)")
+    state.v[:] = 0.0
+    state.spin[:] = 0.0
+    return state
+
+
+def engine_attrs(case: CollapseCase, engine: str, engine_version: str) -> dict:
+    """Trajectory attributes every engine writes (ARCHITECTURE.md contract)."""
+    attrs = case.physical_parameters()
+    attrs.update(engine=engine, engine_version=engine_version, dt_frame=case.frame_interval,
+                 x_min=0.0, x_max=case.box_width, y_min=0.0, y_max=case.box_height)
+    return attrs
+
+
+def settle_column(case: CollapseCase, progress=None) -> Trajectory:
+    """The settled column as a one-frame Trajectory (engine "builtin", stage "settled")."""
+    from dem.collapse import ENGINE_VERSION
+
+    state = settle_state(case, progress)
+    attrs = engine_attrs(case, "builtin", ENGINE_VERSION)
+    attrs.update(stage="settled", settled_height=float(np.max(state.x[:, 1] + state.radius)),
+                 settle_steps=state.steps)
+    return Trajectory(positions=state.x[None].astype(np.float32), radius=state.radius.copy(),
+                      particle_type=np.full(len(state.radius), GRAIN, np.int32), attrs=attrs)

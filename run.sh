@@ -1,0 +1,62 @@
+#!/usr/bin/env bash
+# The project's two entry points (see README):
+#   bash run.sh main   -- the whole Snakemake DAG on config/config.yaml with the builtin engine
+#   bash run.sh test   -- the test suite
+# Each makes (or reuses) the virtual environment .venv from environment.txt first.
+set -euo pipefail
+cd "$(dirname "$0")"
+VENV=.venv
+
+ensure_venv() {
+    if ! python3 -m venv --help >/dev/null 2>&1 || ! python3 -c 'import ensurepip' 2>/dev/null; then
+        if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+            apt-get update -q && apt-get install -y -q python3-venv python3-dev gcc
+        else
+            echo "run.sh: python3 with venv is needed (Debian: apt-get install python3-venv)" >&2; exit 1
+        fi
+    fi
+    local stamp="$VENV/.environment.sha256" want
+    want=$(sha256sum environment.txt pyproject.toml | sha256sum | cut -d' ' -f1)
+    if [ ! -x "$VENV/bin/python" ] || [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+        echo "run.sh: installing environment.txt into $VENV"
+        python3 -m venv "$VENV"
+        "$VENV/bin/pip" install -q --upgrade pip
+        "$VENV/bin/pip" install -q -r environment.txt
+        "$VENV/bin/pip" install -q --no-deps --no-build-isolation -e .
+        echo "$want" > "$stamp"
+    fi
+}
+
+# Optional system packages: LIGGGHTS (the real-solver fallback), SLURM and munge (the cluster test).
+# Tests that need them skip, saying why, where they cannot be installed.
+ensure_optional_apt() {
+    local missing=()
+    command -v liggghts >/dev/null || missing+=(liggghts)
+    command -v slurmctld >/dev/null || missing+=(slurm-wlm)
+    command -v munged >/dev/null || missing+=(munge)
+    [ ${#missing[@]} -eq 0 ] && return 0
+    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+        echo "run.sh: installing optional ${missing[*]} from Debian"
+        { apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q "${missing[@]}"; } \
+            >/tmp/run.sh-apt.log 2>&1 || echo "run.sh: could not install ${missing[*]} (see /tmp/run.sh-apt.log); their tests will skip"
+    else
+        echo "run.sh: not root or no apt-get; tests needing ${missing[*]} will skip"
+    fi
+}
+
+case "${1:-}" in
+    main)
+        ensure_venv
+        shift
+        exec "$VENV/bin/python" -m snakemake --profile workflow/profiles/default "$@"
+        ;;
+    test)
+        ensure_venv
+        ensure_optional_apt
+        shift
+        exec "$VENV/bin/python" -m pytest -q "$@"
+        ;;
+    *)
+        echo "usage: bash run.sh main [snakemake args] | bash run.sh test [pytest args]" >&2; exit 2
+        ;;
+esac

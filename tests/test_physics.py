@@ -1,0 +1,128 @@
+"""The builtin engine against known answers: restitution, sliding to rolling, energy, rest, runout."""
+import math
+
+import numpy as np
+import pytest
+
+from dem.case import GRAVITY
+from dem.collapse import simulate_collapse, state_from_packing
+from dem.integrate import ContactLaw, SimulationError, State, mechanical_energy, record, run
+from dem.packing import blowup_box, settle_column, walls_open, walls_with_gate
+from dem.runout import runout_curve
+
+RADIUS = 212.5e-6
+DENSITY = 2650.0
+FREE = (0.0, 1.0, 0.0, math.inf)   # left, right, floor, no gate
+BIG_BOX = (-1.0, 2.0, -1.0, 2.0)
+
+
+def run_until_separated(state, law, dt, steps=4000):
+    run(state, law, FREE, BIG_BOX, dt, steps, gravity=0.0)
+
+
+@pytest.mark.parametrize("restitution", [0.3, 0.6, 0.9])
+def test_floor_rebound_speed_ratio_is_restitution(small_case, restitution):
+    case = small_case.replace(restitution=restitution, size_scale=1.0)
+    state = State.at_rest([[0.5, 1.5 * RADIUS]], [RADIUS], DENSITY)
+    state.v[0, 1] = -0.5
+    run_until_separated(state, ContactLaw.from_case(case), case.time_step)
+    assert state.v[0, 1] / 0.5 == pytest.approx(restitution, rel=0.02)
+
+
+@pytest.mark.parametrize("restitution", [0.3, 0.6, 0.9])
+def test_head_on_pair_separates_at_restitution_times_approach(small_case, restitution):
+    case = small_case.replace(restitution=restitution, size_scale=1.0)
+    state = State.at_rest([[0.5, 0.5], [0.5 + 3 * RADIUS, 0.5]], [RADIUS, 1.1 * RADIUS], DENSITY)
+    state.v[0, 0], state.v[1, 0] = 0.4, -0.6
+    momentum = float(np.sum(state.mass * state.v[:, 0]))
+    run_until_separated(state, ContactLaw.from_case(case), case.time_step)
+    assert (state.v[1, 0] - state.v[0, 0]) / 1.0 == pytest.approx(restitution, rel=0.02)
+    assert float(np.sum(state.mass * state.v[:, 0])) == pytest.approx(momentum, rel=1e-9, abs=1e-15)
+
+
+def test_sliding_disc_ends_rolling_at_five_sevenths_after_predicted_time(small_case):
+    """Sphere inertia: slip stops after 2 v0 / (7 mu g) at v = 5/7 v0."""
+    mu, v0 = 0.4, 0.3
+    case = small_case.replace(friction=mu, size_scale=1.0)
+    state = State.at_rest([[0.05, RADIUS - 1e-12]], [RADIUS], DENSITY)
+    state.v[0, 0] = v0
+    law, dt = ContactLaw.from_case(case), case.time_step
+    t_roll = 2 * v0 / (7 * mu * GRAVITY)
+    chunk = 20
+    times, slip, speed = [], [], []
+    while state.steps * dt < 1.5 * t_roll:
+        run(state, law, FREE, BIG_BOX, dt, chunk)
+        times.append(state.steps * dt)
+        slip.append(state.v[0, 0] + state.spin[0] * RADIUS)
+        speed.append(state.v[0, 0])
+    slip = np.abs(np.array(slip))
+    t_stop = times[int(np.argmax(slip < 1e-3 * v0))]
+    assert t_stop == pytest.approx(t_roll, rel=0.03)
+    assert speed[-1] == pytest.approx(5 / 7 * v0, rel=0.03)
+
+
+def test_energy_is_conserved_without_damping_or_friction(small_case):
+    """e = 1, mu = 0: kinetic + potential + spring energy stays within 1% over a collapse."""
+    packing = settle_column(small_case)
+    elastic = small_case.replace(restitution=1.0, friction=0.0)
+    state = state_from_packing(elastic, packing)
+    law, walls = ContactLaw.from_case(elastic), walls_open(elastic)
+    energy = [mechanical_energy(state, law, walls)]
+    steps = math.ceil(0.25 * elastic.t_star / elastic.time_step)
+    for _ in range(8):  # 2 t*: the column falls and spreads
+        run(state, law, walls, blowup_box(elastic), elastic.time_step, steps)
+        energy.append(mechanical_energy(state, law, walls))
+    drop = energy[0] - min(float(np.min(state.x[:, 1])), 0.0)
+    kinetic_peak = state.kinetic_energy()
+    assert kinetic_peak > 0.01 * abs(energy[0])  # it really moved
+    assert np.max(np.abs(np.array(energy) - energy[0])) < 0.01 * abs(energy[0]), drop
+
+
+def test_settled_column_stays_at_rest_behind_gate(small_case):
+    packing = settle_column(small_case)
+    state = state_from_packing(small_case, packing)
+    frames, _ = record(state, ContactLaw.from_case(small_case), walls_with_gate(small_case),
+                       blowup_box(small_case), small_case.time_step, small_case.t_star, 3)
+    moved = np.linalg.norm(frames[-1] - frames[0], axis=1) / small_case.diameter
+    # restarting from the stored packing resets the tangential springs: a few grains re-seat once
+    assert np.percentile(moved, 99) < 0.005 and moved.max() < 0.05
+    assert np.max(np.linalg.norm(frames[2] - frames[1], axis=1)) < 0.005 * small_case.diameter
+    assert packing.attrs["settled_height"] == pytest.approx(small_case.initial_height, rel=0.25)
+
+
+def test_runout_grows_monotonically_to_plateau_and_friction_shortens_it(small_case):
+    finals = {}
+    for mu in (0.3, 0.9):
+        case = small_case.replace(friction=mu, duration_over_tstar=6.0, size_scale=2.0)
+        t, runout = runout_curve(simulate_collapse(case))
+        finals[mu] = runout[-1]
+        if mu == 0.9:
+            # monotone up to the jitter of the 8 leading grains, then a plateau. (At mu = 0.3 the
+            # front keeps creeping: discs roll freely on a smooth floor without rolling resistance.)
+            assert np.all(np.maximum.accumulate(runout) - runout <= 0.10 * runout[-1])
+            assert np.all(np.diff(runout[t <= 2.0]) > 0)  # the collapse itself is strictly monotone
+            late = runout[t >= 5.0]
+            assert np.ptp(late) < 0.10 * runout[-1]
+    assert finals[0.3] > 1.1 * finals[0.9]
+
+
+def test_same_seed_same_result_bit_for_bit(small_case):
+    case = small_case.replace(duration_over_tstar=1.0)
+    first, second = simulate_collapse(case), simulate_collapse(case)
+    assert np.array_equal(first.positions, second.positions)
+    other = simulate_collapse(case.replace(seed=4))
+    assert not np.array_equal(first.positions[-1], other.positions[-1])
+
+
+def test_blow_up_is_reported_with_case_and_step(small_case):
+    state = State.at_rest([[0.5, 0.5], [0.5 + RADIUS, 0.5]], [RADIUS, RADIUS], DENSITY)  # 50% overlap
+    with pytest.raises(SimulationError, match=r"case small.*step 0.*overlap"):
+        run(state, ContactLaw.from_case(small_case), FREE, BIG_BOX, 1e-7, 10, label="case small")
+    state = State.at_rest([[0.5, 0.5]], [RADIUS], DENSITY)
+    state.v[0, 0] = np.nan
+    with pytest.raises(SimulationError, match="non-finite"):
+        run(state, ContactLaw.from_case(small_case), FREE, BIG_BOX, 1e-7, 10)
+    state = State.at_rest([[0.5, 0.5]], [RADIUS], DENSITY)
+    state.v[0, 1] = 1e3
+    with pytest.raises(SimulationError, match="left the box"):
+        run(state, ContactLaw.from_case(small_case), FREE, (0, 1, 0, 1), 1e-5, 1000, gravity=0.0)
