@@ -87,6 +87,13 @@ class CollapseCase:
     tangential_stiffness_ratio: float = 2.0 / 7.0
     tangential_damping_ratio: float = 0.5
     dt_over_contact_time: float = 1.0 / 50.0
+    # Candidate mechanisms beyond the paper's model, each off by default (see README):
+    rolling_friction: float = 0.0        # mu_r of a type-C (EPSD2) rolling resistance
+    cohesion_energy: float = 0.0         # w (J/m^2): pull-off force 1.5 pi w R* while in contact
+    friction_base: float | None = None   # floor friction; None: follows wall_friction
+    sidewall_friction: float = 0.0       # mu of the front/back walls of a quasi-2D channel
+    channel_width: float = 0.01          # m, width of that channel (used when sidewall_friction > 0)
+    gate_lift_speed: float = 0.0         # m/s of the gate's lower edge; 0: the gate vanishes at t = 0
     duration_over_tstar: float = 4.0     # simulated collapse time in units of t*
     output_interval: float | None = None # s between output frames; None: t* / 25
     name: str = field(default="", compare=False)
@@ -100,8 +107,9 @@ class CollapseCase:
             _check_finite(key, getattr(self, key))
             if getattr(self, key) <= 0:
                 raise CaseError(f"{key} must be positive, got {getattr(self, key)}")
-        for key in ("friction", "friction_wall", "tangential_damping_ratio", "polydispersity"):
-            if key == "friction_wall" and self.friction_wall is None:
+        for key in ("friction", "friction_wall", "friction_base", "tangential_damping_ratio", "polydispersity",
+                    "rolling_friction", "cohesion_energy", "sidewall_friction", "gate_lift_speed"):
+            if getattr(self, key) is None:
                 continue
             _check_finite(key, getattr(self, key))
             if getattr(self, key) < 0:
@@ -113,6 +121,9 @@ class CollapseCase:
             _check_finite(key, value)
             if not 0 < value <= 1:
                 raise CaseError(f"{key} must lie in (0, 1], got {value}")
+        _check_finite("channel_width", self.channel_width)
+        if self.channel_width < self.diameter:
+            raise CaseError(f"channel_width = {self.channel_width} m is narrower than a grain ({self.diameter:.3g} m)")
         if self.polydispersity >= 0.5:
             raise CaseError(f"polydispersity must be below 0.5, got {self.polydispersity}")
         if self.dt_over_contact_time > MAX_DT_OVER_CONTACT_TIME:
@@ -138,6 +149,11 @@ class CollapseCase:
     @property
     def wall_friction(self) -> float:
         return self.friction if self.friction_wall is None else self.friction_wall
+
+    @property
+    def base_friction(self) -> float:
+        """Friction of the floor (basal friction)."""
+        return self.wall_friction if self.friction_base is None else self.friction_base
 
     @property
     def wall_restitution(self) -> float:
@@ -215,6 +231,7 @@ class CollapseCase:
                    L_i=self.column_length, H_i=self.initial_height, t_star=self.t_star,
                    diameter=self.diameter, time_step=self.time_step,
                    friction_wall=self.wall_friction, restitution_wall=self.wall_restitution,
+                   friction_base=self.base_friction,
                    output_interval=self.frame_interval)
         return out
 

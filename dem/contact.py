@@ -53,3 +53,29 @@ def tangential_force(spring, tangential_speed, dt, kt, eta_t, friction, normal_f
             spring = math.copysign(limit / kt, spring)
         return -kt * spring, spring
     return -kt * spring - eta_t * tangential_speed, spring
+
+
+@nb.njit(inline="always", fastmath=FAST_MATH, cache=True)
+def cohesion_force(work_of_adhesion, r_eff):
+    """Attractive force (N) while in contact: the JKR pull-off force 1.5 pi w R*.
+
+    A constant attraction on top of the linear spring: a pair (or a grain on a wall) held by it
+    separates only when pulled harder than 1.5 pi w R*, the JKR pull-off force.
+    """
+    return 1.5 * math.pi * work_of_adhesion * r_eff
+
+
+@nb.njit(inline="always", fastmath=FAST_MATH, cache=True)
+def rolling_torque(torque, relative_spin, dt, kn, rolling_friction, r_eff, normal_force_magnitude):
+    """Type-C elastic-plastic rolling resistance (EPSD2, as LIGGGHTS `rolling_friction epsd2`).
+
+    A rotational spring kr = 2.25 kn mu_r^2 R*^2 loaded by the relative rotation, capped at
+    mu_r R* |Fn|. Returns the new torque (N m) on the first body (the second gets minus it).
+    relative_spin = spin_i - spin_j (rad/s).
+    """
+    kr = 2.25 * kn * rolling_friction * rolling_friction * r_eff * r_eff
+    torque = torque - kr * relative_spin * dt
+    limit = rolling_friction * r_eff * abs(normal_force_magnitude)
+    if abs(torque) > limit:
+        torque = math.copysign(limit, torque)
+    return torque

@@ -1,6 +1,6 @@
 """The builtin engine's time stepping: forces from the contact law, symplectic Euler steps.
 
-State is plain arrays (positions, velocities, spins, pair list with spring history). One call of
+State is plain arrays (positions, velocities, spins, pair list with contact history). One call of
 `advance` runs many small steps in compiled code and returns a status, so the Python driver only
 runs between output frames: it records frames, checks for blow-up and reports progress.
 
@@ -17,7 +17,8 @@ import numba as nb
 import numpy as np
 
 from dem.case import GRAVITY, CollapseCase
-from dem.contact import FAST_MATH, normal_damping, normal_force, restitution_factor, tangential_force
+from dem.contact import (FAST_MATH, cohesion_force, normal_damping, normal_force, restitution_factor,
+                         rolling_torque, tangential_force)
 from dem.neighbours import build_pairs, default_skin, empty_pairs
 
 # status codes from `advance`
@@ -30,6 +31,10 @@ class SimulationError(RuntimeError):
     """The run blew up; the message names the case and the step."""
 
 
+# Indices into the contact-law array the compiled kernel takes.
+KN, KT, ETA_RATIO, E_FACTOR, E_FACTOR_WALL, MU, MU_WALL, MU_BASE, MU_ROLL, ADHESION, SIDEWALL = range(11)
+
+
 @dataclass
 class ContactLaw:
     """Contact parameters as the compiled kernel takes them (SI units)."""
@@ -40,7 +45,11 @@ class ContactLaw:
     restitution_factor: float        # particle-particle, see dem.contact.restitution_factor
     restitution_factor_wall: float
     friction: float
-    friction_wall: float
+    friction_wall: float             # left, right walls and gate
+    friction_base: float = -1.0      # floor; < 0: same as friction_wall
+    rolling_friction: float = 0.0    # EPSD2 mu_r, pairs and walls
+    cohesion_energy: float = 0.0     # work of adhesion w (J/m^2)
+    sidewall_friction_per_width: float = 0.0  # mu_sw / channel width (1/m)
 
     @classmethod
     def from_case(cls, case: CollapseCase) -> "ContactLaw":
@@ -48,16 +57,25 @@ class ContactLaw:
                    tangential_damping_ratio=case.tangential_damping_ratio,
                    restitution_factor=restitution_factor(case.restitution),
                    restitution_factor_wall=restitution_factor(case.wall_restitution),
-                   friction=case.friction, friction_wall=case.wall_friction)
+                   friction=case.friction, friction_wall=case.wall_friction, friction_base=case.base_friction,
+                   rolling_friction=case.rolling_friction, cohesion_energy=case.cohesion_energy,
+                   sidewall_friction_per_width=case.sidewall_friction / case.channel_width)
 
     def as_array(self) -> np.ndarray:
+        base = self.friction_wall if self.friction_base < 0 else self.friction_base
         return np.array([self.kn, self.kt, self.tangential_damping_ratio, self.restitution_factor,
-                         self.restitution_factor_wall, self.friction, self.friction_wall])
+                         self.restitution_factor_wall, self.friction, self.friction_wall, base,
+                         self.rolling_friction, self.cohesion_energy, self.sidewall_friction_per_width])
 
 
 @dataclass
 class State:
-    """Grains: x [N, 2] (m), v [N, 2] (m/s), spin [N] (rad/s), radius [N] (m), mass [N] (kg)."""
+    """Grains: x [N, 2] (m), v [N, 2] (m/s), spin [N] (rad/s), radius [N] (m), mass [N] (kg).
+
+    Contact history: pairs = (start, partner, history [M, 2]) and wall_history [N, N_WALLS, 2],
+    column 0 the tangential spring (m), column 1 the rolling torque (N m).
+    time (s) counts from the gate's release.
+    """
 
     x: np.ndarray
     v: np.ndarray
@@ -65,9 +83,10 @@ class State:
     radius: np.ndarray
     mass: np.ndarray
     skin: float = 0.0
-    pairs: tuple = field(default_factory=empty_pairs)   # (start, partner, spring)
-    wall_spring: np.ndarray | None = None               # [N, N_WALLS] (m)
+    pairs: tuple = field(default_factory=empty_pairs)
+    wall_history: np.ndarray | None = None
     x_built: np.ndarray | None = None
+    time: float = 0.0
     steps: int = 0
     rebuilds: int = 0
 
@@ -78,7 +97,7 @@ class State:
         n = len(radius)
         return cls(x=positions.copy(), v=np.zeros((n, 2)), spin=np.zeros(n), radius=radius,
                    mass=density * math.pi * (2 * radius) ** 3 / 6.0, skin=default_skin(radius),
-                   wall_spring=np.zeros((n, N_WALLS)))
+                   wall_history=np.zeros((n, N_WALLS, 2)))
 
     @property
     def inertia(self) -> np.ndarray:
@@ -89,28 +108,38 @@ class State:
 
 
 @nb.njit(inline="always", fastmath=FAST_MATH, cache=True)
-def _wall_contact(overlap, nx, ny, vx, vy, spin, r, spring, dt, kn, kt, eta_ratio, mass, ce, mu):
-    """Force (fx, fy) on a grain, torque (N m) and new spring for a wall whose outward normal
-    from the grain is (nx, ny). Walls are static and infinitely heavy: m_eff = m."""
-    eta_n = normal_damping(mass, kn, ce)
-    fn = normal_force(overlap, vx * nx + vy * ny, kn, eta_n)
-    tx, ty = -ny, nx
-    ft, spring = tangential_force(spring, vx * tx + vy * ty + spin * r, dt, kt, eta_ratio * eta_n, mu, fn)
-    return -fn * nx + ft * tx, -fn * ny + ft * ty, r * ft, spring
+def _contact(overlap, nx, ny, rvx, rvy, slip, spin_rel, r_eff, m_eff, history, k, dt, law, ce, mu):
+    """Force (fx, fy) on the first body, its tangential force and the rolling torque on it, for
+    a contact with unit normal (nx, ny) from the first body to the second; updates history[k]."""
+    kn = law[KN]
+    eta_n = normal_damping(m_eff, kn, ce)
+    fn = normal_force(overlap, rvx * nx + rvy * ny, kn, eta_n)
+    if law[ADHESION] > 0.0:
+        fn -= cohesion_force(law[ADHESION], r_eff)
+    ft, history[k, 0] = tangential_force(history[k, 0], slip, dt, law[KT], law[ETA_RATIO] * eta_n, mu, fn)
+    roll = 0.0
+    if law[MU_ROLL] > 0.0:
+        roll = rolling_torque(history[k, 1], spin_rel, dt, kn, law[MU_ROLL], r_eff, fn)
+        history[k, 1] = roll
+    return -fn * nx + ft * (-ny), -fn * ny + ft * nx, ft, roll, abs(fn)
 
 
 @nb.njit(fastmath=FAST_MATH, cache=True)
-def _forces(x, v, spin, radius, mass, start, partner, spring, wall_spring, law, walls, dt, gravity,
-            force, torque):
-    """Fill force [N, 2] (N) and torque [N] (N m); update springs. Returns max overlap / diameter."""
-    kn, kt, eta_ratio, ce, ce_wall, mu, mu_wall = law[0], law[1], law[2], law[3], law[4], law[5], law[6]
-    x_left, x_right, y_floor, x_gate = walls[0], walls[1], walls[2], walls[3]
+def _forces(x, v, spin, radius, mass, start, partner, history, wall_history, law, walls, time, dt, gravity,
+            force, torque, load):
+    """Fill force [N, 2] (N), torque [N] (N m) and contact load [N] (sum of |Fn|, N); update the
+    contact history. walls = (x_left, x_right, y_floor, x_gate, gate_lift_speed).
+    Returns the largest overlap / diameter."""
+    x_left, x_right, y_floor, x_gate, gate_speed = walls[0], walls[1], walls[2], walls[3], walls[4]
+    # the gate's lower edge rises at gate_speed from the floor; grains below it are free
+    gate_bottom = gate_speed * time if gate_speed > 0.0 else -np.inf
     n = x.shape[0]
     worst = 0.0
     for i in range(n):
         force[i, 0] = 0.0
         force[i, 1] = -mass[i] * gravity
         torque[i] = 0.0
+        load[i] = 0.0
     for i in range(n):
         xi, yi, ri = x[i, 0], x[i, 1], radius[i]
         for k in range(start[i], start[i + 1]):
@@ -120,73 +149,89 @@ def _forces(x, v, spin, radius, mass, start, partner, spring, wall_spring, law, 
             reach = ri + radius[j]
             dist2 = dx * dx + dy * dy
             if dist2 >= reach * reach:
-                spring[k] = 0.0  # out of contact: the history is forgotten
+                history[k, 0] = 0.0  # out of contact: the history is forgotten
+                history[k, 1] = 0.0
                 continue
             dist = math.sqrt(dist2)
             nx, ny = dx / dist, dy / dist            # unit normal from i to j
-            tx, ty = -ny, nx
             overlap = reach - dist
             worst = max(worst, overlap / (2.0 * min(ri, radius[j])))
             rvx = v[i, 0] - v[j, 0]
             rvy = v[i, 1] - v[j, 1]
-            m_eff = mass[i] * mass[j] / (mass[i] + mass[j])
-            eta_n = normal_damping(m_eff, kn, ce)
-            fn = normal_force(overlap, rvx * nx + rvy * ny, kn, eta_n)
-            slip = rvx * tx + rvy * ty + spin[i] * ri + spin[j] * radius[j]
-            ft, spring[k] = tangential_force(spring[k], slip, dt, kt, eta_ratio * eta_n, mu, fn)
-            fx = -fn * nx + ft * tx
-            fy = -fn * ny + ft * ty
+            slip = rvx * (-ny) + rvy * nx + spin[i] * ri + spin[j] * radius[j]
+            fx, fy, ft, roll, fn = _contact(overlap, nx, ny, rvx, rvy, slip, spin[i] - spin[j],
+                                            ri * radius[j] / reach, mass[i] * mass[j] / (mass[i] + mass[j]),
+                                            history, k, dt, law, law[E_FACTOR], law[MU])
             force[i, 0] += fx
             force[i, 1] += fy
             force[j, 0] -= fx
             force[j, 1] -= fy
-            torque[i] += ri * ft
-            torque[j] += radius[j] * ft
-        # walls: left, right, floor, gate (gate at +inf once removed)
-        for w in range(4):
+            torque[i] += ri * ft + roll
+            torque[j] += radius[j] * ft - roll
+            load[i] += fn
+            load[j] += fn
+        # walls: left, right, floor, gate (x_gate = +inf once removed); m_eff = m, R* = r
+        wall_k = wall_history[i]
+        for w in range(N_WALLS):
+            mu = law[MU_WALL]
             if w == 0:
                 overlap, nx, ny = ri - (xi - x_left), -1.0, 0.0
             elif w == 1:
                 overlap, nx, ny = ri - (x_right - xi), 1.0, 0.0
             elif w == 2:
                 overlap, nx, ny = ri - (yi - y_floor), 0.0, -1.0
+                mu = law[MU_BASE]
             else:
                 overlap, nx, ny = ri - (x_gate - xi), 1.0, 0.0
+                if yi < gate_bottom:
+                    overlap = 0.0
             if overlap <= 0.0:
-                wall_spring[i, w] = 0.0
+                wall_k[w, 0] = 0.0
+                wall_k[w, 1] = 0.0
                 continue
             worst = max(worst, overlap / (2.0 * ri))
-            fx, fy, tq, wall_spring[i, w] = _wall_contact(overlap, nx, ny, v[i, 0], v[i, 1], spin[i], ri,
-                                                          wall_spring[i, w], dt, kn, kt, eta_ratio,
-                                                          mass[i], ce_wall, mu_wall)
+            slip = v[i, 0] * (-ny) + v[i, 1] * nx + spin[i] * ri
+            fx, fy, ft, roll, fn = _contact(overlap, nx, ny, v[i, 0], v[i, 1], slip, spin[i], ri, mass[i],
+                                            wall_k, w, dt, law, law[E_FACTOR_WALL], mu)
             force[i, 0] += fx
             force[i, 1] += fy
-            torque[i] += tq
+            torque[i] += ri * ft + roll
+            load[i] += fn
+    # side walls of a quasi-2D channel: Coulomb friction against the motion, loaded in proportion
+    # to the grain's contact load and its share d / W of the channel width
+    if law[SIDEWALL] > 0.0:
+        v_reg = 1e-3 * math.sqrt(gravity * radius[0])  # regularises the direction at rest
+        for i in range(n):
+            speed = math.sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1])
+            drag = law[SIDEWALL] * 2.0 * radius[i] * load[i] / max(speed, v_reg)
+            force[i, 0] -= drag * v[i, 0]
+            force[i, 1] -= drag * v[i, 1]
     return worst
 
 
 @nb.njit(fastmath=FAST_MATH, cache=True)
-def advance(x, v, spin, radius, mass, x_built, skin, start, partner, spring, wall_spring, law, walls,
-            box, dt, n_steps, gravity):
-    """Run up to n_steps symplectic Euler steps (kick, then drift).
+def advance(x, v, spin, radius, mass, x_built, skin, start, partner, history, wall_history, law, walls,
+            box, time, dt, n_steps, gravity):
+    """Run up to n_steps symplectic Euler steps (kick, then drift) from `time` (s).
 
-    Returns (status, steps_done, start, partner, spring, rebuilds, worst_overlap_ratio); the pair
+    Returns (status, steps_done, start, partner, history, rebuilds, worst_overlap_ratio); the pair
     list is returned because a rebuild replaces it.
     """
     n = x.shape[0]
     force = np.empty((n, 2))
     torque = np.empty(n)
+    load = np.empty(n)
     inv_mass = 1.0 / mass
     inv_inertia = 1.0 / (0.4 * mass * radius * radius)
     rebuilds = 0
     worst_all = 0.0
     half_skin2 = 0.25 * skin * skin
     for step in range(n_steps):
-        worst = _forces(x, v, spin, radius, mass, start, partner, spring, wall_spring, law, walls, dt,
-                        gravity, force, torque)
+        worst = _forces(x, v, spin, radius, mass, start, partner, history, wall_history, law, walls,
+                        time + step * dt, dt, gravity, force, torque, load)
         worst_all = max(worst_all, worst)
         if worst > MAX_OVERLAP_RATIO:
-            return 2, step, start, partner, spring, rebuilds, worst_all
+            return 2, step, start, partner, history, rebuilds, worst_all
         rebuild = False
         for i in range(n):
             v[i, 0] += force[i, 0] * inv_mass[i] * dt
@@ -201,13 +246,13 @@ def advance(x, v, spin, radius, mass, x_built, skin, start, partner, spring, wal
         if rebuild:
             for i in range(n):
                 if not (math.isfinite(x[i, 0]) and math.isfinite(x[i, 1])):
-                    return 1, step + 1, start, partner, spring, rebuilds, worst_all
+                    return 1, step + 1, start, partner, history, rebuilds, worst_all
                 if (x[i, 0] < box[0] or x[i, 0] > box[1] or x[i, 1] < box[2] or x[i, 1] > box[3]):
-                    return 3, step + 1, start, partner, spring, rebuilds, worst_all
-            start, partner, spring = build_pairs(x, radius, skin, start, partner, spring)
+                    return 3, step + 1, start, partner, history, rebuilds, worst_all
+            start, partner, history = build_pairs(x, radius, skin, start, partner, history)
             x_built[:, :] = x
             rebuilds += 1
-    return 0, n_steps, start, partner, spring, rebuilds, worst_all
+    return 0, n_steps, start, partner, history, rebuilds, worst_all
 
 
 STATUS_TEXT = {NON_FINITE: "non-finite position", OVERLAP: f"overlap beyond {MAX_OVERLAP_RATIO} of a diameter",
@@ -216,18 +261,21 @@ STATUS_TEXT = {NON_FINITE: "non-finite position", OVERLAP: f"overlap beyond {MAX
 
 def run(state: State, law: ContactLaw, walls, box, dt: float, n_steps: int, label: str = "",
         gravity: float = GRAVITY) -> None:
-    """Advance `state` by n_steps of dt (s). walls = (x_left, x_right, y_floor, x_gate) (m);
+    """Advance `state` by n_steps of dt (s). walls = (x_left, x_right, y_floor, x_gate (m)
+    [, gate_lift_speed (m/s), 0 when absent]);
     box = (x_min, x_max, y_min, y_max) (m) outside which a grain means blow-up.
     Raises SimulationError naming `label` and the step."""
     if state.x_built is None:
         state.pairs = build_pairs(state.x, state.radius, state.skin, *state.pairs)
         state.x_built = state.x.copy()
-    status, done, start, partner, spring, rebuilds, worst = advance(
+    walls = np.array(tuple(walls) + (0.0,) * (5 - len(walls)), np.float64)
+    status, done, start, partner, history, rebuilds, worst = advance(
         state.x, state.v, state.spin, state.radius, state.mass, state.x_built, state.skin, *state.pairs,
-        state.wall_spring, law.as_array(), np.asarray(walls, np.float64), np.asarray(box, np.float64),
+        state.wall_history, law.as_array(), walls, np.asarray(box, np.float64), float(state.time),
         float(dt), int(n_steps), float(gravity))
-    state.pairs = (start, partner, spring)
+    state.pairs = (start, partner, history)
     state.steps += done
+    state.time += done * dt
     state.rebuilds += rebuilds
     if status != OK:
         raise SimulationError(f"{label or 'simulation'}: blew up at step {state.steps} "
@@ -282,7 +330,7 @@ def mechanical_energy(state: State, law: ContactLaw, walls, gravity: float = GRA
     if len(pairs):
         gap = np.linalg.norm(x[pairs[:, 0]] - x[pairs[:, 1]], axis=1) - r[pairs[:, 0]] - r[pairs[:, 1]]
         energy += 0.5 * law.kn * float(np.sum(np.minimum(gap, 0.0) ** 2))
-    x_left, x_right, y_floor, x_gate = walls
+    x_left, x_right, y_floor, x_gate = walls[:4]
     for gap in (x[:, 0] - x_left - r, x_right - x[:, 0] - r, x[:, 1] - y_floor - r, x_gate - x[:, 0] - r):
         energy += 0.5 * law.kn * float(np.sum(np.minimum(gap, 0.0) ** 2))
     return energy

@@ -1,4 +1,4 @@
-"""Verlet pair list built with a cell list; tangential-spring history carried across rebuilds.
+"""Verlet pair list built with a cell list; contact history carried across rebuilds.
 
 The list holds each pair (i, j > i) once whose gap is below `skin`, in CSR form:
 partners of i are partner[start[i]:start[i + 1]]. It stays valid until some grain has moved more
@@ -13,11 +13,11 @@ import numpy as np
 
 
 @nb.njit(cache=True)
-def build_pairs(x, radius, skin, old_start, old_partner, old_spring):
-    """New CSR pair list (start [N+1], partner [M]) and spring [M] carried from the old list.
+def build_pairs(x, radius, skin, old_start, old_partner, old_history):
+    """New CSR pair list (start [N+1], partner [M]) and history [M, H] carried from the old list.
 
     x [N, 2] positions (m), radius [N] (m), skin (m); old_* the previous list (empty arrays when
-    none). A pair absent from the old list starts with a relaxed spring.
+    none). A pair absent from the old list starts with relaxed springs (zero history).
     """
     n = x.shape[0]
     r_max = radius.max()
@@ -67,21 +67,24 @@ def build_pairs(x, radius, skin, old_start, old_partner, old_spring):
                             else:
                                 partner[cursor[i]] = j
                                 cursor[i] += 1
-    # carry the tangential springs of pairs that were already listed
-    spring = np.zeros(partner.shape[0])
+    # carry the history of pairs that were already listed
+    history = np.zeros((partner.shape[0], old_history.shape[1]))
     if old_start.shape[0] == n + 1:
         for i in range(n):
             for k in range(start[i], start[i + 1]):
                 for m in range(old_start[i], old_start[i + 1]):
                     if old_partner[m] == partner[k]:
-                        spring[k] = old_spring[m]
+                        history[k, :] = old_history[m, :]
                         break
-    return start, partner, spring
+    return start, partner, history
+
+
+HISTORY_WIDTH = 2  # tangential spring (m), rolling torque (N m)
 
 
 def empty_pairs():
     """An empty old list for the first build."""
-    return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, HISTORY_WIDTH))
 
 
 def default_skin(radius) -> float:

@@ -64,6 +64,9 @@ def walls_with_gate(case: CollapseCase) -> tuple:
 
 
 def walls_open(case: CollapseCase) -> tuple:
+    """Walls from t = 0: the gate is gone, or its lower edge rises at case.gate_lift_speed (m/s)."""
+    if case.gate_lift_speed > 0:
+        return (0.0, case.box_width, 0.0, case.column_length, case.gate_lift_speed)
     return (0.0, case.box_width, 0.0, math.inf)
 
 

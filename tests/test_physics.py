@@ -86,7 +86,9 @@ def test_settled_column_stays_at_rest_behind_gate(small_case):
     moved = np.linalg.norm(frames[-1] - frames[0], axis=1) / small_case.diameter
     # restarting from the stored packing resets the tangential springs: a few grains re-seat once
     assert np.percentile(moved, 99) < 0.005 and moved.max() < 0.05
-    assert np.max(np.linalg.norm(frames[2] - frames[1], axis=1)) < 0.005 * small_case.diameter
+    # and then nothing flows: a lone rattler in a pore may still twitch
+    late = np.linalg.norm(frames[2] - frames[1], axis=1) / small_case.diameter
+    assert np.percentile(late, 99) < 0.001 and late.max() < 0.02
     assert packing.attrs["settled_height"] == pytest.approx(small_case.initial_height, rel=0.25)
 
 

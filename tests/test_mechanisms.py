@@ -1,0 +1,101 @@
+"""The candidate mechanisms beyond the paper's model, each against a known answer."""
+import math
+
+import numpy as np
+import pytest
+
+from dem.case import GRAVITY, CollapseCase
+from dem.collapse import simulate_collapse
+from dem.integrate import ContactLaw, State, run
+
+RADIUS = 212.5e-6
+DENSITY = 2650.0
+FLOOR_ONLY = (-1.0, 2.0, 0.0, math.inf)
+BIG_BOX = (-2.0, 3.0, -1.0, 2.0)
+
+
+def case_with(**changes):
+    return CollapseCase("quartz", 0.02, 1.0, friction=0.5, restitution=0.5, **changes)
+
+
+def grain_on_floor():
+    """A grain resting on the floor with its weight on the spring."""
+    mass = DENSITY * math.pi * (2 * RADIUS) ** 3 / 6
+    return State.at_rest([[0.1, RADIUS - mass * GRAVITY / 1000.0]], [RADIUS], DENSITY)
+
+
+def travel_until_stopped(state, law, dt, max_time, chunk=50):
+    x0 = state.x[0, 0]
+    while state.time < max_time:
+        run(state, law, FLOOR_ONLY, BIG_BOX, dt, chunk)
+        if abs(state.v[0, 0]) < 1e-4 and state.time > 1e-3:
+            break
+    return state.x[0, 0] - x0, state.time
+
+
+def test_rolling_resistance_stops_a_rolling_disc_at_predicted_distance():
+    """EPSD2 torque mu_r r m g on a disc rolling without slip: a = 5/7 mu_r g,
+    distance 7 v0^2 / (10 mu_r g)."""
+    mu_r, v0 = 0.1, 0.2
+    case = case_with(rolling_friction=mu_r)
+    state = grain_on_floor()
+    state.v[0, 0], state.spin[0] = v0, -v0 / RADIUS
+    distance, _ = travel_until_stopped(state, ContactLaw.from_case(case), case.time_step, 1.0)
+    assert distance == pytest.approx(7 * v0 ** 2 / (10 * mu_r * GRAVITY), rel=0.03)
+    # and without it the disc rolls on
+    free = grain_on_floor()
+    free.v[0, 0], free.spin[0] = v0, -v0 / RADIUS
+    run(free, ContactLaw.from_case(case_with()), FLOOR_ONLY, BIG_BOX, case.time_step, 20000)
+    assert free.v[0, 0] == pytest.approx(v0, rel=1e-3)
+
+
+@pytest.mark.parametrize("pull_over_pull_off, separates", [(0.9, False), (1.1, True)])
+def test_cohesive_grain_leaves_the_floor_only_above_jkr_pull_off(pull_over_pull_off, separates):
+    """Pull-off force 1.5 pi w R* (R* = r on a wall): a weaker pull holds, a stronger one lifts."""
+    w = 0.05  # J/m^2
+    case = case_with(cohesion_energy=w)
+    state = grain_on_floor()
+    pull_off = 1.5 * math.pi * w * RADIUS
+    pull_acceleration = pull_over_pull_off * pull_off / state.mass[0]
+    # "gravity" pointing up: a pull of pull_acceleration * m away from the floor
+    run(state, ContactLaw.from_case(case), FLOOR_ONLY, BIG_BOX, case.time_step, 20000,
+        gravity=-pull_acceleration)
+    lifted = state.x[0, 1] > 2 * RADIUS
+    assert lifted == separates
+
+
+def test_sidewall_friction_stops_a_sliding_grain_at_predicted_distance():
+    """Channel side walls: drag mu_sw (d / W) |Fn| against the motion; on a frictionless floor a
+    grain sliding at v0 stops after v0^2 / (2 mu_sw (d / W) g)."""
+    mu_sw, width, v0 = 0.5, 0.004, 0.1
+    case = case_with(friction_base=0.0, sidewall_friction=mu_sw, channel_width=width)
+    state = grain_on_floor()
+    state.v[0, 0] = v0
+    distance, _ = travel_until_stopped(state, ContactLaw.from_case(case), case.time_step, 1.0)
+    deceleration = mu_sw * (2 * RADIUS / width) * GRAVITY
+    assert distance == pytest.approx(v0 ** 2 / (2 * deceleration), rel=0.03)
+
+
+def test_basal_friction_is_the_floor_friction_alone():
+    """A sliding disc turns to rolling after 2 v0 / (7 mu_base g), whatever the other walls' mu."""
+    mu_base, v0 = 0.2, 0.3
+    case = case_with(friction_wall=0.8, friction_base=mu_base)
+    state = grain_on_floor()
+    state.v[0, 0] = v0
+    law, dt = ContactLaw.from_case(case), case.time_step
+    while abs(state.v[0, 0] + state.spin[0] * RADIUS) > 1e-3 * v0:
+        run(state, law, FLOOR_ONLY, BIG_BOX, dt, 10)
+    assert state.time == pytest.approx(2 * v0 / (7 * mu_base * GRAVITY), rel=0.03)
+
+
+def test_lifting_gate_lets_grains_out_from_below_only():
+    speed = 0.2  # m/s: the gate clears the 20 mm column in 0.1 s, about 2 t*
+    base = CollapseCase("quartz", 0.02, 1.0, 0.5, 0.65, size_scale=3.0, seed=1, duration_over_tstar=2.0)
+    lifted = simulate_collapse(base.replace(gate_lift_speed=speed))
+    L_i = base.column_length
+    for k, t in enumerate(lifted.times):
+        out = lifted.positions[k, :, 0] > L_i + lifted.radius
+        if out.any():  # they passed under the gate's lower edge and can only have fallen since
+            assert lifted.positions[k, out, 1].max() <= speed * t + 2 * lifted.radius.max()
+    instant = simulate_collapse(base)
+    assert lifted.positions[-1, :, 0].max() < instant.positions[-1, :, 0].max()
