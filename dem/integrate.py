@@ -108,20 +108,20 @@ class State:
 
 
 @nb.njit(inline="always", fastmath=FAST_MATH, cache=True)
-def _contact(overlap, nx, ny, rvx, rvy, slip, spin_rel, r_eff, m_eff, history, k, dt, law, ce, mu):
-    """Force (fx, fy) on the first body, its tangential force and the rolling torque on it, for
-    a contact with unit normal (nx, ny) from the first body to the second; updates history[k]."""
-    kn = law[KN]
+def _contact(overlap, nx, ny, rvx, rvy, slip, spin_rel, r_eff, m_eff, spring, roll, dt,
+             kn, kt, eta_ratio, ce, mu, mu_roll, adhesion):
+    """One contact with unit normal (nx, ny) from the first body to the second.
+
+    Returns force (fx, fy) on the first body, its tangential force, the rolling torque on it,
+    |Fn| and the new history (spring, roll)."""
     eta_n = normal_damping(m_eff, kn, ce)
     fn = normal_force(overlap, rvx * nx + rvy * ny, kn, eta_n)
-    if law[ADHESION] > 0.0:
-        fn -= cohesion_force(law[ADHESION], r_eff)
-    ft, history[k, 0] = tangential_force(history[k, 0], slip, dt, law[KT], law[ETA_RATIO] * eta_n, mu, fn)
-    roll = 0.0
-    if law[MU_ROLL] > 0.0:
-        roll = rolling_torque(history[k, 1], spin_rel, dt, kn, law[MU_ROLL], r_eff, fn)
-        history[k, 1] = roll
-    return -fn * nx + ft * (-ny), -fn * ny + ft * nx, ft, roll, abs(fn)
+    if adhesion > 0.0:
+        fn -= cohesion_force(adhesion, r_eff)
+    ft, spring = tangential_force(spring, slip, dt, kt, eta_ratio * eta_n, mu, fn)
+    if mu_roll > 0.0:
+        roll = rolling_torque(roll, spin_rel, dt, kn, mu_roll, r_eff, fn)
+    return -fn * nx - ft * ny, -fn * ny + ft * nx, ft, roll, abs(fn), spring
 
 
 @nb.njit(fastmath=FAST_MATH, cache=True)
@@ -130,6 +130,9 @@ def _forces(x, v, spin, radius, mass, start, partner, history, wall_history, law
     """Fill force [N, 2] (N), torque [N] (N m) and contact load [N] (sum of |Fn|, N); update the
     contact history. walls = (x_left, x_right, y_floor, x_gate, gate_lift_speed).
     Returns the largest overlap / diameter."""
+    # parameters as locals: the compiler cannot hoist reads of `law` past stores to `history`
+    kn, kt, eta_ratio, ce, ce_wall = law[KN], law[KT], law[ETA_RATIO], law[E_FACTOR], law[E_FACTOR_WALL]
+    mu, mu_wall, mu_base, mu_roll, adhesion = law[MU], law[MU_WALL], law[MU_BASE], law[MU_ROLL], law[ADHESION]
     x_left, x_right, y_floor, x_gate, gate_speed = walls[0], walls[1], walls[2], walls[3], walls[4]
     # the gate's lower edge rises at gate_speed from the floor; grains below it are free
     gate_bottom = gate_speed * time if gate_speed > 0.0 else -np.inf
@@ -159,9 +162,11 @@ def _forces(x, v, spin, radius, mass, start, partner, history, wall_history, law
             rvx = v[i, 0] - v[j, 0]
             rvy = v[i, 1] - v[j, 1]
             slip = rvx * (-ny) + rvy * nx + spin[i] * ri + spin[j] * radius[j]
-            fx, fy, ft, roll, fn = _contact(overlap, nx, ny, rvx, rvy, slip, spin[i] - spin[j],
-                                            ri * radius[j] / reach, mass[i] * mass[j] / (mass[i] + mass[j]),
-                                            history, k, dt, law, law[E_FACTOR], law[MU])
+            fx, fy, ft, roll, fn, history[k, 0] = _contact(
+                overlap, nx, ny, rvx, rvy, slip, spin[i] - spin[j], ri * radius[j] / reach,
+                mass[i] * mass[j] / (mass[i] + mass[j]), history[k, 0], history[k, 1], dt,
+                kn, kt, eta_ratio, ce, mu, mu_roll, adhesion)
+            history[k, 1] = roll
             force[i, 0] += fx
             force[i, 1] += fy
             force[j, 0] -= fx
@@ -171,28 +176,29 @@ def _forces(x, v, spin, radius, mass, start, partner, history, wall_history, law
             load[i] += fn
             load[j] += fn
         # walls: left, right, floor, gate (x_gate = +inf once removed); m_eff = m, R* = r
-        wall_k = wall_history[i]
         for w in range(N_WALLS):
-            mu = law[MU_WALL]
+            mu_w = mu_wall
             if w == 0:
                 overlap, nx, ny = ri - (xi - x_left), -1.0, 0.0
             elif w == 1:
                 overlap, nx, ny = ri - (x_right - xi), 1.0, 0.0
             elif w == 2:
                 overlap, nx, ny = ri - (yi - y_floor), 0.0, -1.0
-                mu = law[MU_BASE]
+                mu_w = mu_base
             else:
                 overlap, nx, ny = ri - (x_gate - xi), 1.0, 0.0
                 if yi < gate_bottom:
                     overlap = 0.0
             if overlap <= 0.0:
-                wall_k[w, 0] = 0.0
-                wall_k[w, 1] = 0.0
+                wall_history[i, w, 0] = 0.0
+                wall_history[i, w, 1] = 0.0
                 continue
             worst = max(worst, overlap / (2.0 * ri))
             slip = v[i, 0] * (-ny) + v[i, 1] * nx + spin[i] * ri
-            fx, fy, ft, roll, fn = _contact(overlap, nx, ny, v[i, 0], v[i, 1], slip, spin[i], ri, mass[i],
-                                            wall_k, w, dt, law, law[E_FACTOR_WALL], mu)
+            fx, fy, ft, roll, fn, wall_history[i, w, 0] = _contact(
+                overlap, nx, ny, v[i, 0], v[i, 1], slip, spin[i], ri, mass[i], wall_history[i, w, 0],
+                wall_history[i, w, 1], dt, kn, kt, eta_ratio, ce_wall, mu_w, mu_roll, adhesion)
+            wall_history[i, w, 1] = roll
             force[i, 0] += fx
             force[i, 1] += fy
             torque[i] += ri * ft + roll
