@@ -4,8 +4,9 @@ State is plain arrays (positions, velocities, spins, pair list with contact hist
 `advance` runs many small steps in compiled code and returns a status, so the Python driver only
 runs between output frames: it records frames, checks for blow-up and reports progress.
 
-Discs move in 2D but carry sphere mass m = rho pi d^3 / 6 and inertia 2/5 m r^2, as MFIX 2D DEM
-and LIGGGHTS `enforce2d` do.
+Grains move in 2D but carry sphere mass m = rho pi d^3 / 6 and inertia 2/5 m r^2, as in MFIX 2D
+DEM (spheres in a one-diameter-deep domain). LIGGGHTS `enforce2d` would give disc inertia, so the
+LIGGGHTS engine runs one layer of spheres instead (dem/engines/liggghts.py).
 """
 from __future__ import annotations
 

@@ -1,0 +1,61 @@
+"""DEM engines behind one interface (dem.engines.base.Engine): builtin, LIGGGHTS, MFIX.
+
+    engine = get_engine(config["dem"]["engine"], config["dem"])   # "auto" | "builtin" | "liggghts" | "mfix"
+    trajectory = engine.simulate(case, packing, work_dir, output="case.h5")
+
+`config` is the `dem` section of the workflow config; solver paths are configurable under
+`solvers`, e.g. {"solvers": {"liggghts": "/usr/bin/liggghts", "mfix": "/opt/mfix/mfixsolver"}};
+a solver not configured is looked up on PATH. `auto` picks MFIX where its solver is found, else
+LIGGGHTS, else the builtin engine, and logs which and why.
+"""
+from __future__ import annotations
+
+import logging
+
+from dem.engines.base import Engine, EngineError, EngineNotInstalled
+from dem.engines.builtin import BuiltinEngine
+from dem.engines.liggghts import LiggghtsEngine
+from dem.engines.mfix import MfixEngine
+
+log = logging.getLogger(__name__)
+
+ENGINES = {"builtin": BuiltinEngine, "liggghts": LiggghtsEngine, "mfix": MfixEngine}
+AUTO_ORDER = ("mfix", "liggghts", "builtin")
+
+__all__ = ["ENGINES", "Engine", "EngineError", "EngineNotInstalled", "get_engine", "solver_paths"]
+
+
+def solver_paths(config) -> dict:
+    """{engine name: solver path} from config['solvers'] (missing: {}); unknown names are an error."""
+    solvers = dict((config or {}).get("solvers") or {})
+    unknown = set(solvers) - set(ENGINES) - {"builtin"}
+    if unknown:
+        raise EngineError(f"dem.solvers: unknown engine(s) {sorted(unknown)}; known: {sorted(ENGINES)}")
+    for name, path in solvers.items():
+        if path is not None and not isinstance(path, str):
+            raise EngineError(f"dem.solvers.{name}: expected a path (string), got {path!r}")
+    return solvers
+
+
+def get_engine(name: str = "auto", config=None) -> Engine:
+    """The engine `name` ("auto", "builtin", "liggghts", "mfix"), solver paths from config['solvers'].
+
+    A named solver engine that is not installed raises EngineNotInstalled saying how to install it.
+    """
+    solvers = solver_paths(config)
+    if name == "auto":
+        reasons = []
+        for candidate in AUTO_ORDER:
+            engine = ENGINES[candidate](solvers.get(candidate))
+            ok, why = engine.availability()
+            reasons.append(why)
+            if ok:
+                log.info("dem.engine auto: using %s (%s)", candidate, "; ".join(reasons))
+                return engine
+        raise EngineError("dem.engine auto: no engine available: " + "; ".join(reasons))  # unreachable: builtin
+    if name not in ENGINES:
+        raise EngineError(f"dem.engine: unknown engine {name!r}; choose one of auto, {', '.join(ENGINES)}")
+    engine = ENGINES[name](solvers.get(name))
+    engine.require_solver()
+    log.info("dem.engine %s: %s", name, engine.availability()[1])
+    return engine

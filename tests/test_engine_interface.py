@@ -1,0 +1,115 @@
+"""The engine interface: selection, configuration, the builtin engine behind it, failures."""
+import logging
+import math
+import shutil
+
+import numpy as np
+import pytest
+
+from dem.case import CollapseCase
+from dem.collapse import simulate_collapse
+from dem.engines import EngineError, EngineNotInstalled, get_engine
+from dem.engines.base import restitution_from_damping_ratio, damping_ratio, size_classes
+from dem.engines.builtin import BuiltinEngine
+from dem.packing import settle_column
+from dem.trajectory import read_trajectory
+
+HAS_LIGGGHTS = shutil.which("liggghts") is not None
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    """About 25 grains, 0.5 t* of collapse: runs in well under a second."""
+    case = CollapseCase("quartz", 0.006, 1.0, 0.5, 0.6, size_scale=3.0, duration_over_tstar=0.5, name="tiny")
+    return case, settle_column(case)
+
+
+def test_auto_prefers_a_real_solver_and_says_why(caplog):
+    caplog.set_level(logging.INFO, logger="dem.engines")
+    engine = get_engine("auto")
+    expected = "mfix" if shutil.which("mfixsolver") else "liggghts" if HAS_LIGGGHTS else "builtin"
+    assert engine.name == expected
+    assert f"using {expected}" in caplog.text and "mfixsolver" in caplog.text
+
+
+def test_auto_falls_back_to_builtin_when_configured_solvers_are_missing(caplog):
+    caplog.set_level(logging.INFO, logger="dem.engines")
+    config = {"solvers": {"mfix": "/nonexistent/mfixsolver", "liggghts": "/nonexistent/liggghts"}}
+    assert get_engine("auto", config).name == "builtin"
+    assert "/nonexistent/liggghts" in caplog.text
+
+
+def test_named_engine_not_installed_says_how_to_install():
+    with pytest.raises(EngineNotInstalled, match="conda"):
+        get_engine("mfix", {"solvers": {"mfix": "/nonexistent/mfixsolver"}})
+    with pytest.raises(EngineNotInstalled, match="apt-get install liggghts"):
+        get_engine("liggghts", {"solvers": {"liggghts": "/nonexistent/liggghts"}})
+
+
+def test_bad_engine_names_and_solver_config():
+    with pytest.raises(EngineError, match="unknown engine 'lammps'"):
+        get_engine("lammps")
+    with pytest.raises(EngineError, match="dem.solvers: unknown engine"):
+        get_engine("builtin", {"solvers": {"lammps": "/usr/bin/lmp"}})
+    with pytest.raises(EngineError, match="dem.solvers.liggghts"):
+        get_engine("builtin", {"solvers": {"liggghts": 3}})
+
+
+@pytest.mark.skipif(not HAS_LIGGGHTS, reason="liggghts not installed (apt-get install liggghts)")
+def test_solver_path_is_configurable():
+    path = shutil.which("liggghts")
+    engine = get_engine("liggghts", {"solvers": {"liggghts": path}})
+    assert engine.find_solver() == path
+    assert engine.version().startswith("LIGGGHTS")
+
+
+def test_builtin_engine_through_the_interface_matches_simulate_collapse(tiny, tmp_path):
+    case, packing = tiny
+    engine = get_engine("builtin")
+    fractions = []
+    trajectory = engine.simulate(case, packing, tmp_path / "run", progress=fractions.append,
+                                 output=tmp_path / "out.h5")
+    direct = simulate_collapse(case, packing)
+    np.testing.assert_array_equal(trajectory.positions, direct.positions)
+    assert trajectory.n_frames == case.n_frames and fractions[-1] == 1.0
+    assert (tmp_path / "run" / "case.json").exists() and (tmp_path / "run" / "packing.h5").exists()
+    assert "done in" in (tmp_path / "run" / "builtin.log").read_text()
+    np.testing.assert_array_equal(read_trajectory(tmp_path / "out.h5").positions, direct.positions)
+
+
+def test_builtin_engine_failure_names_the_deck(tiny, tmp_path):
+    case, packing = tiny
+    engine = BuiltinEngine()
+    deck = engine.render(case, packing, tmp_path)
+    deck.write_text(deck.read_text().replace('"friction": 0.5', '"friction": -1'))
+    with pytest.raises(EngineError, match=f"deck {deck}.*friction"):
+        engine.run(deck)
+    assert "friction" in (tmp_path / "builtin.log").read_text()
+
+
+def test_packing_of_another_case_is_refused(tiny, tmp_path):
+    case, packing = tiny
+    with pytest.raises(ValueError, match="settled for another case"):
+        BuiltinEngine().simulate(case.replace(column_length=0.008), packing, tmp_path)
+
+
+def test_size_classes_keep_restitution_within_tolerance():
+    """Damping set per class pair from class masses: every real pair's e stays within tolerance."""
+    rng = np.random.default_rng(1)
+    mass = 2650 * math.pi / 6 * (1e-3 * rng.uniform(0.9, 1.1, 300)) ** 3
+    kn, tolerance = 1000.0, 0.005
+    for e in (0.3, 0.6, 0.9):
+        index, class_mass, worst = size_classes(mass, (e,), tolerance, max_classes=60)
+        assert worst <= tolerance and 1 < len(class_mass) < 60
+        i, j = np.triu_indices(len(mass), 1)
+        m_eff = mass[i] * mass[j] / (mass[i] + mass[j])
+        mc = class_mass[index]
+        m_eff_class = mc[i] * mc[j] / (mc[i] + mc[j])
+        eta = 2 * np.sqrt(kn * m_eff_class) * damping_ratio(e)            # what the solver is given
+        e_real = restitution_from_damping_ratio(eta / (2 * np.sqrt(kn * m_eff)))
+        assert np.max(np.abs(e_real / e - 1)) <= worst + 1e-12
+        e_wall = restitution_from_damping_ratio(np.sqrt(mc / mass) * damping_ratio(e))
+        assert np.max(np.abs(e_wall / e - 1)) <= worst + 1e-12
+    # one class is enough for equal grains; too few classes allowed reports the larger error
+    assert len(size_classes(np.full(5, 1e-6), (0.5,), tolerance, 10)[1]) == 1
+    assert size_classes(mass, (0.3,), tolerance, max_classes=2)[2] > tolerance
