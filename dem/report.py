@@ -1,0 +1,141 @@
+"""The pipeline report: per-stage Markdown fragments stitched into one document, with a table and
+a figure of the time spent per stage (from Snakemake `benchmark:` files; cf. Table 5 of the paper).
+
+Conventions (workflow/rules/common.smk repeats them for stage authors):
+  - each stage writes results/report/<stage>.md; links inside it are relative to that file;
+  - each job benchmarks to results/benchmarks/<stage>/<rule>[/<wildcards>].tsv.
+The report rebases the fragments' relative links onto the report's own folder.
+"""
+from __future__ import annotations
+
+import csv
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+from dem.atomic import write_text
+
+LINK = re.compile(r"(!?\[[^\]]*\]\()([^)\s]+)(\))")
+
+
+@dataclass
+class StageTime:
+    """Wall time of one rule's jobs: count, total/mean/max seconds, peak resident memory (MB)."""
+
+    stage: str
+    rule: str
+    jobs: int
+    total_s: float
+    max_s: float
+    max_rss_mb: float | None
+
+    @property
+    def mean_s(self) -> float:
+        return self.total_s / self.jobs
+
+
+def read_benchmarks(benchmark_dir) -> list[StageTime]:
+    """One StageTime per <stage>/<rule> under `benchmark_dir` (a missing folder gives [])."""
+    groups: dict[tuple[str, str], list[tuple[float, float | None]]] = {}
+    root = Path(benchmark_dir)
+    for path in sorted(root.rglob("*.tsv")):
+        parts = path.relative_to(root).parts
+        if len(parts) < 2:
+            raise ValueError(f"{path}: benchmark files go in <stage>/<rule>[/...].tsv under {root}")
+        rule = parts[1].removesuffix(".tsv")
+        with open(path, newline="") as f:
+            rows = list(csv.DictReader(f, delimiter="\t"))
+        if not rows or "s" not in rows[0]:
+            raise ValueError(f"{path}: not a Snakemake benchmark file (no 's' column)")
+        for row in rows:  # one row per repeat of a `repeat()` benchmark
+            rss = row.get("max_rss", "NA")
+            groups.setdefault((parts[0], rule), []).append(
+                (float(row["s"]), None if rss in ("NA", "-", "") else float(rss)))
+    out = []
+    for (stage, rule), values in sorted(groups.items()):
+        seconds = [s for s, _ in values]
+        rss = [r for _, r in values if r is not None]
+        out.append(StageTime(stage, rule, len(values), sum(seconds), max(seconds), max(rss) if rss else None))
+    return out
+
+
+def time_table(times: list[StageTime]) -> str:
+    """Markdown table of time per stage and rule, with stage subtotals."""
+    lines = ["| stage | rule | jobs | total (s) | mean per job (s) | max per job (s) | peak memory (MB) |",
+             "|---|---|---:|---:|---:|---:|---:|"]
+    for stage in dict.fromkeys(t.stage for t in times):
+        rows = [t for t in times if t.stage == stage]
+        for t in rows:
+            rss = "" if t.max_rss_mb is None else f"{t.max_rss_mb:.0f}"
+            lines.append(f"| {stage} | {t.rule} | {t.jobs} | {t.total_s:.1f} | {t.mean_s:.2f} | {t.max_s:.2f} | {rss} |")
+        lines.append(f"| **{stage}** | all | {sum(t.jobs for t in rows)} | **{sum(t.total_s for t in rows):.1f}** | | | |")
+    return "\n".join(lines)
+
+
+def plot_stage_times(times: list[StageTime], path) -> None:
+    """Horizontal bars: total wall time (s, summed over jobs) per stage, split by rule."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from dem.plots import save_figure
+
+    stages = list(dict.fromkeys(t.stage for t in times))
+    fig, ax = plt.subplots(figsize=(8, 0.5 * len(stages) + 2.0))
+    left = {s: 0.0 for s in stages}
+    colours = plt.get_cmap("tab20")
+    for k, t in enumerate(times):
+        ax.barh(t.stage, t.total_s, left=left[t.stage], color=colours(k % 20), label=f"{t.stage}/{t.rule}")
+        left[t.stage] += t.total_s
+    ax.set(xlabel="wall time summed over jobs (s)", title="time per stage")
+    ax.invert_yaxis()
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    ax.grid(axis="x", alpha=0.3)
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def rebase_links(markdown: str, from_dir, to_dir) -> str:
+    """Rewrite relative Markdown links/images written relative to `from_dir` to be relative to `to_dir`."""
+    def fix(match):
+        target = match.group(2)
+        if re.match(r"^([a-z]+:|/|#)", target):
+            return match.group(0)
+        return match.group(1) + os.path.relpath(Path(from_dir, target), to_dir) + match.group(3)
+
+    return LINK.sub(fix, markdown)
+
+
+def assemble_report(sections: list[tuple[str, str]], benchmark_dir, out_path, title: str,
+                    time_figure) -> str:
+    """Write the report at `out_path`: `title`, one `## <title>` per (title, fragment path) in
+    `sections` (links rebased), then the time-per-stage table and figure. Returns the text."""
+    out_dir = Path(out_path).parent
+    parts = [f"# {title}", ""]
+    parts += [f"- [{name}](#{_anchor(name)})" for name, _ in sections] + ["- [Time per stage](#time-per-stage)", ""]
+    for name, fragment in sections:
+        fragment = Path(fragment)
+        if not fragment.exists():
+            raise FileNotFoundError(f"report section {name!r}: fragment {fragment} does not exist")
+        text = rebase_links(fragment.read_text(), fragment.parent, out_dir)
+        parts += [f"## {name}", "", text.strip(), ""]
+    times = read_benchmarks(benchmark_dir)
+    parts += ["## Time per stage", "",
+              "Wall time of every job, from Snakemake `benchmark:` files "
+              f"({os.path.relpath(benchmark_dir, out_dir)}/<stage>/<rule>/...). Jobs run in parallel, so the "
+              "elapsed time of a run is shorter than these sums. Files of jobs from earlier configs count too; "
+              "delete the folder for a clean tally.", ""]
+    if times:
+        plot_stage_times(times, time_figure)
+        parts += [time_table(times), "", f"![time per stage]({os.path.relpath(time_figure, out_dir)})", ""]
+    else:
+        parts += ["No benchmark files yet.", ""]
+    text = "\n".join(parts)
+    write_text(out_path, text)
+    return text
+
+
+def _anchor(title: str) -> str:
+    return re.sub(r"[^a-z0-9 -]", "", title.lower()).replace(" ", "-")

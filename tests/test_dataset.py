@@ -1,0 +1,115 @@
+"""Dataset metadata: splits, normalisation statistics from the training split only, checks."""
+import json
+
+import numpy as np
+import pytest
+
+from dem.case import CollapseCase
+from dem.dataset import DatasetError, build_dataset, load_dataset_metadata, plot_dataset
+from dem.packing import engine_attrs
+from dem.trajectory import GRAIN, Trajectory, write_trajectory
+
+
+def write_motion(path, friction, L_i=0.01, speed=0.0, accel=0.0, n_frames=12, n=5, output_interval=0.002,
+                 rng=None):
+    """A trajectory of n grains moving with constant velocity `speed` and acceleration `accel`
+    (m per frame, m per frame^2) in x and -y, plus seeded noise, with a real case's attributes."""
+    case = CollapseCase("quartz", L_i, 2.0, friction, 0.65, size_scale=4, output_interval=output_interval)
+    rng = rng or np.random.default_rng(0)
+    t = np.arange(n_frames)[:, None, None]
+    start = rng.uniform(0.001, 0.009, (1, n, 2))
+    direction = np.array([1.0, -0.5])
+    positions = start + (speed * t + 0.5 * accel * t ** 2) * direction + rng.normal(0, 1e-5, (n_frames, n, 2))
+    traj = Trajectory(positions.astype(np.float32), np.full(n, 0.5 * case.diameter),
+                      np.full(n, GRAIN, np.int32), engine_attrs(case, "synthetic", "test"))
+    write_trajectory(path, traj)
+    return positions.astype(np.float32).astype(np.float64)
+
+
+@pytest.fixture
+def three_splits(tmp_path):
+    rng = np.random.default_rng(1)
+    train = [tmp_path / f"train_{k}.h5" for k in range(3)]
+    arrays = [write_motion(p, friction=0.3 + 0.1 * k, speed=1e-4 * (k + 1), accel=2e-5, rng=rng)
+              for k, p in enumerate(train)]
+    # valid/test move 100x faster: they must not touch the statistics, but do set the ranges
+    write_motion(tmp_path / "valid.h5", friction=0.9, L_i=0.012, speed=1e-2, accel=1e-3, n=7, rng=rng)
+    write_motion(tmp_path / "test.h5", friction=0.2, speed=1e-2, accel=1e-3, n_frames=15, rng=rng)
+    splits = {"train": [str(p) for p in train], "valid": [str(tmp_path / "valid.h5")],
+              "test": [str(tmp_path / "test.h5")]}
+    return splits, arrays
+
+
+def test_statistics_come_from_the_training_split_only(tmp_path, three_splits):
+    splits, arrays = three_splits
+    meta = build_dataset(splits, tmp_path / "meta" / "metadata.json", "synthetic")
+    velocity = np.concatenate([(x[1:] - x[:-1]).reshape(-1, 2) for x in arrays])
+    acceleration = np.concatenate([(x[2:] - 2 * x[1:-1] + x[:-2]).reshape(-1, 2) for x in arrays])
+    np.testing.assert_allclose(meta["velocity_mean"], velocity.mean(axis=0), rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(meta["velocity_std"], velocity.std(axis=0), rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(meta["acceleration_mean"], acceleration.mean(axis=0), rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(meta["acceleration_std"], acceleration.std(axis=0), rtol=1e-9, atol=1e-15)
+    assert meta["velocity_mean"][0] > 0 > meta["velocity_mean"][1]  # the x / -y direction of motion
+    assert meta["velocity_mean"][0] < 1e-3  # the fast valid/test grains were left out
+
+
+def test_metadata_contents_and_round_trip(tmp_path, three_splits):
+    splits, _ = three_splits
+    out = tmp_path / "metadata.json"
+    meta = build_dataset(splits, out, "synthetic")
+    assert meta == load_dataset_metadata(out)
+    assert meta["name"] == "synthetic" and meta["dim"] == 2 and meta["splits"] == splits
+    assert meta["dt_frame"] == pytest.approx(0.002)
+    assert meta["bounds"] == [[0.0, 0.5], [0.0, 0.35]]
+    assert meta["n_particles"] == {"min": 5, "max": 7, "mean": pytest.approx(27 / 5)}
+    assert meta["parameter_ranges"]["friction"] == pytest.approx([0.2, 0.9])
+    assert meta["parameter_ranges"]["L_i"] == pytest.approx([0.01, 0.012])
+    assert meta["parameter_ranges"]["H_i"] == pytest.approx([0.02, 0.024])
+    assert meta["parameter_ranges"]["restitution"] == [0.65, 0.65]
+    assert meta["material_diameter"] == pytest.approx(4 * 425e-6)
+    assert meta["sequence_length"] == 12 and meta["sequence_length_max"] == 15
+    assert meta["n_cases"] == {"train": 3, "valid": 1, "test": 1}
+    assert [p.name for p in tmp_path.iterdir() if p.suffix == ".tmp"] == []
+
+
+def test_mixed_frame_intervals_fail_naming_the_file(tmp_path, three_splits):
+    splits, _ = three_splits
+    odd = tmp_path / "odd.h5"
+    write_motion(odd, friction=0.5, output_interval=0.003)
+    splits["test"].append(str(odd))
+    with pytest.raises(DatasetError, match=r"odd\.h5: dt_frame = 0\.003 s differs from 0\.002 s of .*train_0\.h5"):
+        build_dataset(splits, tmp_path / "metadata.json", "synthetic")
+    assert not (tmp_path / "metadata.json").exists()
+
+
+def test_empty_train_split_is_an_error(tmp_path, three_splits):
+    splits, _ = three_splits
+    with pytest.raises(DatasetError, match="train split is empty"):
+        build_dataset(dict(splits, train=[]), tmp_path / "metadata.json", "synthetic")
+
+
+def test_load_names_the_file_and_the_missing_key(tmp_path, three_splits):
+    splits, _ = three_splits
+    good = build_dataset(splits, tmp_path / "metadata.json", "synthetic")
+    broken = tmp_path / "broken.json"
+    broken.write_text(json.dumps({k: v for k, v in good.items() if k not in ("velocity_std", "acceleration_mean")}))
+    with pytest.raises(DatasetError, match=r"broken\.json: no normalisation statistics: .*'velocity_std'"):
+        load_dataset_metadata(broken)
+    broken.write_text(json.dumps({k: v for k, v in good.items() if k != "dt_frame"}))
+    with pytest.raises(DatasetError, match=r"broken\.json: missing key\(s\) \['dt_frame'\]"):
+        load_dataset_metadata(broken)
+    broken.write_text(json.dumps(dict(good, velocity_std=[0.0, 1.0])))
+    with pytest.raises(DatasetError, match="velocity_std.*zero component"):
+        load_dataset_metadata(broken)
+    with pytest.raises(DatasetError, match="nowhere.json: no such dataset metadata file"):
+        load_dataset_metadata(tmp_path / "nowhere.json")
+
+
+def test_summary_figure_reports_final_runout_per_case(tmp_path, three_splits):
+    splits, arrays = three_splits
+    meta = build_dataset(splits, tmp_path / "metadata.json", "synthetic")
+    final = plot_dataset(meta, tmp_path / "summary.png")
+    assert (tmp_path / "summary.png").stat().st_size > 10_000
+    assert set(final) == {p for paths in splits.values() for p in paths}
+    # the valid grains travel ~0.1 m in x: their runout must far exceed the slow training cases'
+    assert final[splits["valid"][0]] > 5 * max(final[p] for p in splits["train"])
