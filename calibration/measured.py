@@ -1,0 +1,258 @@
+"""Measured column-collapse data: the CSV reader and its checks.
+
+Schema (full description and examples in data/measured/README.md). A CSV file in long format,
+`#` lines are comments, one header line, then one row per measured value:
+
+    column,material,aspect_ratio,L_i,kind,x,value,std
+    quartz_a6,quartz,6.0,0.02,runout,0.5,0.3,
+    quartz_a6,quartz,6.0,0.02,profile,0.035,0.012,
+
+  column        name of the measured column (several columns may share one file)
+  material      DEM material of the grains (a name known to dem.case.MATERIALS)
+  aspect_ratio  a = H_i / L_i of the initial column (-)
+  L_i           initial column length (m)
+  kind          `runout`: x = t/t* (-), value = runout L* = (L - L_i)/L_i (-)
+                `profile`: final deposit, x = distance from the left wall (m), value = height (m)
+  std           optional noise level: standard deviation of `value`, same units; empty = unknown
+
+Each column needs at least two runout points; material, aspect_ratio and L_i must agree on every
+row of a column. Every error names the file, the line and the CSV column that is wrong.
+"""
+from __future__ import annotations
+
+import csv
+import math
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from dem.case import MATERIALS, CaseError, CollapseCase
+
+REQUIRED_FIELDS = ("column", "material", "aspect_ratio", "L_i", "kind", "x", "value")
+OPTIONAL_FIELDS = ("std",)
+KINDS = ("runout", "profile")
+MAX_L_I = 1.0  # m; a column length above this is almost surely given in mm or cm
+
+
+class MeasuredDataError(ValueError):
+    """A measured-data file breaks the schema; the message names file, line and CSV column."""
+
+
+class MeasuredDataWarning(UserWarning):
+    """A measured-data file is readable but something in it looks physically doubtful."""
+
+
+@dataclass(frozen=True)
+class MeasuredColumn:
+    """One measured collapse.
+
+    t_over_tstar [K] (-, increasing) with runout [K] = L* (-) and runout_std [K] (-) or None;
+    profile_x [P] (m) and profile_height [P] (m), or None when no deposit profile was measured.
+    """
+
+    name: str
+    material: str
+    aspect_ratio: float
+    L_i: float                       # m
+    t_over_tstar: np.ndarray
+    runout: np.ndarray
+    runout_std: np.ndarray | None = None
+    profile_x: np.ndarray | None = None
+    profile_height: np.ndarray | None = None
+    source: str = ""
+
+    @property
+    def H_i(self) -> float:
+        """Initial column height (m)."""
+        return self.aspect_ratio * self.L_i
+
+    def collapse_case(self, friction: float, restitution: float, **case_fields) -> CollapseCase:
+        """The DEM case of this measured column (its material, a and L_i) at (mu, e).
+
+        case_fields: any other CollapseCase field (size_scale for a coarse-grained counterpart,
+        seed, ...). The simulated window must cover the last measured t/t*.
+        """
+        case = CollapseCase(material=self.material, column_length=self.L_i, aspect_ratio=self.aspect_ratio,
+                            friction=friction, restitution=restitution, **case_fields)
+        if case.duration_over_tstar < self.t_over_tstar[-1]:
+            raise CaseError(f"duration_over_tstar = {case.duration_over_tstar} ends before the last measured "
+                            f"t/t* = {self.t_over_tstar[-1]} of {self.name!r} ({self.source})")
+        return case
+
+
+def expected_final_runout(aspect_ratio: float) -> float:
+    """Final runout L*_f (-) of a dry 2D column collapse from the experimental scaling laws
+    (Lube et al. 2005; Lajeunesse et al. 2005): about 1.2 a for a < 2.8, 1.9 a^(2/3) above.
+
+    Only an order-of-magnitude guide for the unit check below: friction changes it by tens of %.
+    """
+    return 1.2 * aspect_ratio if aspect_ratio < 2.8 else 1.9 * aspect_ratio ** (2.0 / 3.0)
+
+
+def read_measured(path) -> dict[str, MeasuredColumn]:
+    """Every measured column in the CSV file `path`, by name, in file order."""
+    path = Path(path)
+    if not path.is_file():
+        raise MeasuredDataError(f"{path}: no such measured-data file")
+    rows = _read_rows(path)
+    columns: dict[str, list] = {}
+    for line, row in rows:
+        columns.setdefault(row["column"], []).append((line, row))
+    if not columns:
+        raise MeasuredDataError(f"{path}: no data rows after the header")
+    return {name: _build_column(path, name, rows) for name, rows in columns.items()}
+
+
+def load_column(path, name: str | None = None) -> MeasuredColumn:
+    """The measured column `name` from `path`; name may be omitted when the file holds one column."""
+    columns = read_measured(path)
+    if name is None:
+        if len(columns) != 1:
+            raise MeasuredDataError(f"{path}: holds columns {list(columns)}; say which one")
+        return next(iter(columns.values()))
+    if name not in columns:
+        raise MeasuredDataError(f"{path}: no measured column {name!r}; the file holds {list(columns)}")
+    return columns[name]
+
+
+# -- parsing -------------------------------------------------------------------------------------
+def _read_rows(path: Path) -> list[tuple[int, dict]]:
+    """(line number, {field: raw string}) for every data row; checks the header."""
+    with open(path, newline="", encoding="utf-8") as handle:
+        lines = list(enumerate(handle, start=1))
+    content = [(n, text) for n, text in lines if text.strip() and not text.lstrip().startswith("#")]
+    if not content:
+        raise MeasuredDataError(f"{path}: empty file (no header line)")
+    header_line, header_text = content[0]
+    header = [name.strip() for name in next(csv.reader([header_text]))]
+    missing = [name for name in REQUIRED_FIELDS if name not in header]
+    if missing:
+        raise MeasuredDataError(f"{path}, line {header_line}: header lacks column(s) {missing}; "
+                                f"the schema needs {list(REQUIRED_FIELDS)} (+ optional {list(OPTIONAL_FIELDS)})")
+    unknown = [name for name in header if name not in REQUIRED_FIELDS + OPTIONAL_FIELDS]
+    if unknown:
+        raise MeasuredDataError(f"{path}, line {header_line}: unknown column(s) {unknown}; "
+                                f"known: {list(REQUIRED_FIELDS + OPTIONAL_FIELDS)}")
+    duplicated = sorted({name for name in header if header.count(name) > 1})
+    if duplicated:
+        raise MeasuredDataError(f"{path}, line {header_line}: column(s) {duplicated} appear twice")
+    rows = []
+    for line, text in content[1:]:
+        cells = [cell.strip() for cell in next(csv.reader([text]))]
+        if len(cells) != len(header):
+            raise MeasuredDataError(f"{path}, line {line}: {len(cells)} fields, the header has {len(header)}")
+        rows.append((line, dict(zip(header, cells))))
+    return rows
+
+
+def _number(path, line, field, text, allow_empty=False) -> float:
+    if text == "" and allow_empty:
+        return math.nan
+    try:
+        value = float(text)
+    except ValueError:
+        raise MeasuredDataError(f"{path}, line {line}, column {field!r}: {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise MeasuredDataError(f"{path}, line {line}, column {field!r}: {text!r} is not finite")
+    return value
+
+
+def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
+    first_line, first = rows[0]
+    if not name:
+        raise MeasuredDataError(f"{path}, line {first_line}, column 'column': empty column name")
+    material = first["material"]
+    if material not in MATERIALS:
+        raise MeasuredDataError(f"{path}, line {first_line}, column 'material': unknown material {material!r}; "
+                                f"known: {sorted(MATERIALS)}")
+    aspect_ratio = _number(path, first_line, "aspect_ratio", first["aspect_ratio"])
+    L_i = _number(path, first_line, "L_i", first["L_i"])
+    if aspect_ratio <= 0:
+        raise MeasuredDataError(f"{path}, line {first_line}, column 'aspect_ratio': must be positive, "
+                                f"got {aspect_ratio}")
+    if not 0 < L_i <= MAX_L_I:
+        raise MeasuredDataError(f"{path}, line {first_line}, column 'L_i': {L_i} is not a column length in metres "
+                                f"(0 < L_i <= {MAX_L_I} m; was it given in mm?)")
+    series = {kind: [] for kind in KINDS}
+    for line, row in rows:
+        for field, expected in (("material", material),):
+            if row[field] != expected:
+                raise MeasuredDataError(f"{path}, line {line}, column {field!r}: {row[field]!r} differs from "
+                                        f"{expected!r} on line {first_line} for the same measured column {name!r}")
+        for field, expected in (("aspect_ratio", aspect_ratio), ("L_i", L_i)):
+            if _number(path, line, field, row[field]) != expected:
+                raise MeasuredDataError(f"{path}, line {line}, column {field!r}: {row[field]} differs from "
+                                        f"{expected} on line {first_line} for the same measured column {name!r}")
+        kind = row["kind"]
+        if kind not in KINDS:
+            raise MeasuredDataError(f"{path}, line {line}, column 'kind': {kind!r} is not one of {list(KINDS)}")
+        x = _number(path, line, "x", row["x"])
+        value = _number(path, line, "value", row["value"])
+        std = _number(path, line, "std", row.get("std", ""), allow_empty=True)
+        if x < 0:
+            raise MeasuredDataError(f"{path}, line {line}, column 'x': must be >= 0, got {x}")
+        if not math.isnan(std) and std <= 0:
+            raise MeasuredDataError(f"{path}, line {line}, column 'std': a noise level of {std} is not a "
+                                    "standard deviation (zero would claim an exact measurement); leave the cell "
+                                    "empty if unknown")
+        series[kind].append((line, x, value, std))
+
+    t, runout, std = _series(path, name, series["runout"], "t/t*", min_points=2)
+    if np.isnan(std).any() and not np.isnan(std).all():
+        line = series["runout"][int(np.flatnonzero(np.isnan(std))[0])][0]
+        raise MeasuredDataError(f"{path}, line {line}, column 'std': noise level missing here but given on other "
+                                f"runout rows of {name!r}; give it on every runout row or on none")
+    profile = None
+    if series["profile"]:
+        profile = _series(path, name, series["profile"], "profile x", min_points=2)
+        negative = np.flatnonzero(profile[1] < 0)
+        if negative.size:
+            raise MeasuredDataError(f"{path}, line {series['profile'][negative[0]][0]}, column 'value': deposit "
+                                    "height must be >= 0 m")
+    column = MeasuredColumn(name=name, material=material, aspect_ratio=aspect_ratio, L_i=L_i,
+                            t_over_tstar=t, runout=runout, runout_std=None if np.isnan(std).all() else std,
+                            profile_x=None if profile is None else profile[0],
+                            profile_height=None if profile is None else profile[1], source=str(path))
+    _check_runout_units(path, column, series["runout"][0][0])
+    return column
+
+
+def _series(path, name, points, what, min_points):
+    """(x [K], value [K], std [K]) from parsed points, checking count and increasing x."""
+    if len(points) < min_points:
+        where = f", line {points[0][0]}" if points else ""
+        raise MeasuredDataError(f"{path}{where}: measured column {name!r} has {len(points)} {what} point(s); "
+                                f"at least {min_points} are needed (one point cannot constrain a curve)")
+    lines = [p[0] for p in points]
+    x, value, std = (np.array([p[k] for p in points], float) for k in (1, 2, 3))
+    for k in range(1, len(x)):
+        if x[k] <= x[k - 1]:
+            raise MeasuredDataError(f"{path}, line {lines[k]}, column 'x': {what} = {x[k]} does not increase "
+                                    f"(previous row of {name!r} has {x[k - 1]}); list points in increasing order")
+    return x, value, std
+
+
+def _check_runout_units(path, column: MeasuredColumn, line: int) -> None:
+    """Catch runout given in metres (L or L - L_i) instead of the dimensionless L*.
+
+    A metre-valued runout of a lab column is a few L_i, so every value is below 0.5 and, divided by
+    L_i, it becomes a plausible L* for the column's aspect ratio, while read as L* it is far too
+    short. Only late curves (t/t* >= 2, front near its final position) are judged: earlier the front
+    has not gone far and small values are genuine.
+    """
+    if column.t_over_tstar[-1] < 2.0:
+        return
+    expected = expected_final_runout(column.aspect_ratio)
+    reached = float(np.max(column.runout))
+    if reached < 0.5 and reached < expected / 4 and expected / 4 <= reached / column.L_i <= 4 * expected + 1:
+        raise MeasuredDataError(
+            f"{path}, line {line}, column 'value': runout of {column.name!r} peaks at {reached:g}, yet a column of "
+            f"a = {column.aspect_ratio:g} runs out to L* ~ {expected:.2g}; divided by L_i = {column.L_i:g} m it "
+            f"would be {reached / column.L_i:.3g}. The values look like metres (L or L - L_i); "
+            "give L* = (L - L_i)/L_i instead")
+    if not expected / 4 <= reached <= 4 * expected:
+        warnings.warn(f"{path}: runout of {column.name!r} peaks at L* = {reached:g}, far from the L* ~ "
+                      f"{expected:.2g} expected for a = {column.aspect_ratio:g} (Lube et al. 2005); check units",
+                      MeasuredDataWarning, stacklevel=3)

@@ -1,0 +1,120 @@
+"""Full-factorial design over the DEM contact parameters (Jiang et al. 2024, section 2.4).
+
+Each factor takes `n_levels` evenly spaced values in [low, high] (the paper: 7 levels of friction
+mu and restitution e in [0.3, 0.9]), every combination is one DEM run, and the centre point is
+run again with another packing seed: 7 x 7 + 1 = 50 runs. All factorial runs share one packing
+seed, so differences between design points are due to (mu, e) alone (common random numbers); the
+replicated centre measures how much a different packing moves the response (pure error).
+
+Factors are coded x = (value - centre) / half_range, in [-1, 1] (paper: (mu - 0.6) / 0.3).
+"""
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from dem.atomic import atomic_path
+
+
+class DesignError(ValueError):
+    """A design setting is unusable; the message names it."""
+
+
+@dataclass(frozen=True)
+class Factor:
+    """A design factor: a CollapseCase field name and its bounds (low < high)."""
+
+    name: str
+    low: float
+    high: float
+
+    def __post_init__(self):
+        if not self.low < self.high:
+            raise DesignError(f"factor {self.name}: low ({self.low}) must be below high ({self.high})")
+
+    @property
+    def centre(self) -> float:
+        return 0.5 * (self.low + self.high)
+
+    @property
+    def half_range(self) -> float:
+        return 0.5 * (self.high - self.low)
+
+    def code(self, value):
+        """Natural units -> coded [-1, 1]."""
+        return (np.asarray(value, float) - self.centre) / self.half_range
+
+    def decode(self, coded):
+        """Coded [-1, 1] -> natural units."""
+        return self.centre + np.asarray(coded, float) * self.half_range
+
+
+FACTORS = (Factor("friction", 0.3, 0.9), Factor("restitution", 0.3, 0.9))
+
+
+def factors_from_config(doe_config: dict) -> tuple[Factor, ...]:
+    """Factors from the config's doe section: {friction: [low, high], restitution: [low, high]}."""
+    return tuple(Factor(f.name, *map(float, doe_config.get(f.name, (f.low, f.high)))) for f in FACTORS)
+
+
+def design_from_config(doe_config: dict) -> pd.DataFrame:
+    """The design table from the config's doe section (levels, centre_replicates, seed, bounds)."""
+    return full_factorial(factors_from_config(doe_config), doe_config.get("levels", 7),
+                          doe_config.get("centre_replicates", 1), doe_config.get("seed", 0))
+
+
+def centre_run_id(design: pd.DataFrame) -> str:
+    """run_id of the factorial (not replicated) run at the centre of the design."""
+    coded = design[[c for c in design.columns if c.startswith("x_")]].abs().sum(axis=1)
+    return str(design.loc[(coded < 1e-9) & (design["replicate"] == 0), "run_id"].iloc[0])
+
+
+def full_factorial(factors=FACTORS, n_levels: int = 7, centre_replicates: int = 1, seed: int = 0) -> pd.DataFrame:
+    """The design table, one row per DEM run.
+
+    Columns: run_id ("run_00", ...), one column per factor (natural units) and x_<factor> (coded),
+    seed (packing seed: `seed` for the factorial, seed + k for the k-th centre replicate), and
+    replicate (0 for the factorial runs, k for the centre replicates). n_levels must be odd so that
+    the centre is a factorial point that the replicates repeat.
+    """
+    if not isinstance(n_levels, int) or n_levels < 3 or n_levels % 2 == 0:
+        raise DesignError(f"n_levels must be an odd integer >= 3 (the centre is a design point), got {n_levels!r}")
+    if not isinstance(centre_replicates, int) or centre_replicates < 0:
+        raise DesignError(f"centre_replicates must be a non-negative integer, got {centre_replicates!r}")
+    # round so that 0.3 + k * 0.1 prints and compares as 0.4, not 0.39999999999999997
+    grids = [np.round(np.linspace(f.low, f.high, n_levels), 12) for f in factors]
+    points = list(itertools.product(*grids)) + [tuple(f.centre for f in factors)] * centre_replicates
+    replicate = [0] * (len(points) - centre_replicates) + list(range(1, centre_replicates + 1))
+    table = pd.DataFrame(points, columns=[f.name for f in factors])
+    for f in factors:
+        table[f"x_{f.name}"] = np.round(f.code(table[f.name]), 12)
+    table["seed"] = [seed + k for k in replicate]
+    table["replicate"] = replicate
+    width = len(str(len(table) - 1))
+    table.insert(0, "run_id", [f"run_{k:0{width}d}" for k in range(len(table))])
+    return table
+
+
+def design_cases(design: pd.DataFrame, measured, **case_fields) -> dict:
+    """{run_id: CollapseCase} for a design on a measured column (calibration.measured.MeasuredColumn).
+
+    case_fields: further CollapseCase fields shared by every run (size_scale, duration_over_tstar...).
+    """
+    factor_names = [c[2:] for c in design.columns if c.startswith("x_")]
+    cases = {}
+    for row in design.itertuples(index=False):
+        values = {name: float(getattr(row, name)) for name in factor_names}
+        cases[row.run_id] = measured.collapse_case(**values, seed=int(row.seed), name=row.run_id, **case_fields)
+    return cases
+
+
+def write_design(path, design: pd.DataFrame) -> None:
+    with atomic_path(path) as tmp:
+        design.to_csv(tmp, index=False)
+
+
+def read_design(path) -> pd.DataFrame:
+    return pd.read_csv(path)
