@@ -1,0 +1,24 @@
+# The whole pipeline: config -> DEM datasets -> GNS -> calibration (DoE, inverse design) -> report.
+# Each stage is one file in workflow/rules/; it appends its outputs to FINAL_TARGETS and its report
+# fragment to REPORT_SECTIONS (both defined in common.smk). Add a stage: one include line below.
+# The default config; a --configfile on the command line replaces it rather than merging into it.
+if not workflow.overwrite_configfiles:
+
+    configfile: "config/config.yaml"
+
+
+include: "workflow/rules/common.smk"
+include: "workflow/rules/dem.smk"
+include: "workflow/rules/dataset.smk"
+include: "workflow/rules/gns.smk"
+include: "workflow/rules/doe.smk"
+include: "workflow/rules/inverse.smk"
+# later stages go here, before report.smk (the report collects what they registered)
+include: "workflow/rules/report.smk"
+
+
+rule all:
+    input:
+        FINAL_TARGETS,
+        "results/report.md",
+    default_target: True

@@ -1,0 +1,126 @@
+"""Training data: windows of C + 1 consecutive frames streamed from trajectory HDF5 files.
+
+Nothing but the small per-file arrays (radius, particle_type) and attributes stays in memory; each
+sample reads its C + 1 frames with one h5py slice, so memory is bounded by one batch whatever the
+dataset's size.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+import torch
+
+from dem.dataset import DatasetError, load_dataset_metadata
+from dem.trajectory import TrajectoryError, read_attrs
+from gns.simulator import LAYOUT_KEYS, Context
+
+STATISTICS = ("velocity_mean", "velocity_std", "acceleration_mean", "acceleration_std")
+
+
+def read_metadata(path) -> dict:
+    """A dataset's metadata (dem.dataset's JSON), checked for what the GNS needs."""
+    metadata = load_dataset_metadata(path)
+    missing = [k for k in STATISTICS + ("parameter_ranges", "dt_frame", "bounds", "material_diameter", "splits")
+               if k not in metadata]
+    if missing:
+        raise DatasetError(f"{path}: dataset metadata lacks {missing}; rebuild it with dem.dataset.build_dataset")
+    for key in STATISTICS:
+        if len(metadata[key]) != 2 or not np.all(np.isfinite(metadata[key])):
+            raise DatasetError(f"{path}: {key} must be two finite numbers, got {metadata[key]}")
+    absent = [k for k in LAYOUT_KEYS if k not in metadata["parameter_ranges"]]
+    if absent:
+        raise DatasetError(f"{path}: parameter_ranges lacks {absent} (the initial layout is a model input)")
+    return metadata
+
+
+def split_paths(metadata: dict, split: str) -> list[str]:
+    """Trajectory files of one split ("train", "valid", "test"); an empty split is an error."""
+    paths = metadata["splits"].get(split) or []
+    if not paths:
+        raise DatasetError(f"dataset {metadata.get('name', '?')}: the {split} split is empty; "
+                           "the GNS needs train, valid and test cases")
+    return list(paths)
+
+
+@dataclass
+class Batch:
+    """G windows as one graph batch: position_sequence [N, C, 2] (m), next_position [N, 2] (m)."""
+
+    position_sequence: torch.Tensor
+    next_position: torch.Tensor
+    context: Context
+
+    def to(self, device) -> "Batch":
+        return Batch(self.position_sequence.to(device), self.next_position.to(device), self.context.to(device))
+
+
+class TrajectoryWindows:
+    """All windows of C + 1 frames of a list of trajectory files; window k is read on demand."""
+
+    def __init__(self, paths, n_input_frames: int, parameter_names, dt_frame: float | None = None):
+        self.n_input_frames = n_input_frames
+        self.parameter_names = list(parameter_names)
+        self.files = []
+        for path in map(Path, paths):
+            if not path.exists():
+                raise DatasetError(f"{path}: trajectory file listed in the dataset does not exist")
+            attrs = read_attrs(path)
+            missing = [k for k in self.parameter_names + list(LAYOUT_KEYS) + ["dt_frame"] if k not in attrs]
+            if missing:
+                raise DatasetError(f"{path}: trajectory attributes lack {missing}")
+            if dt_frame is not None and abs(float(attrs["dt_frame"]) - dt_frame) > 1e-9 * dt_frame:
+                raise DatasetError(f"{path}: dt_frame {attrs['dt_frame']} s differs from the dataset's {dt_frame} s")
+            with h5py.File(path, "r") as f:
+                n_frames = f["positions"].shape[0]
+                radius = f["radius"][()]
+                particle_type = f["particle_type"][()]
+            if n_frames < n_input_frames + 1:
+                raise DatasetError(f"{path}: {n_frames} frames, fewer than C + 1 = {n_input_frames + 1}")
+            self.files.append({
+                "path": path, "n_windows": n_frames - n_input_frames, "radius": radius,
+                "particle_type": particle_type.astype(np.int64),
+                "parameters": np.array([float(attrs[k]) for k in self.parameter_names]),
+                "layout": np.array([float(attrs[k]) for k in LAYOUT_KEYS])})
+        if not self.files:
+            raise DatasetError("no trajectory files given")
+        self.offsets = np.cumsum([0] + [f["n_windows"] for f in self.files])
+
+    def __len__(self) -> int:
+        return int(self.offsets[-1])
+
+    def locate(self, k: int) -> tuple[int, int]:
+        """(file index, first frame) of window k."""
+        i = int(np.searchsorted(self.offsets, k, side="right") - 1)
+        return i, int(k - self.offsets[i])
+
+    def window(self, k: int) -> tuple[np.ndarray, dict]:
+        """positions [C + 1, N, 2] float32 (m) of window k, and its file's entry."""
+        i, start = self.locate(k)
+        entry = self.files[i]
+        with h5py.File(entry["path"], "r") as f:
+            positions = f["positions"][start: start + self.n_input_frames + 1]
+        if not np.all(np.isfinite(positions)):
+            raise TrajectoryError(f"{entry['path']}: non-finite positions in frames {start}..{start + self.n_input_frames}")
+        return positions, entry
+
+    def batch(self, indices) -> Batch:
+        """Windows `indices` concatenated into one batch of disjoint graphs."""
+        sequences, targets, types, radii, params, layouts, graph = [], [], [], [], [], [], []
+        for g, k in enumerate(indices):
+            positions, entry = self.window(int(k))
+            sequences.append(positions[:-1].transpose(1, 0, 2))
+            targets.append(positions[-1])
+            types.append(entry["particle_type"])
+            radii.append(entry["radius"])
+            params.append(entry["parameters"])
+            layouts.append(entry["layout"])
+            graph.append(np.full(len(entry["radius"]), g))
+        as_float = lambda arrays: torch.from_numpy(np.concatenate(arrays).astype(np.float32))  # noqa: E731
+        context = Context(torch.from_numpy(np.concatenate(types)), as_float(radii),
+                          torch.from_numpy(np.stack(params).astype(np.float32)),
+                          torch.from_numpy(np.stack(layouts).astype(np.float32)),
+                          torch.from_numpy(np.concatenate(graph).astype(np.int64)))
+        return Batch(as_float(sequences), as_float(targets), context)

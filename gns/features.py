@@ -1,0 +1,81 @@
+"""Node and edge features of the GNS, each built in a labelled block and concatenated.
+
+Node features follow the paper's eq. (4), x_i = [p_i, pdot_i^{t-C+1..t}, b_i, f_i, params, layout]:
+  velocity        [N, 2 (C-1)]  the C - 1 finite-difference velocities of the last C positions
+                                 (m per frame), normalised by the training statistics
+  walls           [N, 4]         distance to the left, right, bottom and top walls / connectivity
+                                 radius, clipped to [-1, 1] (a wall further than the radius reads 1)
+  particle_type   [N, E]         a learned embedding (added by the simulator; it owns the weights)
+  parameters      [N, P]         DEM parameters (friction, restitution, ...) scaled to [0, 1] over
+                                 the dataset's parameter_ranges
+  layout          [N, 2]         initial column length L_i and height H_i scaled to [0, 1] likewise
+  size            [N, 1]         grain radius / mean grain radius - 1
+Edge features follow eq. (5): (p_sender - p_receiver) / connectivity radius and its norm, plus the
+gap between the two grain surfaces / connectivity radius [E, 4].
+
+Where this differs from the paper, and why:
+  - no absolute position p_i: it would break translation invariance and lets the network
+    memorise where grains sit in the training cases; the wall distances carry what the position
+    says about the boundaries (as in Sanchez-Gonzalez et al. 2020, whose code the paper adapted).
+  - C positions give C - 1 velocities (the paper writes C velocities from C positions, which
+    cannot be formed from C positions without the frame before them).
+  - `size` (node) and `gap` (edge) are new: our grains are polydisperse (diameter +-10%), so
+    whether a pair touches depends on both sizes, not on the centre distance alone; the gap
+    (negative = overlap) states it directly instead of leaving the network to combine centre
+    distance and both sizes, which took many more training steps.
+  - degenerate ranges (a parameter fixed across the dataset) give a constant 0 feature.
+"""
+from __future__ import annotations
+
+import torch
+
+NODE_BLOCKS = ("velocity", "walls", "particle_type", "parameters", "layout", "size")
+EDGE_BLOCKS = ("displacement", "distance", "gap")
+
+
+def node_layout(n_input_frames: int, type_embedding_size: int, n_parameters: int) -> list[tuple[str, int]]:
+    """[(block name, width)] of the node features in the order they are concatenated."""
+    widths = {"velocity": 2 * (n_input_frames - 1), "walls": 4, "particle_type": type_embedding_size,
+              "parameters": n_parameters, "layout": 2, "size": 1}
+    return [(name, widths[name]) for name in NODE_BLOCKS]
+
+
+def edge_layout() -> list[tuple[str, int]]:
+    return [("displacement", 2), ("distance", 1), ("gap", 1)]
+
+
+def velocity_features(position_sequence, velocity_mean, velocity_std):
+    """position_sequence [N, C, 2] (m) -> normalised velocities [N, 2 (C-1)]."""
+    velocity = position_sequence[:, 1:] - position_sequence[:, :-1]          # m per frame
+    return ((velocity - velocity_mean) / velocity_std).flatten(1)
+
+
+def wall_features(position, bounds, connectivity_radius):
+    """position [N, 2] (m), bounds [2, 2] ((x_min, x_max), (y_min, y_max)) -> [N, 4]:
+    distances to left, right, bottom, top walls / radius, clipped to [-1, 1]."""
+    lower = position - bounds[:, 0]
+    upper = bounds[:, 1] - position
+    distance = torch.stack([lower[:, 0], upper[:, 0], lower[:, 1], upper[:, 1]], dim=1)
+    return torch.clamp(distance / connectivity_radius, -1.0, 1.0)
+
+
+def scaled(values, low, high):
+    """values [..., P] scaled to [0, 1] over [low, high]; a degenerate range gives 0."""
+    span = high - low
+    safe = torch.where(span > 0, span, torch.ones_like(span))
+    return torch.where(span > 0, (values - low) / safe, torch.zeros_like(values))
+
+
+def size_features(radius, mean_radius):
+    """radius [N] (m) -> [N, 1] relative deviation from the mean grain radius."""
+    return (radius / mean_radius - 1.0)[:, None]
+
+
+def edge_features(position, grain_radius, senders, receivers, connectivity_radius):
+    """position [N, 2] (m), grain_radius [N] (m) -> [E, 4]: displacement sender - receiver,
+    its norm, and the surface gap |d| - r_s - r_r, all / connectivity radius."""
+    displacement = (position[senders] - position[receivers]) / connectivity_radius
+    # the norm's gradient is undefined at 0; no self edges, but coincident grains must not give NaN
+    distance = torch.sqrt(torch.sum(displacement ** 2, dim=-1, keepdim=True) + 1e-12)
+    gap = distance - ((grain_radius[senders] + grain_radius[receivers]) / connectivity_radius)[:, None]
+    return torch.cat([displacement, distance, gap.to(distance.dtype)], dim=-1)

@@ -1,0 +1,390 @@
+"""Training: one-step acceleration loss with random-walk input noise, Adam with exponential decay.
+
+Outputs in `out_dir`:
+  checkpoint_last.pt  model, optimiser, sampler and noise RNG states, step, metrics history:
+                      a killed training started again with the same settings resumes from it and
+                      continues exactly as if never stopped (same samples, same noise, same loss)
+  model_best.pt       the validated model (the exponential moving average of the weights,
+                      ema_decay) with the lowest validation runout MSE so far (the paper keeps
+                      the best validated model; it validated every 500 steps)
+  metrics.csv, loss_curve.png
+Validation, every `validate_every` steps: the one-step loss on fixed windows of the valid split
+and a full rollout of every valid trajectory, scored by the runout MSE against its DEM curve.
+"""
+from __future__ import annotations
+
+import copy
+import csv
+import dataclasses
+import logging
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from dem.atomic import atomic_path
+from dem.trajectory import read_trajectory
+from gns.data import TrajectoryWindows, read_metadata, split_paths
+from gns.graph import graph_summary, radius_graph
+from gns.simulator import CheckpointError, LearnedSimulator, SimulatorConfig, model_payload
+
+log = logging.getLogger(__name__)
+TRAIN_FORMAT = "gns-train-1"
+# settings that may change when a training resumes; every other one shapes the result
+RESUMABLE = ("steps", "log_every", "checkpoint_every", "device")
+
+
+@dataclass
+class TrainSettings:
+    """The config's `gns` section (workflow/schemas/config.schema.yaml documents each key)."""
+
+    connectivity_radius: float = 2.0     # in mean grain diameters of the dataset
+    n_input_frames: int = 6              # C
+    latent_size: int = 64
+    mlp_hidden_layers: int = 2
+    n_message_passing: int = 5           # M
+    type_embedding_size: int = 16
+    max_neighbours: int | None = None
+    wall_clamp: bool = True              # rollouts keep grains out of the walls (LearnedSimulator.keep_inside_walls)
+    noise_std: float = 0.005             # mean grain diameters per frame, on the last input velocity
+    steps: int = 3000
+    batch_size: int = 2                  # windows (graphs) per step
+    learning_rate: float = 1e-3
+    learning_rate_final: float = 1e-5
+    learning_rate_decay_steps: int = 3000   # lr falls by 10x over this many steps towards the final
+    ema_decay: float = 0.99              # validated and saved model: exponential moving average of the
+                                         # weights (0: the raw weights); smooths step-to-step jitter
+    validate_every: int = 250
+    validation_windows: int = 16
+    validation_rollouts: int = 8         # valid trajectories rolled out per validation (evenly picked)
+    checkpoint_every: int = 100
+    log_every: int = 50
+    seed: int = 0
+    device: str = "auto"                 # "auto": cuda when present, else cpu
+
+    @classmethod
+    def from_config(cls, section: dict | None) -> "TrainSettings":
+        section = dict(section or {})
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(section) - known
+        if unknown:
+            raise ValueError(f"config gns: unknown key(s) {sorted(unknown)}; known: {sorted(known)}")
+        return cls(**section)
+
+    def learning_rate_at(self, step: int) -> float:
+        """lr(step) = (lr0 - lr_final) 0.1^(step / decay_steps) + lr_final (Sanchez-Gonzalez et al.)."""
+        decay = 0.1 ** (step / self.learning_rate_decay_steps)
+        return (self.learning_rate - self.learning_rate_final) * decay + self.learning_rate_final
+
+
+def simulator_config(metadata: dict, settings: TrainSettings) -> SimulatorConfig:
+    """Model config from the dataset's geometry and statistics and the training settings."""
+    diameter = float(metadata["material_diameter"])
+    return SimulatorConfig(
+        connectivity_radius=settings.connectivity_radius * diameter,
+        bounds=[[float(v) for v in b] for b in metadata["bounds"]],
+        parameter_ranges={k: [float(v) for v in r] for k, r in metadata["parameter_ranges"].items()},
+        mean_radius=0.5 * diameter, dt_frame=float(metadata["dt_frame"]),
+        velocity_mean=list(map(float, metadata["velocity_mean"])), velocity_std=list(map(float, metadata["velocity_std"])),
+        acceleration_mean=list(map(float, metadata["acceleration_mean"])),
+        acceleration_std=list(map(float, metadata["acceleration_std"])),
+        noise_std=settings.noise_std * diameter, n_input_frames=settings.n_input_frames,
+        latent_size=settings.latent_size, mlp_hidden_layers=settings.mlp_hidden_layers,
+        n_message_passing=settings.n_message_passing, type_embedding_size=settings.type_embedding_size,
+        max_neighbours=settings.max_neighbours, wall_clamp=settings.wall_clamp)
+
+
+def random_walk_noise(position_sequence: torch.Tensor, noise_std: float, generator: torch.Generator) -> torch.Tensor:
+    """Noise [N, C, 2] (m) for position_sequence [N, C, 2]: a random walk on the C - 1 velocities
+    whose last step has std noise_std (m/frame); the first position is left untouched."""
+    n, c, _ = position_sequence.shape
+    velocity_noise = torch.randn((n, c - 1, 2), generator=generator) * (noise_std / math.sqrt(c - 1))
+    position_noise = torch.cumsum(torch.cumsum(velocity_noise, dim=1), dim=1)
+    return torch.cat([torch.zeros((n, 1, 2)), position_noise], dim=1)
+
+
+def one_step_loss(simulator: LearnedSimulator, batch, noise: torch.Tensor) -> torch.Tensor:
+    """Mean over particles of the squared error in normalised acceleration (summed over x, y)."""
+    predicted, target = simulator.predict_accelerations(batch.next_position, noise, batch.position_sequence,
+                                                        batch.context)
+    return torch.mean(torch.sum((predicted - target) ** 2, dim=-1))
+
+
+def resolve_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+class Trainer:
+    """State of one training run; `run()` trains to settings.steps, resuming when it can."""
+
+    COLUMNS = ("step", "learning_rate", "train_loss", "edges_per_node", "particles_per_graph", "steps_per_s",
+               "valid_one_step_loss", "valid_position_mse", "valid_runout_mse", "valid_rollouts_failed")
+
+    def __init__(self, metadata_path, out_dir, settings: TrainSettings):
+        self.metadata_path = str(metadata_path)
+        self.metadata = read_metadata(metadata_path)
+        self.out_dir = Path(out_dir)
+        self.settings = settings
+        self.device = resolve_device(settings.device)
+        self.config = simulator_config(self.metadata, settings)
+        names = self.config.parameter_names
+        self.train_windows = TrajectoryWindows(split_paths(self.metadata, "train"),
+                                               settings.n_input_frames, names, self.config.dt_frame)
+        valid_paths = split_paths(self.metadata, "valid")
+        picked = np.linspace(0, len(valid_paths) - 1, min(settings.validation_rollouts, len(valid_paths)))
+        self.valid_paths = [valid_paths[k] for k in sorted(set(picked.round().astype(int)))]
+        self.valid_windows = TrajectoryWindows(valid_paths, settings.n_input_frames, names, self.config.dt_frame)
+        n_valid = min(settings.validation_windows, len(self.valid_windows))
+        self.valid_indices = np.linspace(0, len(self.valid_windows) - 1, n_valid).round().astype(int)
+        torch.manual_seed(settings.seed)
+        self.simulator = LearnedSimulator(self.config).to(self.device)
+        self.optimizer = torch.optim.Adam(self.simulator.parameters(), lr=settings.learning_rate)
+        self.averaged = copy.deepcopy(self.simulator)     # the EMA of the weights (ema_decay)
+        self.sampler = np.random.default_rng(settings.seed)
+        self.noise = torch.Generator().manual_seed(settings.seed)
+        self.step = 0
+        self.best = {"step": None, "valid_runout_mse": math.inf}
+        self.history: list[dict] = []
+        self.accumulated = {"loss": 0.0, "count": 0}
+        self.resumed_from = None
+
+    # -- checkpoints -------------------------------------------------------------------------------
+    @property
+    def checkpoint_path(self) -> Path:
+        return self.out_dir / "checkpoint_last.pt"
+
+    def save_checkpoint(self):
+        payload = {"format": TRAIN_FORMAT, "model": model_payload(self.simulator),
+                   "averaged_model": model_payload(self.averaged),
+                   "optimizer": self.optimizer.state_dict(), "step": self.step,
+                   "settings": dataclasses.asdict(self.settings), "dataset": self.metadata.get("name"),
+                   "sampler_state": self.sampler.bit_generator.state, "noise_state": self.noise.get_state(),
+                   "best": self.best, "history": self.history, "accumulated": self.accumulated}
+        with atomic_path(self.checkpoint_path) as tmp:
+            torch.save(payload, tmp)
+
+    def resume(self) -> bool:
+        """Load checkpoint_last.pt when present; CheckpointError when it does not fit these settings."""
+        path = self.checkpoint_path
+        if not path.exists():
+            return False
+        try:
+            payload = torch.load(path, map_location="cpu", weights_only=False)
+        except Exception as exc:  # noqa: BLE001
+            raise CheckpointError(f"{path}: not a readable training checkpoint ({exc}); delete it to start afresh") from None
+        if not isinstance(payload, dict) or payload.get("format") != TRAIN_FORMAT:
+            raise CheckpointError(f"{path}: not a GNS training checkpoint; delete it to start afresh")
+        changed = {k: (v, getattr(self.settings, k)) for k, v in payload["settings"].items()
+                   if k not in RESUMABLE and getattr(self.settings, k, None) != v}
+        if changed:
+            raise CheckpointError(f"{path}: was trained with other settings {changed} (checkpoint, now); "
+                                  "restore them or delete the output folder to start afresh")
+        saved = SimulatorConfig.from_dict(payload["model"]["config"])
+        saved.check_compatible(self.metadata, where=f"{path} resumed on dataset {self.metadata.get('name', '?')}")
+        if saved.to_dict() != self.config.to_dict():
+            diff = {k: v for k, v in saved.to_dict().items() if self.config.to_dict().get(k) != v}
+            raise CheckpointError(f"{path}: model config differs from this dataset's ({sorted(diff)}); "
+                                  "delete the output folder to start afresh")
+        self.simulator.load_state_dict(payload["model"]["state_dict"])
+        self.averaged.load_state_dict(payload["averaged_model"]["state_dict"])
+        self.optimizer.load_state_dict(payload["optimizer"])
+        self.sampler.bit_generator.state = payload["sampler_state"]
+        self.noise.set_state(payload["noise_state"])
+        self.step, self.best, self.history = payload["step"], payload["best"], payload["history"]
+        self.accumulated = payload["accumulated"]
+        self.resumed_from = self.step
+        log.info("resumed %s at step %d", path, self.step)
+        return True
+
+    # -- one step ---------------------------------------------------------------------------------
+    def train_step(self) -> float:
+        s = self.settings
+        indices = self.sampler.integers(0, len(self.train_windows), s.batch_size)
+        batch = self.train_windows.batch(indices)
+        noise = random_walk_noise(batch.position_sequence, self.config.noise_std, self.noise)
+        batch = batch.to(self.device)
+        for group in self.optimizer.param_groups:
+            group["lr"] = s.learning_rate_at(self.step)
+        self.simulator.train()
+        loss = one_step_loss(self.simulator, batch, noise.to(self.device))
+        self.optimizer.zero_grad()
+        loss.backward()
+        self.optimizer.step()
+        with torch.no_grad():
+            decay = s.ema_decay
+            for averaged, current in zip(self.averaged.parameters(), self.simulator.parameters()):
+                averaged.mul_(decay).add_(current, alpha=1.0 - decay)
+        self.step += 1
+        value = float(loss.detach())
+        if not math.isfinite(value):
+            raise FloatingPointError(f"training loss turned {value} at step {self.step}; lower learning_rate")
+        self.last_batch = batch
+        self.accumulated["loss"] += value
+        self.accumulated["count"] += 1
+        return value
+
+    # -- validation --------------------------------------------------------------------------------
+    def validate(self) -> dict:
+        from gns.evaluate import runout_mse
+        from gns.rollout import rollout_trajectory
+
+        model = self.averaged
+        model.eval()
+        losses, position_errors = [], []
+        with torch.no_grad():
+            for k in self.valid_indices:
+                batch = self.valid_windows.batch([k]).to(self.device)
+                zero = torch.zeros_like(batch.position_sequence)
+                losses.append(float(one_step_loss(model, batch, zero)))
+                predicted = model.predict_positions(batch.position_sequence, batch.context)
+                position_errors.append(float(torch.mean(torch.sum((predicted - batch.next_position) ** 2, -1))))
+        runout_errors, failed = [], 0
+        for path in self.valid_paths:
+            dem = read_trajectory(path)
+            gns = rollout_trajectory(model, dem, on_invalid="flag")
+            if not gns.attrs["rollout_valid"]:
+                failed += 1
+                log.warning("validation rollout of %s failed: %s", path, gns.attrs["rollout_problem"])
+                runout_errors.append(math.inf)
+            else:
+                runout_errors.append(runout_mse(dem, gns))
+        return {"valid_one_step_loss": float(np.mean(losses)), "valid_position_mse": float(np.mean(position_errors)),
+                "valid_runout_mse": float(np.mean(runout_errors)), "valid_rollouts_failed": failed}
+
+    # -- the loop ---------------------------------------------------------------------------------
+    def run(self, resume: bool = True, restart_on_mismatch: bool = False) -> dict:
+        s = self.settings
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        if resume and restart_on_mismatch:
+            try:
+                self.resume()
+            except CheckpointError as exc:     # made for other data or settings: set it aside
+                stale = self.checkpoint_path.with_suffix(".stale.pt")
+                self.checkpoint_path.replace(stale)
+                log.warning("starting afresh; %s (moved to %s)", exc, stale)
+        elif resume:
+            self.resume()
+        elif self.checkpoint_path.exists():
+            raise CheckpointError(f"{self.checkpoint_path} exists and resume=False; delete it to start afresh")
+        log.info("training %s on %s: %d train windows from %d files, %d valid trajectories, device %s, "
+                 "connectivity radius %.3g m", self.out_dir, self.metadata.get("name"), len(self.train_windows),
+                 len(self.train_windows.files), len(self.valid_paths), self.device, self.config.connectivity_radius)
+        tick, tick_step = time.perf_counter(), self.step
+        while self.step < s.steps:
+            loss = self.train_step()
+            self.last_loss = loss
+            row = None
+            if self.step % s.log_every == 0 or self.step == s.steps:
+                now = time.perf_counter()
+                row = self.log_row(self.step - tick_step, now - tick)
+                tick, tick_step = now, self.step
+            if self.step % s.validate_every == 0 or self.step == s.steps:
+                metrics = self.validate()
+                row = row or self.log_row(0, 0.0)
+                row.update(metrics)
+                log.info("step %d validation: one-step loss %.4g, runout MSE %.4g (%d rollouts failed)", self.step,
+                         metrics["valid_one_step_loss"], metrics["valid_runout_mse"], metrics["valid_rollouts_failed"])
+                if metrics["valid_runout_mse"] < self.best["valid_runout_mse"]:
+                    self.best = {"step": self.step, "valid_runout_mse": metrics["valid_runout_mse"]}
+                    self.save_best()
+            if row is not None:
+                self.history.append(row)
+            validated = self.step % s.validate_every == 0 or self.step == s.steps
+            if validated or self.step % s.checkpoint_every == 0:
+                self.save_checkpoint()
+                self.write_metrics(figure=validated)
+        if self.best["step"] is None:     # every validation rollout failed: keep the last model, say so
+            log.warning("no validation rollout succeeded; model_best.pt holds the last model")
+            self.save_best()
+        return {"step": self.step, "resumed_from": self.resumed_from, "best": self.best,
+                "last_train_loss": self.history[-1]["train_loss"] if self.history else None,
+                "out_dir": str(self.out_dir)}
+
+    def log_row(self, steps: int, seconds: float) -> dict:
+        acc = self.accumulated
+        count = max(acc["count"], 1)
+        row = {key: math.nan for key in self.COLUMNS}
+        row.update(step=self.step, learning_rate=self.settings.learning_rate_at(self.step),
+                   train_loss=acc["loss"] / count if acc["count"] else math.nan,
+                   steps_per_s=steps / seconds if seconds > 0 else math.nan)
+        batch = getattr(self, "last_batch", None)
+        if batch is not None:     # the graph of the last training batch, per graph
+            senders, _ = radius_graph(batch.position_sequence[:, -1], self.config.connectivity_radius,
+                                      batch.context.graph_index, self.config.max_neighbours)
+            graphs = int(batch.context.graph_index.max()) + 1
+            graph = graph_summary(batch.position_sequence.shape[0], senders)
+            row.update(edges_per_node=graph["edges_per_node"], particles_per_graph=graph["particles"] / graphs)
+        if steps:
+            log.info("step %d/%d loss %.4g lr %.3g %.2f steps/s, %d particles/graph, %.1f edges/node",
+                     self.step, self.settings.steps, row["train_loss"], row["learning_rate"], row["steps_per_s"],
+                     row["particles_per_graph"], row["edges_per_node"])
+        self.accumulated = {"loss": 0.0, "count": 0}
+        return row
+
+    # -- outputs -----------------------------------------------------------------------------------
+    def save_best(self):
+        payload = model_payload(self.averaged)
+        payload.update(step=self.step, valid_runout_mse=self.best["valid_runout_mse"],
+                       dataset=self.metadata.get("name"), settings=dataclasses.asdict(self.settings))
+        with atomic_path(self.out_dir / "model_best.pt") as tmp:
+            torch.save(payload, tmp)
+
+    def write_metrics(self, figure: bool = True):
+        with atomic_path(self.out_dir / "metrics.csv") as tmp:
+            with open(tmp, "w", newline="") as f:
+                writer = csv.DictWriter(f, fieldnames=self.COLUMNS)
+                writer.writeheader()
+                writer.writerows({k: row.get(k, math.nan) for k in self.COLUMNS} for row in self.history)
+        if figure:
+            plot_loss_curve(self.history, self.out_dir / "loss_curve.png", self.best)
+
+
+def plot_loss_curve(history: list[dict], path, best: dict | None = None):
+    """Training loss and validation metrics against step."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from dem.plots import save_figure
+
+    fig, (ax_loss, ax_runout) = plt.subplots(1, 2, figsize=(10, 3.8))
+    column = lambda key: np.array([row.get(key, math.nan) for row in history], float)  # noqa: E731
+    step = column("step")
+    for key, style in (("train_loss", "-"), ("valid_one_step_loss", "o-")):
+        ok = np.isfinite(column(key))
+        if ok.any():
+            ax_loss.plot(step[ok], column(key)[ok], style, label=key.replace("_", " "), ms=3)
+    ax_loss.set(xlabel="step", ylabel="one-step loss (normalised acceleration MSE)", yscale="log")
+    ax_loss.legend(fontsize=8)
+    ok = np.isfinite(column("valid_runout_mse"))
+    if ok.any():
+        ax_runout.plot(step[ok], column("valid_runout_mse")[ok], "o-", ms=3, label="valid runout MSE")
+        ax_runout.set(yscale="log")
+    if best and best.get("step") is not None:
+        ax_runout.axvline(best["step"], color="0.5", ls=":", label=f"best (step {best['step']})")
+    ax_runout.set(xlabel="step", ylabel="runout MSE (L*) on the valid split")
+    if ax_runout.get_legend_handles_labels()[0]:
+        ax_runout.legend(fontsize=8)
+    for ax in (ax_loss, ax_runout):
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def train(metadata_path, out_dir, settings: TrainSettings | dict | None = None, resume: bool = True,
+          restart_on_mismatch: bool = False) -> dict:
+    """Train (or resume training) a GNS on the dataset at `metadata_path`; outputs in `out_dir`.
+
+    resume: continue from out_dir/checkpoint_last.pt when present. A checkpoint made with other
+    settings or data raises CheckpointError, or with restart_on_mismatch is moved aside and
+    training starts afresh (the workflow's choice: changed inputs mean a new model).
+    """
+    if not isinstance(settings, TrainSettings):
+        settings = TrainSettings.from_config(settings)
+    return Trainer(metadata_path, out_dir, settings).run(resume=resume, restart_on_mismatch=restart_on_mismatch)

@@ -1,0 +1,135 @@
+"""GNS training, resume after a kill, streaming windows, evaluation outputs."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import torch
+
+from dem.dataset import DatasetError
+from dem.trajectory import read_trajectory
+from gns.data import TrajectoryWindows, read_metadata
+from gns.evaluate import evaluate_rollouts, rollout_case, runout_mse
+from gns.simulator import CheckpointError, load_simulator
+from gns.train import train
+from tests.gns_synthetic import synthetic_dataset
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = dict(latent_size=16, n_message_passing=2, connectivity_radius=4.0, noise_std=0.01, batch_size=2, log_every=5,
+            checkpoint_every=5, validate_every=30, learning_rate=3e-3, learning_rate_decay_steps=1000)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    return synthetic_dataset(tmp_path_factory.mktemp("gns_train"), n_train=4, n_frames=24)
+
+
+@pytest.fixture(scope="module")
+def trained(dataset, tmp_path_factory):
+    out = tmp_path_factory.mktemp("gns_run")
+    result = train(dataset, out, dict(TINY, steps=60))
+    return out, result
+
+
+def test_training_lowers_the_loss_and_writes_its_outputs(trained, dataset):
+    out, result = trained
+    assert result["step"] == 60 and result["best"]["step"] in (30, 60)
+    rows = list(np.genfromtxt(out / "metrics.csv", delimiter=",", names=True))
+    assert [int(r["step"]) for r in rows] == list(range(5, 61, 5))
+    assert np.mean([r["train_loss"] for r in rows[-3:]]) < 0.7 * np.mean([r["train_loss"] for r in rows[:2]])
+    assert all(r["particles_per_graph"] == 12 and r["edges_per_node"] > 0 for r in rows)
+    validated = [r for r in rows if np.isfinite(r["valid_one_step_loss"])]
+    assert [int(r["step"]) for r in validated] == [30, 60]
+    best = min(validated, key=lambda r: r["valid_runout_mse"])     # a failed rollout scores inf
+    assert np.isfinite(best["valid_runout_mse"]) and result["best"]["step"] == int(best["step"])
+    assert (out / "loss_curve.png").stat().st_size > 10_000
+    model = torch.load(out / "model_best.pt", weights_only=False)
+    assert model["valid_runout_mse"] == pytest.approx(result["best"]["valid_runout_mse"])
+    load_simulator(out / "model_best.pt", read_metadata(dataset))
+
+
+def test_training_resumes_after_a_kill_exactly_as_if_uninterrupted(dataset, tmp_path):
+    settings = dict(TINY, steps=30)
+    reference = train(dataset, tmp_path / "reference", settings)
+
+    killed = tmp_path / "killed"
+    script = ("import json, sys, torch; torch.set_num_threads(1); from gns.train import train; "
+              "train(sys.argv[1], sys.argv[2], json.loads(sys.argv[3]))")
+    process = subprocess.Popen([sys.executable, "-c", script, dataset, str(killed),
+                                json.dumps(dict(settings, steps=100_000))], cwd=ROOT,
+                               env={**os.environ, "PYTHONPATH": str(ROOT)}, stderr=subprocess.PIPE)
+    deadline = time.time() + 60
+    while not (killed / "checkpoint_last.pt").exists():
+        assert process.poll() is None, process.stderr.read().decode()
+        assert time.time() < deadline, "no checkpoint within 60 s"
+        time.sleep(0.005)
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    stopped_at = torch.load(killed / "checkpoint_last.pt", weights_only=False)["step"]
+    assert 5 <= stopped_at < 30
+
+    resumed = train(dataset, killed, settings)
+    assert resumed["resumed_from"] == stopped_at and resumed["step"] == reference["step"] == 30
+    assert resumed["last_train_loss"] == reference["last_train_loss"]
+    assert resumed["best"] == reference["best"]
+    a = torch.load(tmp_path / "reference" / "checkpoint_last.pt", weights_only=False)
+    b = torch.load(killed / "checkpoint_last.pt", weights_only=False)
+    assert all(torch.equal(a["model"]["state_dict"][k], b["model"]["state_dict"][k]) for k in a["model"]["state_dict"])
+    assert [r["train_loss"] for r in a["history"]] == [r["train_loss"] for r in b["history"]]
+
+    with pytest.raises(CheckpointError, match="other settings.*latent_size"):
+        train(dataset, killed, dict(settings, latent_size=32))
+
+
+def test_dataset_without_statistics_is_refused(dataset, tmp_path):
+    metadata = json.loads(Path(dataset).read_text())
+    del metadata["velocity_std"]
+    (tmp_path / "metadata.json").write_text(json.dumps(metadata))
+    with pytest.raises(DatasetError, match="no normalisation statistics"):
+        read_metadata(tmp_path / "metadata.json")
+
+
+def test_windows_are_read_as_slices_of_the_files(dataset):
+    metadata = read_metadata(dataset)
+    paths = metadata["splits"]["train"]
+    windows = TrajectoryWindows(paths, 6, ["friction", "restitution"], metadata["dt_frame"])
+    assert len(windows) == 4 * (24 - 6)
+    positions, entry = windows.window(18 + 7)            # second file, frames 7..13
+    with h5py.File(paths[1]) as f:
+        assert np.array_equal(positions, f["positions"][7:14])
+    batch = windows.batch([0, 25])
+    assert batch.position_sequence.shape == (24, 6, 2) and batch.context.graph_index.tolist() == [0] * 12 + [1] * 12
+    assert torch.equal(batch.next_position[12:], torch.from_numpy(positions[-1]))
+
+
+def test_evaluation_rolls_out_test_cases_and_scores_them(trained, dataset, tmp_path):
+    out, _ = trained
+    metadata = read_metadata(dataset)
+    dem_path = metadata["splits"]["test"][0]
+    gns = rollout_case(out / "model_best.pt", dem_path, tmp_path / "rollout.h5", dataset)
+    written = read_trajectory(tmp_path / "rollout.h5")
+    assert written.attrs["engine"] == "gns" and written.n_frames == 24
+    assert np.array_equal(written.positions[:6], read_trajectory(dem_path).positions[:6])
+    assert gns.attrs["rollout_valid"] == 1
+    summary = evaluate_rollouts([(dem_path, tmp_path / "rollout.h5")], tmp_path / "eval")
+    assert summary["n_cases"] == 1 and np.isfinite(summary["runout_mse"]) and summary["position_mse_d2"] > 0
+    assert (tmp_path / "eval" / "runout_curves.png").exists()
+    assert (tmp_path / "eval" / "snapshots" / f"{Path(dem_path).stem}.png").exists()
+    dem = read_trajectory(dem_path)
+    assert runout_mse(dem, dem) == 0.0

@@ -1,0 +1,42 @@
+# Shared by every stage: the validated config, the case table, and the two lists each stage
+# appends to. Logic lives in the dem package (dem/grid.py); this file only calls it.
+from pathlib import Path
+
+import dem.grid
+from snakemake.utils import min_version
+
+min_version("9.0")
+
+# Fails before any job runs, naming the key and what it allows; fills schema defaults.
+config.update(dem.grid.validate_config(config, Path(workflow.basedir, "workflow/schemas/config.schema.yaml")))
+
+# The case table, built once: {case_key: row}, case_key = "<dataset>/<case_id>".
+# A row holds every CollapseCase field of the case plus dataset, case_id and split.
+CASES = dem.grid.case_table(config)
+DATASETS = sorted(config["datasets"])
+
+# Every stage appends the files `rule all` must build ...
+FINAL_TARGETS = []
+# ... and its report fragment: (title, "results/report/<stage>.md"), in report order.
+REPORT_SECTIONS = []
+
+
+wildcard_constraints:
+    dataset=r"[A-Za-z0-9_\-]+",
+    case_id=r"[A-Za-z0-9_\-]+",
+
+
+# Conventions for every stage (dem/report.py reads them):
+#   log:       results/logs/<stage>/<rule>[/<wildcards>].log
+#   benchmark: results/benchmarks/<stage>/<rule>[/<wildcards>].tsv  -> the report's time table
+#   report:    results/report/<stage>.md, links relative to that file; register it with
+#              REPORT_SECTIONS.append(("Title", "results/report/<stage>.md"))
+def case_row(wildcards):
+    """The case-table row of a {dataset}/{case_id} job (used as params, so editing one case in the
+    config reruns that case's jobs only)."""
+    return CASES[f"{wildcards.dataset}/{wildcards.case_id}"]
+
+
+def dataset_cases(dataset):
+    """Rows of one dataset, in case_id order."""
+    return [row for key, row in CASES.items() if row["dataset"] == dataset]

@@ -1,0 +1,79 @@
+# DEM stage: case table -> deck -> settled packing -> collapse run -> trajectory HDF5 -> figure.
+# One job per case and step; outputs under results/dem/<dataset>/.
+
+# The settled packing comes from the builtin settling step for every engine, so all engines start
+# from the same grains; dem_run hands it to the engine named by config dem.engine (dem.engines).
+
+
+rule dem_deck:
+    output:
+        "results/dem/{dataset}/decks/{case_id}.json",
+    params:
+        row=case_row,
+    log:
+        "results/logs/dem/dem_deck/{dataset}/{case_id}.log",
+    benchmark:
+        "results/benchmarks/dem/dem_deck/{dataset}/{case_id}.tsv"
+    localrule: True
+    script:
+        "../scripts/dem_deck.py"
+
+
+rule dem_packing:
+    input:
+        deck="results/dem/{dataset}/decks/{case_id}.json",
+    output:
+        "results/dem/{dataset}/packings/{case_id}.h5",
+    log:
+        "results/logs/dem/dem_packing/{dataset}/{case_id}.log",
+    benchmark:
+        "results/benchmarks/dem/dem_packing/{dataset}/{case_id}.tsv"
+    threads: config["dem"]["threads"]
+    resources:
+        runtime=60,
+        mem_mb=1000,
+    script:
+        "../scripts/dem_packing.py"
+
+
+rule dem_run:
+    input:
+        deck="results/dem/{dataset}/decks/{case_id}.json",
+        packing="results/dem/{dataset}/packings/{case_id}.h5",
+    output:
+        "results/dem/{dataset}/trajectories/{case_id}.h5",
+    params:
+        engine=config["dem"]["engine"],
+        solvers=config["dem"]["solvers"],
+        keep_work=config["dem"]["keep_work"],
+        work_dir="results/dem/{dataset}/work/{case_id}",
+    log:
+        "results/logs/dem/dem_run/{dataset}/{case_id}.log",
+    benchmark:
+        "results/benchmarks/dem/dem_run/{dataset}/{case_id}.tsv"
+    threads: config["dem"]["threads"]
+    resources:
+        runtime=240,
+        mem_mb=2000,
+    script:
+        "../scripts/dem_run.py"
+
+
+rule dem_figure:
+    input:
+        "results/dem/{dataset}/trajectories/{case_id}.h5",
+    output:
+        "results/dem/{dataset}/figures/{case_id}.png",
+    log:
+        "results/logs/dem/dem_figure/{dataset}/{case_id}.log",
+    benchmark:
+        "results/benchmarks/dem/dem_figure/{dataset}/{case_id}.tsv"
+    resources:
+        runtime=15,
+        mem_mb=1000,
+    script:
+        "../scripts/dem_figure.py"
+
+
+if config["dem"]["figures"]:
+    FINAL_TARGETS += [f"results/dem/{row['dataset']}/figures/{row['case_id']}.png" for row in CASES.values()]

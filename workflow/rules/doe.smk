@@ -1,0 +1,120 @@
+# DoE stage (doe/, issue 6): for every measured column named in doe.measured, a full-factorial
+# design over friction and restitution (7 x 7 + replicated centre by default) run in DEM through
+# the DEM stage's own rules (case-table dataset "doe_<name>", case_id = run_id), the response-
+# surface regression and ANOVA, a DEM validation run at each model's optimum, figures, and the
+# report section results/report/doe.md. Outputs under results/doe/<name>/.
+import doe.design
+import doe.study
+from calibration.measured import load_column
+
+DOE = config["doe"]
+DOE_NAMES = DOE["measured"]
+DOE_DESIGN = doe.design.design_from_config(DOE)
+DOE_RUNS = list(DOE_DESIGN["run_id"])
+DOE_CASE_FIELDS = {"size_scale": DOE["size_scale"], "duration_over_tstar": DOE["duration_over_tstar"]}
+
+for _name in DOE_NAMES:
+    if _name not in config["measured"]:
+        raise WorkflowError(f"config key doe.measured: {_name!r} is not an entry of `measured` "
+                            f"(entries: {sorted(config['measured'])})")
+    if f"doe_{_name}" in config["datasets"]:
+        raise WorkflowError(f"config key datasets.doe_{_name}: the name is taken by the DoE of measured {_name!r}")
+    # the design runs join the case table, so dem_deck/dem_packing/dem_run build them like any case
+    for _row in doe.study.case_rows(DOE_DESIGN, load_column(config["measured"][_name]), f"doe_{_name}",
+                                    **DOE_CASE_FIELDS):
+        CASES[f"doe_{_name}/{_row['case_id']}"] = _row
+
+
+wildcard_constraints:
+    doe_model=r"eq9|quadratic",
+
+
+rule doe_design:
+    input:
+        measured=lambda w: config["measured"][w.name],
+    output:
+        "results/doe/{name}/design.csv",
+    params:
+        doe=DOE,
+    log:
+        "results/logs/doe/doe_design/{name}.log",
+    benchmark:
+        "results/benchmarks/doe/doe_design/{name}.tsv"
+    localrule: True
+    script:
+        "../scripts/doe_design.py"
+
+
+rule doe_analyse:
+    input:
+        design="results/doe/{name}/design.csv",
+        measured=lambda w: config["measured"][w.name],
+        trajectories=expand("results/dem/doe_{{name}}/trajectories/{run}.h5", run=DOE_RUNS),
+    output:
+        responses="results/doe/{name}/responses.csv",
+        analysis="results/doe/{name}/analysis.json",
+        surface="results/doe/{name}/response_surface.png",
+    params:
+        doe=DOE,
+    log:
+        "results/logs/doe/doe_analyse/{name}.log",
+    benchmark:
+        "results/benchmarks/doe/doe_analyse/{name}.tsv"
+    resources:
+        runtime=30,
+        mem_mb=2000,
+    script:
+        "../scripts/doe_analyse.py"
+
+
+rule doe_validate:
+    input:
+        analysis="results/doe/{name}/analysis.json",
+        measured=lambda w: config["measured"][w.name],
+    output:
+        "results/doe/{name}/validation/{doe_model}.h5",
+    params:
+        case_fields=dict(DOE_CASE_FIELDS, seed=DOE["seed"]),
+    log:
+        "results/logs/doe/doe_validate/{name}/{doe_model}.log",
+    benchmark:
+        "results/benchmarks/doe/doe_validate/{name}/{doe_model}.tsv"
+    threads: config["dem"]["threads"]
+    resources:
+        runtime=240,
+        mem_mb=2000,
+    script:
+        "../scripts/doe_validate.py"
+
+
+rule doe_section:
+    input:
+        measured=[config["measured"][n] for n in DOE_NAMES],
+        analysis=expand("results/doe/{name}/analysis.json", name=DOE_NAMES),
+        responses=expand("results/doe/{name}/responses.csv", name=DOE_NAMES),
+        surfaces=expand("results/doe/{name}/response_surface.png", name=DOE_NAMES),
+        centre=expand("results/dem/doe_{name}/trajectories/{run}.h5", name=DOE_NAMES,
+                      run=doe.design.centre_run_id(DOE_DESIGN)),
+        validation=expand("results/doe/{name}/validation/{doe_model}.h5", name=DOE_NAMES,
+                          doe_model=DOE["validate"]),
+    output:
+        section="results/report/doe.md",
+        runout=expand("results/doe/{name}/runout.png", name=DOE_NAMES),
+    params:
+        names=DOE_NAMES,
+        models=DOE["validate"],
+        benchmarks=lambda w: {n: [f"results/benchmarks/dem/{rule}/doe_{n}/{run}.tsv" for rule in ("dem_packing", "dem_run")
+                                  for run in DOE_RUNS] + [f"results/benchmarks/doe/doe_validate/{n}/{m}.tsv"
+                                                          for m in DOE["validate"]] for n in DOE_NAMES},
+    log:
+        "results/logs/doe/doe_section.log",
+    benchmark:
+        "results/benchmarks/doe/doe_section.tsv"
+    localrule: True
+    script:
+        "../scripts/doe_section.py"
+
+
+if DOE_NAMES:
+    FINAL_TARGETS += expand("results/doe/{name}/runout.png", name=DOE_NAMES)
+    REPORT_SECTIONS.append(("Calibration by design of experiments (DoE)", "results/report/doe.md"))

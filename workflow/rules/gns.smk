@@ -1,0 +1,100 @@
+# GNS stage (gns/, issue 5): for every dataset in gns.datasets (default: all), train a graph-network
+# simulator on its train split (best model on its valid split), roll it out on each test case
+# from the case's first C frames, score the rollouts against the DEM, and write the report
+# section results/report/gns.md. Outputs under results/gns/<dataset>/.
+# Training resumes from results/gns/<dataset>/train/checkpoint_last.pt after a kill; that file is
+# not a declared output, so a failed job does not delete it.
+GNS = config["gns"]
+GNS_THREADS = GNS["threads"]
+GNS_SETTINGS = {k: v for k, v in GNS.items() if k not in ("datasets", "threads")}
+GNS_DATASETS = GNS.get("datasets", DATASETS)
+for _name in GNS_DATASETS:
+    if _name not in config["datasets"]:
+        raise WorkflowError(f"config key gns.datasets: {_name!r} is not a dataset (datasets: {DATASETS})")
+
+
+def gns_test_cases(dataset):
+    return [row["case_id"] for row in dataset_cases(dataset) if row["split"] == "test"]
+
+
+rule gns_train:
+    input:
+        metadata="results/datasets/{dataset}/metadata.json",
+    output:
+        model="results/gns/{dataset}/train/model_best.pt",
+        metrics="results/gns/{dataset}/train/metrics.csv",
+        figure="results/gns/{dataset}/train/loss_curve.png",
+    params:
+        settings=GNS_SETTINGS,
+    log:
+        "results/logs/gns/gns_train/{dataset}.log",
+    benchmark:
+        "results/benchmarks/gns/gns_train/{dataset}.tsv"
+    threads: GNS_THREADS
+    resources:
+        runtime=240,
+        mem_mb=4000,
+    script:
+        "../scripts/gns_train.py"
+
+
+rule gns_rollout:
+    input:
+        model="results/gns/{dataset}/train/model_best.pt",
+        metadata="results/datasets/{dataset}/metadata.json",
+        dem="results/dem/{dataset}/trajectories/{case_id}.h5",
+    output:
+        "results/gns/{dataset}/rollouts/{case_id}.h5",
+    log:
+        "results/logs/gns/gns_rollout/{dataset}/{case_id}.log",
+    benchmark:
+        "results/benchmarks/gns/gns_rollout/{dataset}/{case_id}.tsv"
+    threads: GNS_THREADS
+    resources:
+        runtime=30,
+        mem_mb=2000,
+    script:
+        "../scripts/gns_rollout.py"
+
+
+rule gns_evaluate:
+    input:
+        dem=lambda w: expand("results/dem/{dataset}/trajectories/{case_id}.h5", dataset=w.dataset,
+                             case_id=gns_test_cases(w.dataset)),
+        gns=lambda w: expand("results/gns/{dataset}/rollouts/{case_id}.h5", dataset=w.dataset,
+                             case_id=gns_test_cases(w.dataset)),
+    output:
+        summary="results/gns/{dataset}/evaluation/summary.json",
+        metrics="results/gns/{dataset}/evaluation/metrics.csv",
+        figure="results/gns/{dataset}/evaluation/runout_curves.png",
+    log:
+        "results/logs/gns/gns_evaluate/{dataset}.log",
+    benchmark:
+        "results/benchmarks/gns/gns_evaluate/{dataset}.tsv"
+    resources:
+        runtime=30,
+        mem_mb=2000,
+    script:
+        "../scripts/gns_evaluate.py"
+
+
+rule gns_section:
+    input:
+        summaries=expand("results/gns/{dataset}/evaluation/summary.json", dataset=GNS_DATASETS),
+        loss_curves=expand("results/gns/{dataset}/train/loss_curve.png", dataset=GNS_DATASETS),
+        metrics=expand("results/gns/{dataset}/train/metrics.csv", dataset=GNS_DATASETS),
+    output:
+        "results/report/gns.md",
+    params:
+        datasets=GNS_DATASETS,
+    log:
+        "results/logs/gns/gns_section.log",
+    benchmark:
+        "results/benchmarks/gns/gns_section.tsv"
+    localrule: True
+    script:
+        "../scripts/gns_section.py"
+
+
+FINAL_TARGETS += expand("results/gns/{dataset}/evaluation/summary.json", dataset=GNS_DATASETS)
+REPORT_SECTIONS.append(("Graph-network simulator", "results/report/gns.md"))

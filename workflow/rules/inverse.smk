@@ -1,0 +1,226 @@
+# Inverse-design stage (calibration/inverse.py, compare.py, recovery.py; issue 7). For every measured
+# column named in inverse.measured: a DEM run at the start point (its first frames start every GNS
+# rollout; its objective is the uncalibrated value), the GNS inverse design (L-BFGS-B, multi-start,
+# posterior), a DEM validation run at the GNS optimum, Bayesian optimisation directly on DEM runs,
+# and the comparison with the DoE (when the DoE calibrates the same column). For every dataset in
+# inverse.recovery_datasets: recovery of synthetic DEM targets. Report: results/report/inverse.md.
+import calibration.inverse
+from calibration.measured import load_column
+
+INVERSE = config["inverse"]
+INVERSE_NAMES = INVERSE["measured"]
+INVERSE_RECOVERY = INVERSE["recovery_datasets"]
+# BO on DEM is not bound to a GNS's trained range: it searches the paper's box unless told otherwise
+INVERSE_BO_BOUNDS = [INVERSE["friction"] or [0.3, 0.9], INVERSE["restitution"] or [0.3, 0.9]]
+INVERSE_DATASET = {}
+for _name in INVERSE_NAMES:
+    if _name not in config["measured"]:
+        raise WorkflowError(f"config key inverse.measured: {_name!r} is not an entry of `measured` "
+                            f"(entries: {sorted(config['measured'])})")
+    _dataset = INVERSE["dataset"].get(_name) or calibration.inverse.nearest_dataset(
+        load_column(config["measured"][_name]), list(CASES.values()), GNS_DATASETS)
+    if _dataset not in GNS_DATASETS:
+        raise WorkflowError(f"config key inverse.dataset.{_name}: {_dataset!r} has no GNS (gns datasets: {GNS_DATASETS})")
+    INVERSE_DATASET[_name] = _dataset
+    try:  # fail before any job runs when the GNS cannot take this column; warns when it is far from it
+        calibration.inverse.check_geometry_of_dataset(load_column(config["measured"][_name]), list(CASES.values()),
+                                                      _dataset)
+    except calibration.inverse.InverseDesignError as exc:
+        raise WorkflowError(f"config key inverse.measured: {_name!r} cannot be calibrated with the GNS of "
+                            f"dataset {_dataset!r}: {exc}")
+for _dataset in INVERSE_RECOVERY:
+    if _dataset not in GNS_DATASETS:
+        raise WorkflowError(f"config key inverse.recovery_datasets: {_dataset!r} has no GNS (gns datasets: {GNS_DATASETS})")
+
+
+def inverse_gns(name, what):
+    """model / metadata / evaluation file of the GNS that calibrates measured column `name`."""
+    dataset = INVERSE_DATASET[name]
+    return {"model": f"results/gns/{dataset}/train/model_best.pt",
+            "metadata": f"results/datasets/{dataset}/metadata.json",
+            "evaluation": f"results/gns/{dataset}/evaluation/summary.json"}[what]
+
+
+def inverse_benchmarks(name):
+    """Benchmark files of every job each calibration route of `name` ran (the comparison's times)."""
+    dataset = INVERSE_DATASET[name]
+    cases = [row["case_id"] for row in dataset_cases(dataset)]
+    dem_jobs = lambda ds, ids: [f"results/benchmarks/dem/{rule}/{ds}/{c}.tsv" for rule in ("dem_packing", "dem_run")
+                                for c in ids]
+    files = {"start": [f"results/benchmarks/inverse/inverse_start/{name}.tsv"],
+             "gns_dataset": dem_jobs(dataset, cases) + [f"results/benchmarks/dataset/dataset/{dataset}.tsv"],
+             "gns_training": [f"results/benchmarks/gns/gns_train/{dataset}.tsv"],
+             "gns_validation": [f"results/benchmarks/inverse/inverse_validate/{name}.tsv"],
+             "bayesopt": [f"results/benchmarks/inverse/inverse_bayesopt/{name}.tsv"]}
+    if name in DOE_NAMES:
+        files["doe"] = dem_jobs(f"doe_{name}", DOE_RUNS) + [f"results/benchmarks/doe/{rule}/{name}.tsv"
+                                                            for rule in ("doe_design", "doe_analyse")]
+        files["doe_validation"] = {m: [f"results/benchmarks/doe/doe_validate/{name}/{m}.tsv"] for m in DOE["validate"]}
+    return files
+
+
+rule inverse_start:
+    input:
+        measured=lambda w: config["measured"][w.name],
+        metadata=lambda w: inverse_gns(w.name, "metadata"),
+    output:
+        "results/inverse/{name}/start.h5",
+    params:
+        start=INVERSE["start"],
+        seed=INVERSE["seed"],
+    log:
+        "results/logs/inverse/inverse_start/{name}.log",
+    benchmark:
+        "results/benchmarks/inverse/inverse_start/{name}.tsv"
+    resources:
+        runtime=120,
+        mem_mb=2000,
+    script:
+        "../scripts/inverse_dem_run.py"
+
+
+rule inverse_design:
+    input:
+        model=lambda w: inverse_gns(w.name, "model"),
+        metadata=lambda w: inverse_gns(w.name, "metadata"),
+        evaluation=lambda w: inverse_gns(w.name, "evaluation"),
+        start="results/inverse/{name}/start.h5",
+        measured=lambda w: config["measured"][w.name],
+        doe_responses=lambda w: [f"results/doe/{w.name}/responses.csv"] if w.name in DOE_NAMES else [],
+    output:
+        result="results/inverse/{name}/inverse.json",
+        paths="results/inverse/{name}/paths.png",
+        deposits="results/inverse/{name}/deposits.png",
+    params:
+        settings=INVERSE,
+    log:
+        "results/logs/inverse/inverse_design/{name}.log",
+    benchmark:
+        "results/benchmarks/inverse/inverse_design/{name}.tsv"
+    threads: INVERSE["threads"]
+    resources:
+        runtime=120,
+        mem_mb=4000,
+    script:
+        "../scripts/inverse_design.py"
+
+
+rule inverse_validate:
+    input:
+        result="results/inverse/{name}/inverse.json",
+        measured=lambda w: config["measured"][w.name],
+        metadata=lambda w: inverse_gns(w.name, "metadata"),
+    output:
+        "results/inverse/{name}/validation.h5",
+    params:
+        seed=INVERSE["seed"],
+    log:
+        "results/logs/inverse/inverse_validate/{name}.log",
+    benchmark:
+        "results/benchmarks/inverse/inverse_validate/{name}.tsv"
+    resources:
+        runtime=120,
+        mem_mb=2000,
+    script:
+        "../scripts/inverse_dem_run.py"
+
+
+rule inverse_bayesopt:
+    input:
+        measured=lambda w: config["measured"][w.name],
+        metadata=lambda w: inverse_gns(w.name, "metadata"),
+    output:
+        result="results/inverse/{name}/bayesopt.json",
+        figure="results/inverse/{name}/bayesopt.png",
+        best="results/inverse/{name}/bayesopt_best.h5",
+    params:
+        bounds=INVERSE_BO_BOUNDS,
+        budget=INVERSE["bayesopt_budget"],
+        seed=INVERSE["seed"],
+    log:
+        "results/logs/inverse/inverse_bayesopt/{name}.log",
+    benchmark:
+        "results/benchmarks/inverse/inverse_bayesopt/{name}.tsv"
+    resources:
+        runtime=600,
+        mem_mb=2000,
+    script:
+        "../scripts/inverse_bayesopt.py"
+
+
+rule inverse_compare:
+    input:
+        measured=lambda w: config["measured"][w.name],
+        result="results/inverse/{name}/inverse.json",
+        validation="results/inverse/{name}/validation.h5",
+        start="results/inverse/{name}/start.h5",
+        bayesopt=lambda w: [f"results/inverse/{w.name}/bayesopt.json"] if INVERSE["bayesopt_budget"] else [],
+        bayesopt_best=lambda w: [f"results/inverse/{w.name}/bayesopt_best.h5"] if INVERSE["bayesopt_budget"] else [],
+        doe_validation=lambda w: expand("results/doe/{name}/validation/{model}.h5", name=w.name,
+                                        model=DOE["validate"]) if w.name in DOE_NAMES else [],
+    output:
+        table="results/inverse/{name}/comparison.csv",
+        figure="results/inverse/{name}/comparison.png",
+        runout="results/inverse/{name}/runout.png",
+    params:
+        benchmarks=lambda w: inverse_benchmarks(w.name),
+        dem_runs=lambda w: {"gns_dataset": len(dataset_cases(INVERSE_DATASET[w.name])), "doe": len(DOE_RUNS)},
+    log:
+        "results/logs/inverse/inverse_compare/{name}.log",
+    benchmark:
+        "results/benchmarks/inverse/inverse_compare/{name}.tsv"
+    localrule: True
+    script:
+        "../scripts/inverse_compare.py"
+
+
+rule inverse_recovery:
+    input:
+        model="results/gns/{dataset}/train/model_best.pt",
+        metadata="results/datasets/{dataset}/metadata.json",
+        evaluation="results/gns/{dataset}/evaluation/summary.json",
+    output:
+        result="results/inverse_recovery/{dataset}/recovery.json",
+        figure="results/inverse_recovery/{dataset}/recovery.png",
+    params:
+        settings=INVERSE,
+    log:
+        "results/logs/inverse/inverse_recovery/{dataset}.log",
+    benchmark:
+        "results/benchmarks/inverse/inverse_recovery/{dataset}.tsv"
+    threads: INVERSE["threads"]
+    resources:
+        runtime=600,
+        mem_mb=4000,
+    script:
+        "../scripts/inverse_recovery.py"
+
+
+rule inverse_section:
+    input:
+        measured=[config["measured"][n] for n in INVERSE_NAMES],
+        results=expand("results/inverse/{name}/inverse.json", name=INVERSE_NAMES),
+        tables=expand("results/inverse/{name}/comparison.csv", name=INVERSE_NAMES),
+        figures=expand("results/inverse/{name}/{figure}.png", name=INVERSE_NAMES,
+                       figure=["paths", "deposits", "runout", "comparison"]),
+        bayesopt=expand("results/inverse/{name}/bayesopt.png", name=INVERSE_NAMES) if INVERSE["bayesopt_budget"] else [],
+        recovery=expand("results/inverse_recovery/{dataset}/recovery.json", dataset=INVERSE_RECOVERY),
+        recovery_figures=expand("results/inverse_recovery/{dataset}/recovery.png", dataset=INVERSE_RECOVERY),
+    output:
+        "results/report/inverse.md",
+    params:
+        names=INVERSE_NAMES,
+        bayesopt=INVERSE["bayesopt_budget"] > 0,
+    log:
+        "results/logs/inverse/inverse_section.log",
+    benchmark:
+        "results/benchmarks/inverse/inverse_section.tsv"
+    localrule: True
+    script:
+        "../scripts/inverse_section.py"
+
+
+if INVERSE_NAMES or INVERSE_RECOVERY:
+    FINAL_TARGETS += expand("results/inverse/{name}/comparison.png", name=INVERSE_NAMES)
+    FINAL_TARGETS += expand("results/inverse_recovery/{dataset}/recovery.png", dataset=INVERSE_RECOVERY)
+    REPORT_SECTIONS.append(("Inverse design through the GNS and the comparison with DoE", "results/report/inverse.md"))

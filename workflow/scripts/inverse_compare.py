@@ -1,0 +1,14 @@
+"""Comparison of the calibration routes of one measured column: table, accuracy-cost and runout figures."""
+import logging
+from pathlib import Path
+
+from calibration.compare import markdown_table, run_comparison
+
+logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")  # noqa: F821
+i, o = snakemake.input, snakemake.output  # noqa: F821
+doe = {Path(path).stem: path for path in i.doe_validation}  # results/doe/<name>/validation/<model>.h5
+routes = run_comparison(i.measured, i.result, i.validation, i.start, o.table, o.figure, o.runout,
+                        snakemake.params.benchmarks, snakemake.params.dem_runs,  # noqa: F821
+                        bayesopt_path=i.bayesopt[0] if i.bayesopt else None,
+                        bayesopt_best_path=i.bayesopt_best[0] if i.bayesopt_best else None, doe_validation=doe or None)
+logging.info("comparison:\n%s", markdown_table(routes))
