@@ -1,0 +1,344 @@
+"""GNS inverse design: float32 finite-difference steps, the differentiable runout against dem.runout,
+autograd gradients through the rollout, lockstep multi-start, uncertainty, bad input, and the
+recovery of a synthetic DEM target on a tiny column."""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+import torch
+from scipy.optimize import minimize
+
+from calibration.inverse import (FD_STEP, FTOL, GTOL, design_bounds, inverse_design, SCIPY_DEFAULT_STEP, SOFT_TEMPERATURE, GeometryWarning, GNSObjective,
+                                 InverseDesignError, check_bounds, check_geometry, check_step, multistart_lbfgsb,
+                                 posterior_at, soft_runout_at, soft_top_k_mean, step_vanishes)
+from calibration.compare import case_like, read_training_attrs
+from calibration.measured import MeasuredColumn
+from calibration.recovery import observation_times, recover_case
+from dem.case import CollapseCase
+from dem.collapse import simulate_collapse
+from dem.dataset import build_dataset
+from dem.runout import runout_curve
+from dem.trajectory import read_attrs, write_trajectory
+from gns.data import read_metadata
+from gns.simulator import LearnedSimulator, load_simulator
+from gns.train import TrainSettings, simulator_config, train
+
+TINY_MODEL = dict(latent_size=16, n_message_passing=2, connectivity_radius=1.6, noise_std=0.05)
+T_POINTS = np.array([0.6, 0.8, 1.0])       # t/t*: a short rollout (frames 6..12) for the gradient tests
+# DEM runs of the tiny dataset: the first two span the ranges [0.3, 0.9]^2
+TINY_RUNS = [(0.3, 0.3), (0.9, 0.9), (0.45, 0.8), (0.6, 0.5), (0.75, 0.65), (0.85, 0.4)]
+
+
+def tiny_case(friction, restitution, seed=0):
+    """Quartz, a = 2, L_i = 1 cm, grains 4x coarse: 77 grains, 3 t* in 34 frames, under a second of DEM."""
+    return CollapseCase("quartz", column_length=0.01, aspect_ratio=2.0, friction=friction, restitution=restitution,
+                        size_scale=4, output_interval=0.004, duration_over_tstar=3.0, seed=seed)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def one_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="module")
+def tiny_dataset(tmp_path_factory):
+    """Tiny DEM runs (TINY_RUNS) as a dataset: (metadata path, [trajectories])."""
+    folder = tmp_path_factory.mktemp("inverse")
+    trajectories, paths = [], []
+    for k, (mu, e) in enumerate(TINY_RUNS):
+        trajectory = simulate_collapse(tiny_case(mu, e, seed=k))
+        paths.append(str(folder / f"case_{k}.h5"))
+        write_trajectory(paths[-1], trajectory)
+        trajectories.append(trajectory)
+    build_dataset({"train": paths[:-1], "valid": paths[-1:], "test": paths[-1:]}, folder / "metadata.json", "tiny")
+    return str(folder / "metadata.json"), trajectories
+
+
+def untrained_simulator(metadata, dtype=torch.float32, seed=0, output_scale=0.1):
+    """Random weights, outputs scaled by output_scale so grains stay in the box for a short rollout."""
+    torch.manual_seed(seed)
+    simulator = LearnedSimulator(simulator_config(metadata, TrainSettings(**TINY_MODEL)))
+    with torch.no_grad():
+        decoder_last = [m for m in simulator.network.modules() if isinstance(m, torch.nn.Linear)][-1]
+        decoder_last.weight.mul_(output_scale)
+    return simulator.to(dtype).eval()
+
+
+def parameter_inputs(simulator):
+    """(first Linear layer of the node encoder, column of the first DEM parameter in its input)."""
+    layout = simulator.config.node_layout
+    offset = sum(width for name, width in layout[:[name for name, _ in layout].index("parameters")])
+    return [m for m in simulator.network.modules() if isinstance(m, torch.nn.Linear)][0], offset
+
+
+def louder_parameters(simulator, factor=100.0):
+    """Amplify the encoder's weights on (mu, e): an untrained model hardly responds to them."""
+    first, offset = parameter_inputs(simulator)
+    with torch.no_grad():
+        first.weight[:, offset:offset + len(simulator.config.parameter_names)] *= factor
+    return simulator
+
+
+def column_of(trajectory, t_points, runout, std=None, name="target"):
+    a = trajectory.attrs
+    return MeasuredColumn(name, str(a["material"]), float(a["aspect_ratio"]), float(a["L_i"]), np.asarray(t_points),
+                          np.asarray(runout, float), None if std is None else np.full(len(t_points), std),
+                          source="test")
+
+
+# -- float32 finite-difference steps -----------------------------------------------------------------------
+def test_scipy_default_step_vanishes_in_float32_and_the_sound_step_does_not():
+    assert np.float32(0.31) + np.float32(1e-8) == np.float32(0.31)
+    assert step_vanishes(0.31, SCIPY_DEFAULT_STEP) and step_vanishes(0.7, SCIPY_DEFAULT_STEP)
+    assert not step_vanishes(0.31, SCIPY_DEFAULT_STEP, dtype=np.float64)
+    assert not any(step_vanishes(v, FD_STEP) for v in (0.3, 0.6, 0.9))
+    with pytest.raises(InverseDesignError, match="vanishes in float32 at 0.3"):
+        check_step(SCIPY_DEFAULT_STEP, [(0.3, 0.9)])
+    check_step(FD_STEP, [(0.3, 0.9)])
+
+
+def test_default_step_gives_a_zero_gradient_through_the_float32_gns_and_lbfgsb_stops_at_its_start(tiny_dataset):
+    metadata_path, trajectories = tiny_dataset
+    start = trajectories[0]
+    measured = column_of(start, T_POINTS, [0.1, 0.2, 0.3])
+    objective = GNSObjective(untrained_simulator(read_metadata(metadata_path)), start, measured)
+    x0 = np.array([0.55, 0.73])
+    plus = x0 + np.array([SCIPY_DEFAULT_STEP, 0.0])
+    values = objective.values(np.array([x0, plus, x0 + [FD_STEP, 0.0]]))
+    assert values[1] == values[0]                     # the parameter change rounded away: exactly no signal
+    assert values[2] != values[0]
+    # the paper's set-up: scipy's L-BFGS-B with its default step, on the float32 model
+    result = minimize(lambda x: float(objective.values(x[None])[0]), x0, method="L-BFGS-B",
+                      bounds=[(0.3, 0.9)] * 2)
+    assert result.nit == 0 and np.array_equal(result.x, x0)
+
+
+# -- the differentiable runout ------------------------------------------------------------------------
+def test_soft_top_k_gradient_is_exact_and_tends_to_the_hard_mean():
+    torch.manual_seed(1)
+    values = torch.rand(30, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda v: soft_top_k_mean(v, 8, 0.05), (values,))
+    hard = torch.topk(values.detach(), 8).values.mean()
+    assert abs(float(soft_top_k_mean(values.detach(), 8, 1e-4)) - float(hard)) < 1e-4
+
+
+def test_soft_runout_agrees_with_dem_runout_on_dem_trajectories(tiny_dataset):
+    _, trajectories = tiny_dataset
+    for trajectory in trajectories[:2]:
+        t, runout = runout_curve(trajectory)
+        soft = soft_runout_at(torch.as_tensor(trajectory.positions, dtype=torch.float64),
+                              torch.as_tensor(trajectory.radius), float(trajectory.attrs["L_i"]),
+                              float(trajectory.attrs["t_star"]), float(trajectory.attrs["dt_frame"]), t[:-1])
+        # stated tolerance: SOFT_TEMPERATURE mean diameters of front position, in L*
+        tolerance = SOFT_TEMPERATURE * 2 * np.mean(trajectory.radius) / float(trajectory.attrs["L_i"])
+        difference = np.abs(soft.numpy() - runout[:-1])
+        assert difference.max() <= tolerance, (difference.max(), tolerance)
+        assert runout[-1] > 1.0            # a real collapse was compared, not a standing column
+
+
+# -- gradients through the rollout ----------------------------------------------------------------------
+def test_autograd_gradient_through_the_checkpointed_rollout_matches_finite_differences(tiny_dataset):
+    metadata_path, trajectories = tiny_dataset
+    start = trajectories[0]
+    measured = column_of(start, T_POINTS, [0.1, 0.2, 0.3])
+    objective = GNSObjective(untrained_simulator(read_metadata(metadata_path), torch.float64), start, measured)
+    assert objective.checkpoint
+    points = np.array([[0.55, 0.73], [0.4, 0.35]])
+    values, gradients = objective.values_and_gradients(points)          # two graphs in one batch
+    h = 1e-6
+    for g, x in enumerate(points):
+        numeric = [(objective.values((x + h * e)[None])[0] - objective.values((x - h * e)[None])[0]) / (2 * h)
+                   for e in np.eye(2)]
+        assert np.allclose(gradients[g], numeric, rtol=1e-4, atol=1e-9), (gradients[g], numeric)
+        assert values[g] == pytest.approx(objective.values(x[None])[0], rel=1e-10)   # batching changes nothing
+    assert np.abs(gradients).max() > 1e-6
+
+
+def test_float32_model_resolves_the_sound_step_but_not_small_ones_while_autograd_stays_exact(tiny_dataset):
+    """The same model in float32 and float64: forward differences with FD_STEP agree between the two
+    (the float32 objective resolves the step), with 1e-4 they do not (rounding noise), and
+    autograd's float32 gradient equals its float64 one (no step at all)."""
+    metadata_path, trajectories = tiny_dataset
+    start = trajectories[0]
+    measured = column_of(start, T_POINTS, [0.1, 0.2, 0.3])
+    x = np.array([0.55, 0.73])
+    objectives = {dtype: GNSObjective(louder_parameters(untrained_simulator(read_metadata(metadata_path), dtype)),
+                                      start, measured) for dtype in (torch.float32, torch.float64)}
+
+    def forward_difference(objective, h):
+        values = objective.values(np.array([x, x + [h, 0], x + [0, h]]))
+        return (values[1:] - values[0]) / h
+
+    error = {h: np.abs(forward_difference(objectives[torch.float32], h) - forward_difference(objectives[torch.float64], h))
+             for h in (1e-4, FD_STEP)}
+    scale = np.abs(forward_difference(objectives[torch.float64], FD_STEP)).max()
+    assert error[FD_STEP].max() < 0.15 * scale
+    assert error[1e-4].max() > 3 * error[FD_STEP].max()
+    gradient32 = objectives[torch.float32].values_and_gradients(x[None])[1][0]
+    gradient64 = objectives[torch.float64].values_and_gradients(x[None])[1][0]
+    assert np.allclose(gradient32, gradient64, rtol=1e-3) and np.abs(gradient64).max() > 1e-5
+
+
+# -- multi-start in lockstep -----------------------------------------------------------------------------
+def _bowl(x):
+    return 3 * (x[0] - 0.42) ** 2 + (x[1] - 0.71) ** 2 + 0.5 * (x[0] - 0.42) * (x[1] - 0.71) + 0.1 * np.sin(5 * x[0])
+
+
+def _bowl_gradient(x):
+    return np.array([6 * (x[0] - 0.42) + 0.5 * (x[1] - 0.71) + 0.5 * np.cos(5 * x[0]),
+                     2 * (x[1] - 0.71) + 0.5 * (x[0] - 0.42)])
+
+
+def test_lockstep_multistart_batches_points_and_follows_the_paths_of_lone_runs():
+    starts = np.array([[0.55, 0.73], [0.3, 0.3], [0.9, 0.9], [0.8, 0.35]])
+    batch_sizes = []
+
+    def batch(points):
+        batch_sizes.append(len(points))
+        return np.array([_bowl(p) for p in points]), np.array([_bowl_gradient(p) for p in points])
+
+    runs, n_batches = multistart_lbfgsb(batch, starts, [(0.3, 0.9)] * 2, ["friction", "restitution"])
+    assert n_batches == len(batch_sizes) and batch_sizes[0] == 4
+    assert sum(batch_sizes) == sum(len(r.evaluations.values) for r in runs) > n_batches
+    for start, run in zip(starts, runs):
+        lone = minimize(lambda x: (_bowl(x), _bowl_gradient(x)), start, jac=True, method="L-BFGS-B",
+                        bounds=[(0.3, 0.9)] * 2, options={"maxiter": 30, "ftol": FTOL, "gtol": GTOL, "maxls": 10})
+        assert np.allclose(run.params, lone.x, rtol=0, atol=1e-12) and run.n_iterations == lone.nit
+        assert run.iterates[0][0] == start.tolist() and run.iterates[-1][0] == pytest.approx(run.params)
+        assert run.value == pytest.approx(_bowl(lone.x))
+
+
+def test_lockstep_reports_a_failing_evaluation_instead_of_hanging():
+    def batch(points):
+        raise InverseDesignError("GNS objective is not finite at friction=0.5")
+
+    with pytest.raises(InverseDesignError, match="not finite"):
+        multistart_lbfgsb(batch, [[0.5, 0.5], [0.6, 0.6]], [(0.3, 0.9)] * 2, ["friction", "restitution"])
+
+
+# -- bad input -----------------------------------------------------------------------------------------
+def test_bounds_outside_the_trained_range_are_refused(tiny_dataset):
+    metadata = read_metadata(tiny_dataset[0])     # trained on friction and restitution 0.3-0.9
+    assert check_bounds([(0.3, 0.9), (0.4, 0.8)], ["friction", "restitution"], metadata["parameter_ranges"])
+    with pytest.raises(InverseDesignError, match=r"bounds of restitution \[0.3, 0.95\] leave the range the GNS "
+                                                 r"was trained on \[0.3, 0.9\]"):
+        check_bounds([(0.3, 0.9), (0.3, 0.95)], ["friction", "restitution"], metadata["parameter_ranges"])
+    narrowed = dict(metadata["parameter_ranges"], friction=[0.33, 0.87])      # a sampled range
+    assert design_bounds([None, None], ["friction", "restitution"], narrowed) == [(0.33, 0.87), (0.3, 0.9)]
+    assert design_bounds([None, (0.4, 0.6)], ["friction", "restitution"], narrowed)[1] == (0.4, 0.6)
+    with pytest.raises(InverseDesignError, match="low 0.6 must be below high 0.5"):
+        check_bounds([(0.6, 0.5), (0.3, 0.9)], ["friction", "restitution"], metadata["parameter_ranges"])
+
+
+def test_geometry_checks_name_the_distance_from_the_training_set(tiny_dataset):
+    metadata_path, trajectories = tiny_dataset
+    metadata = read_metadata(metadata_path)
+    attrs = [read_attrs(p) for p in metadata["splits"]["train"]]
+    same = column_of(trajectories[0], [0.5, 1.0], [0.3, 1.0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert check_geometry(same, metadata, attrs)["distance"] == pytest.approx(0.0)
+    taller = MeasuredColumn("tall", "quartz", 6.0, 0.02, np.array([0.5, 1.0]), np.array([0.5, 1.5]), source="t.csv")
+    with pytest.raises(InverseDesignError, match=r"outside the geometry the GNS was trained on: L_i = 0.02 lies outside \[0.01, 0.01\]"):
+        check_geometry(taller, metadata, attrs)
+    copper = MeasuredColumn("cu", "copper", 2.0, 0.01, np.array([0.5, 1.0]), np.array([0.3, 1.0]), source="c.csv")
+    with pytest.raises(InverseDesignError, match="is copper; the GNS was trained on"):
+        check_geometry(copper, metadata, attrs)
+    # inside the trained L_i/H_i ranges, but no training column with this geometry: warn with distance
+    wider = dict(metadata, parameter_ranges=dict(metadata["parameter_ranges"], L_i=[0.01, 0.02], H_i=[0.02, 0.04]))
+    between = MeasuredColumn("mid", "quartz", 2.0, 0.015, np.array([0.5, 1.0]), np.array([0.3, 1.0]), source="m.csv")
+    with pytest.warns(GeometryWarning, match=r"is 33% away from the nearest training column \(a = 2, L_i = 0.01 m\)"):
+        check_geometry(between, wider, attrs)
+
+
+def test_non_finite_model_is_an_error_not_an_optimum(tiny_dataset):
+    metadata_path, trajectories = tiny_dataset
+    simulator = untrained_simulator(read_metadata(metadata_path))
+    with torch.no_grad():
+        next(simulator.network.parameters()).fill_(float("nan"))
+    objective = GNSObjective(simulator, trajectories[0], column_of(trajectories[0], T_POINTS, [0.1, 0.2, 0.3]))
+    with pytest.raises(InverseDesignError, match="friction=0.55, restitution=0.73"):
+        objective.values(np.array([[0.55, 0.73]]))
+
+
+# -- uncertainty ------------------------------------------------------------------------------------
+def test_posterior_flags_a_parameter_the_model_ignores(tiny_dataset):
+    metadata_path, trajectories = tiny_dataset
+    start = trajectories[0]
+    simulator = untrained_simulator(read_metadata(metadata_path), torch.float64)
+    # noise small enough for the untrained model's small response to friction to pin it down
+    objective = GNSObjective(simulator, start, column_of(start, T_POINTS, [0.1, 0.2, 0.3], std=1e-6))
+    # make the model blind to restitution (zero input weights) and loud in friction (identifiable)
+    louder_parameters(simulator, 200.0)
+    first, offset = parameter_inputs(simulator)
+    with torch.no_grad():
+        first.weight[:, offset + simulator.config.parameter_names.index("restitution")] = 0.0
+    posterior, runout, roughness = posterior_at(objective, [0.6, 0.6], [(0.3, 0.9), (0.5, 0.8)])
+    friction, restitution_interval = posterior.parameters
+    assert not restitution_interval.identifiable and "hardly changes" in restitution_interval.why
+    assert (restitution_interval.low, restitution_interval.high) == (0.5, 0.8)
+    assert friction.identifiable and friction.high - friction.low < 0.4
+    assert posterior.sigma_source == "measured" and runout.shape == (3,)
+    assert len(roughness["values"]) == 4 and roughness["spread"] >= 0 and len(roughness["jacobian_step_values"]) == 4
+
+
+# -- inverse design end to end -------------------------------------------------------------------------
+def test_inverse_design_recovers_a_target_made_by_the_surrogate_itself(tiny_dataset):
+    """No model error: the machinery (batched starts, autograd, L-BFGS-B, posterior) must find the
+    parameters that generated the curve, with the truth inside its 95% intervals."""
+    metadata_path, trajectories = tiny_dataset
+    metadata = read_metadata(metadata_path)
+    simulator = louder_parameters(untrained_simulator(metadata, output_scale=1.0))
+    start = trajectories[0]
+    t = np.array([0.6, 0.8, 1.0, 1.2])
+    truth = np.array([0.42, 0.61])
+    target = GNSObjective(simulator, start, column_of(start, t, np.zeros(len(t)))).runout_values(truth[None])[0]
+    measured = column_of(start, t, target, std=1e-4)
+    attrs = [read_attrs(p) for p in metadata["splits"]["train"]]
+    # the untrained model moves L* by only ~0.04 over the whole box: tolerances to match that scale
+    result = inverse_design(simulator, start, measured, metadata, attrs, n_starts=2, max_iterations=25,
+                            ftol=1e-12, gtol=1e-9)
+    assert np.allclose(result.best_params, truth, atol=0.02), result.best_params
+    assert result.best_value < 1e-2 * result.starts[0].iterates[0][1]
+    assert result.n_batches < sum(len(s.evaluations.values) for s in result.starts)     # starts shared batches
+    for p, value in zip(result.posterior["parameters"], truth):
+        assert p["identifiable"] and p["low"] <= value <= p["high"] and p["high"] - p["low"] < 0.3
+    assert result.seconds["online"] > 0 and len(result.starts[0].iterates) >= 2
+
+
+@pytest.fixture(scope="module")
+def trained_tiny_gns(tiny_dataset, tmp_path_factory):
+    """A GNS briefly trained (300 steps, ~8 s) on the tiny dataset: (simulator, metadata)."""
+    metadata_path, _ = tiny_dataset
+    folder = tmp_path_factory.mktemp("tiny_gns")
+    train(metadata_path, folder, dict(TINY_MODEL, latent_size=32, n_message_passing=3, steps=300, validate_every=300,
+                                      log_every=300, checkpoint_every=300, learning_rate_decay_steps=300), resume=False)
+    metadata = read_metadata(metadata_path)
+    return load_simulator(folder / "model_best.pt", metadata), metadata
+
+
+def test_recovery_of_a_dem_target_on_the_tiny_column(trained_tiny_gns):
+    """A DEM run with known (mu, e), not in the training set, as a noisy "measurement" (the issue's
+    tiny-config check, with a looser bound). On 77 grains the DEM runout moves less with mu than
+    between two packings, and a 300-step GNS is rough, so mu need not be found here: what must hold
+    is that the optimiser improves the fit, that the truth lies inside the reported 95% intervals,
+    and that a parameter the posterior calls identifiable is really found (within 0.15)."""
+    simulator, metadata = trained_tiny_gns
+    trained = read_training_attrs(metadata)
+    start = simulate_collapse(case_like(trained[0], 0.55, 0.73, seed=99))
+    truth = simulate_collapse(case_like(trained[0], 0.5, 0.6, seed=100))
+    row = recover_case(simulator, metadata, trained, start, truth, observation_times(3.0), noise_std=0.05, seed=0,
+                       n_starts=2, max_iterations=15)
+    assert row["objective"] < row["start_objective"]
+    assert all(row["inside"]), row
+    for k, (low, high) in enumerate(row["interval"]):
+        if row["identifiable"][k]:
+            assert abs(row["estimate"][k] - row["truth"][k]) <= 0.15, row
+        else:                                          # reported as unknown, not given a false precision
+            assert high - low > 0.5 * (0.9 - 0.3), row
+    assert row["truth"] == [0.5, 0.6] and row["t_over_tstar"] == [0.5, 1.0, 1.5, 2.0, 2.5]
