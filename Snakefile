@@ -13,6 +13,7 @@ include: "workflow/rules/dataset.smk"
 include: "workflow/rules/gns.smk"
 include: "workflow/rules/doe.smk"
 include: "workflow/rules/inverse.smk"
+include: "workflow/rules/diagnosis.smk"
 # later stages go here, before report.smk (the report collects what they registered)
 include: "workflow/rules/report.smk"
 

@@ -59,7 +59,8 @@ def main():
     parser.add_argument("--cases", type=int, default=5, help="recovery targets (0: skip the recovery)")
     parser.add_argument("--starts", type=int, default=4, help="starts of the multi-start run (also timed: 1 start)")
     parser.add_argument("--recovery-starts", type=int, default=1)
-    parser.add_argument("--max-iterations", type=int, default=20)
+    parser.add_argument("--max-iterations", type=int, default=10, help="per start (evaluations: at most twice that)")
+    parser.add_argument("--recovery-gradient", default="autograd", choices=["autograd", "finite-difference"])
     parser.add_argument("--threads", type=int, default=1, help="torch threads (2 on a busy 2-core box is 10x slower)")
     parser.add_argument("--skip-fd", action="store_true", help="do not time the finite-difference arm")
     args = parser.parse_args()
@@ -111,7 +112,8 @@ def main():
     out["fd_step_scan_at_start"] = step_scan(objective, PAPER_START)
     if args.cases:
         summary = recovery_study(simulator, metadata, n_cases=args.cases, model_error_std=model_error,
-                                 n_starts=args.recovery_starts, max_iterations=args.max_iterations)
+                                 n_starts=args.recovery_starts, max_iterations=args.max_iterations,
+                                 gradient=args.recovery_gradient)
         out["recovery"] = {k: v for k, v in summary.items() if k != "cases"}
         out["recovery"]["cases"] = [{k: r[k] for k in ("truth", "estimate", "interval", "identifiable", "inside",
                                                        "mu_error", "objective", "online_s")} for r in summary["cases"]]

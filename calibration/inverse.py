@@ -11,6 +11,10 @@ float32 (0.31 + 1e-8 == 0.31), so the differences are exactly zero and L-BFGS-B 
 Several starts run in lockstep: each is its own L-BFGS-B (its path is the one a lone run would
 take), and the points they ask for at the same moment are rolled out as one batch of graphs.
 
+A rollout is chaotic in (mu, e), as the DEM is: below a few hundredths the objective is rough and
+its exact gradient is large and local. So line searches may fail; each start keeps its best
+evaluated point and says so, and every result carries a roughness probe (see posterior_at).
+
 Uncertainty: a Laplace posterior (calibration.uncertainty) from the Jacobian of L* at the optimum;
 noise = the measured std (or, when the file gives none, estimated from the residuals) combined
 with the surrogate's own runout error against the DEM; a parameter the runout cannot pin down is
@@ -407,12 +411,15 @@ class _Lockstep:
 
 
 def multistart_lbfgsb(evaluate_batch, starts, bounds, names, gradient: str = "autograd", fd_step: float = FD_STEP,
-                      max_iterations: int = 30, ftol: float = FTOL, gtol: float = GTOL, progress=None) -> tuple[list, int]:
+                      max_iterations: int = 20, ftol: float = FTOL, gtol: float = GTOL, progress=None,
+                      max_evaluations: int | None = None) -> tuple[list, int]:
     """L-BFGS-B from each of starts [S, P] within bounds [(low, high)] * P, in lockstep.
 
     evaluate_batch(points [G, P]) -> (values [G], gradients [G, P]) for gradient="autograd", or
     values [G] for gradient="finite-difference" (scipy's forward differences with step fd_step,
-    the paper's eq. (8); steps near a bound go backwards). ftol, gtol: scipy's stopping tests.
+    the paper's eq. (8); steps near a bound go backwards). ftol, gtol: scipy's stopping tests;
+    max_evaluations: scipy's maxfun, objective evaluations per start (default 2 max_iterations), which
+    bounds the time a start can spend retrying line searches on a rough objective.
     progress: callable(batch number, seconds, values) or None.
     Returns ([StartResult] in start order, number of batches evaluated).
     """
@@ -454,7 +461,8 @@ def multistart_lbfgsb(evaluate_batch, starts, bounds, names, gradient: str = "au
             iterates[index].append((intermediate_result.x.tolist(), float(intermediate_result.fun)))
 
         try:
-            options = {"maxiter": max_iterations, "ftol": ftol, "gtol": gtol, "maxls": MAX_LINE_SEARCH}
+            options = {"maxiter": max_iterations, "ftol": ftol, "gtol": gtol, "maxls": MAX_LINE_SEARCH,
+                       "maxfun": max_evaluations or 2 * max_iterations}
             if not use_gradient:
                 options["eps"] = fd_step
             outcomes[index] = minimize(fun, starts[index], method="L-BFGS-B", jac=use_gradient or None,
@@ -611,8 +619,9 @@ def landscape(objective: GNSObjective, bounds, levels: int, batch_size: int = 8)
 
 def inverse_design(simulator, start: Trajectory, measured: MeasuredColumn, metadata: dict, training_attrs: list[dict],
                    bounds=None, n_starts: int = 4, first_start=PAPER_START, gradient: str = "autograd",
-                   fd_step: float = FD_STEP, max_iterations: int = 30, ftol: float = FTOL, gtol: float = GTOL,
-                   model_error_std: float | None = None, landscape_levels: int = 0, seed: int = 0,
+                   fd_step: float = FD_STEP, max_iterations: int = 20, ftol: float = FTOL, gtol: float = GTOL,
+                   max_evaluations: int | None = None, model_error_std: float | None = None,
+                   landscape_levels: int = 0, seed: int = 0,
                    design_names=DESIGN_NAMES) -> InverseResult:
     """Calibrate design_names against `measured` through the GNS `simulator`.
 
@@ -639,7 +648,7 @@ def inverse_design(simulator, start: Trajectory, measured: MeasuredColumn, metad
 
     t0 = time.perf_counter()
     runs, n_batches = multistart_lbfgsb(evaluate, starts, bounds, names, gradient, fd_step, max_iterations,
-                                        ftol, gtol, progress)
+                                        ftol, gtol, progress, max_evaluations)
     t1 = time.perf_counter()
     best = min(runs, key=lambda r: r.value)
     posterior, best_runout, roughness = posterior_at(objective, best.params, bounds, model_error_std)

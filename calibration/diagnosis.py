@@ -1,0 +1,766 @@
+"""What the calibrated simulation still gets wrong: residual structure, candidate mechanisms, the cause.
+
+Steps (`diagnose`):
+1. Noise model. Each measured number = DEM response + packing scatter + measurement noise. The
+   measurement noise is the file's std (runout) or a stated value; the packing scatter (the
+   measured column is one random packing, the model's mean is not) is measured from replicate runs
+   of the base model on different packings (calibration/emulator.py). Their variances add.
+2. Calibrate the base model (mu, e) and each extension (mu, e, one mechanism parameter) on a GP
+   emulator of DEM design runs (calibration/emulator.py): minimise chi^2 = sum((measured - model)^2
+   / sigma^2) over the box, a Sobol sweep then L-BFGS-B. The same noise serves every model, so the
+   chi^2 values compare.
+3. Residuals of the calibrated base model: chi^2 against the noise (goodness of fit), grouped by
+   time phase (the paper's free-fall t/t* <= 1, spreading 1-2.5, stopping > 2.5) and column, the
+   deposit profile, a runs test on the signs; then said in plain words and drawn.
+4. Score every model on data it was not fitted to (leave one column out where there are several,
+   else leave one runout point out) and by an information criterion (AIC, BIC; Gaussian noise with
+   the stated sigma, so -2 log L = chi^2 + const).
+5. Decide (`DecisionRule`): a cause is named only when the base model misfits beyond the noise, the
+   best extension beats the base model and the runner-up by stated BIC margins, predicts held-out
+   data better than both, and DEM runs at the two optima confirm the gain. Otherwise the cause is
+   "none", with the reason. (The base model is the extension with its mechanism off, so the BIC
+   margin over the base model is a likelihood-ratio test of "off"; the Laplace distance of the
+   parameter from "off" is reported, not used: at a bound of the box it is a poor approximation.)
+6. Confirm with the DEM: runs at the base and the best extension's optima on a few packings give
+   the objective (runout MSE, calibration/objective.py) before and after, from the simulator itself.
+
+Simulator: the builtin DEM (dem.collapse.simulate_collapse), coarse-grained by `size_scale`, through
+the emulator. The GNS is not used: it is not trained on the extension parameters.
+
+Bad input: fewer than 3 runout points in a column, a zero or negative noise level, a runout far
+outside anything the simulator produced (L* given in metres, say): a DiagnosisError. A missing noise
+level: a stated assumption and a warning. Warnings raised while reading the data or about the
+emulator are recorded; a data warning forbids naming a cause.
+"""
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+import warnings
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import minimize
+from scipy.stats import chi2 as chi2_distribution
+from scipy.stats import norm, qmc
+from threadpoolctl import threadpool_limits
+
+from calibration.emulator import (DEMRunner, GPEmulator, Library, Model, Observables, SimulationSettings,
+                                  build_library)
+from dem.runout import runout_curve
+from calibration.measured import MeasuredColumn, MeasuredDataWarning, read_measured
+from calibration.mechanisms import Mechanism, get_mechanisms
+from calibration.objective import runout_mse
+from calibration.uncertainty import laplace_posterior
+from dem.atomic import write_text
+
+log = logging.getLogger(__name__)
+
+# The paper's three phases of a collapse (Jiang et al. 2024, section 4.1).
+PHASES = (("free-fall phase (t/t* <= 1)", 0.0, 1.0),
+          ("spreading phase (1 < t/t* <= 2.5)", 1.0, 2.5),
+          ("stopping phase (t/t* > 2.5)", 2.5, math.inf))
+BIAS_Z = 2.0                 # |sum of z| / sqrt(n) above this: a group's residuals are biased
+SIMULATOR = ("builtin DEM (dem.collapse.simulate_collapse), coarse-grained, through a Gaussian-process "
+             "emulator of its design runs; DEM runs confirm the optima. The GNS is not used: it is not "
+             "trained on the extension parameters.")
+
+
+class DiagnosisError(ValueError):
+    """The data cannot be diagnosed; the message says which column or setting is wrong."""
+
+
+class DiagnosisWarning(UserWarning):
+    """The data can be diagnosed, but something limits how far the verdict can be trusted."""
+
+
+@dataclass(frozen=True)
+class DecisionRule:
+    """When a cause is named. Margins on the BIC follow Kass & Raftery (1995): a difference of 10
+    is "very strong" evidence, 6 "strong"."""
+
+    misfit_p_value: float = 0.01          # the base model "misfits beyond the noise" below this p (reported)
+    min_delta_bic_vs_base: float = 10.0   # BIC(base) - BIC(best) at least this
+    min_delta_bic_vs_runner_up: float = 6.0
+    min_heldout_gain: float = 0.25        # held-out chi^2 at least this fraction below the base model's
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+# -- noise ------------------------------------------------------------------------------------------
+@dataclass
+class NoiseModel:
+    """Per output [q]: measurement noise std and packing scatter std; their variances add."""
+
+    measurement: np.ndarray
+    packing: np.ndarray
+    source: str
+
+    @property
+    def total(self) -> np.ndarray:
+        return np.sqrt(self.measurement ** 2 + self.packing ** 2)
+
+
+def noise_model(observables: Observables, library: Library, runout_noise=None, profile_noise=None,
+                assumed_runout_noise: float = 0.1, assumed_profile_noise: float = 1e-3):
+    """(NoiseModel, warnings [str]).
+
+    Runout noise: the file's std where given, else `runout_noise` (std of L*), else
+    `assumed_runout_noise` with a warning. Profile noise (std, m): `profile_noise`, else
+    `assumed_profile_noise` with a warning (the CSV reader keeps no profile std).
+    """
+    notes = []
+    for value, what in ((runout_noise, "runout_noise"), (profile_noise, "profile_noise"),
+                        (assumed_runout_noise, "assumed_runout_noise"),
+                        (assumed_profile_noise, "assumed_profile_noise")):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise DiagnosisError(f"{what} = {value}: a noise level must be a positive standard deviation "
+                                 "(zero would claim an exact measurement and make any misfit 'decisive')")
+    stated = observables.measured_std.copy()
+    kind = observables.kind
+    sources = set()
+    for c in observables.columns:
+        rows = (observables.column_index == observables.columns.index(c)) & (kind == "runout")
+        if c.runout_std is not None:
+            sources.add("runout std from the file")
+            continue
+        if runout_noise is not None:
+            stated[rows] = runout_noise
+            sources.add(f"runout std {runout_noise:g} (given)")
+        else:
+            stated[rows] = assumed_runout_noise
+            sources.add(f"runout std {assumed_runout_noise:g} ASSUMED")
+            notes.append(f"column {c.name!r} ({c.source}) states no runout noise level; assumed std "
+                         f"{assumed_runout_noise:g} L* - the verdict depends on this assumption")
+    profile_rows = kind == "profile"
+    if profile_rows.any():
+        if profile_noise is not None:
+            stated[profile_rows] = profile_noise
+            sources.add(f"profile std {profile_noise:g} m (given)")
+        else:
+            stated[profile_rows] = assumed_profile_noise
+            sources.add(f"profile std {assumed_profile_noise:g} m ASSUMED")
+            notes.append(f"no profile noise level given; assumed std {assumed_profile_noise:g} m")
+    if np.any(~np.isfinite(stated)) or np.any(stated <= 0):
+        raise DiagnosisError("measurement noise: a noise level must be a positive standard deviation")
+    packing = library.packing_std()
+    return NoiseModel(stated, packing, "; ".join(sorted(sources)) + "; plus packing scatter from "
+                      "replicate DEM runs"), notes
+
+
+# -- input checks ------------------------------------------------------------------------------------
+def check_data(observables: Observables, library: Library, models, noise: NoiseModel) -> list[str]:
+    """Errors for data the diagnosis cannot judge; warnings [str] for doubtful data."""
+    largest = max(m.n_parameters for m in models)
+    for c in observables.columns:
+        if len(c.t_over_tstar) < 3:
+            raise DiagnosisError(f"column {c.name!r} ({c.source}): {len(c.t_over_tstar)} runout point(s); the "
+                                 "diagnosis needs at least 3 per column (a curve, not a point)")
+    if observables.size < largest + 3:
+        raise DiagnosisError(f"{observables.size} measured values for models of up to {largest} parameters: "
+                             "too few to compare models (need at least parameters + 3)")
+    # Units. A runout given in metres (L - L_i = L* L_i) is far below every base-model run (which
+    # always collapses), grows like a runout, and divided by L_i becomes a plausible L*. (A
+    # cohesive column that stands has an L* near zero too, but it does not grow.) A runout far
+    # above every run of every model is wrong units of another kind (mm, per cent).
+    observed = np.concatenate([runs.observed for runs in library.runs.values()])
+    base_runs = library.runs["base"].observed
+    target, sigma = observables.measured, noise.total
+    runout = observables.kind == "runout"
+    wrong = []
+    for j, c in enumerate(observables.columns):
+        rows = np.flatnonzero(runout & (observables.column_index == j))
+        peak, lowest = float(target[rows].max()), float(target[rows].min())
+        margin = 3 * float(sigma[rows][np.argmax(target[rows])])
+        base_peak = base_runs[:, rows].max(axis=1)
+        if (peak < base_peak.min() - margin and peak - lowest > 0.5 * peak
+                and base_peak.min() / 3 <= peak / c.L_i <= 3 * base_peak.max()):
+            wrong.append(f"{c.name!r} ({c.source}) peaks at L* = {peak:g}, every base-model run at "
+                         f"{base_peak.min():.3g} to {base_peak.max():.3g}; divided by L_i = {c.L_i:g} m it would "
+                         f"be {peak / c.L_i:.3g}: it looks like metres (L - L_i), not L* = (L - L_i)/L_i")
+        elif peak > observed[:, rows].max() + margin:
+            wrong.append(f"{c.name!r} ({c.source}) peaks at L* = {peak:g}, above every run of every candidate "
+                         f"model (at most {observed[:, rows].max():.3g}): check the units of L*")
+    if wrong:
+        raise DiagnosisError("measured runout the simulator cannot have produced: " + "; ".join(wrong))
+    low, high = observed.min(axis=0), observed.max(axis=0)
+    outside = (target < low - 3 * sigma) | (target > high + 3 * sigma)
+    notes = []
+    if np.any(outside):
+        k = np.flatnonzero(outside)
+        notes.append(f"{len(k)} measured value(s) lie outside the range of every simulated model "
+                     f"({[observables.labels[j] for j in k[:4]]}...): no candidate can reach them")
+    return notes
+
+
+# -- fitting on the emulator ------------------------------------------------------------------------------
+def fit_emulated(emulator: GPEmulator, target, sigma, mask=None, seed: int = 0, n_sweep: int = 1024):
+    """(theta [p], chi^2) minimising chi^2 over the emulator's box on the outputs in `mask` [q] bool.
+
+    A Sobol sweep of the box's unit cube, then L-BFGS-B from the three best points: the emulator is
+    cheap, and a sweep does not get stuck where a mechanism switches on.
+    """
+    mask = np.ones(len(target), bool) if mask is None else np.asarray(mask, bool)
+    weight = 1.0 / sigma[mask]
+
+    def chi2(unit):
+        return np.sum(((emulator.predict_unit(unit)[:, mask] - target[mask]) * weight) ** 2, axis=1)
+
+    sweep = qmc.Sobol(d=len(emulator.bounds), seed=seed).random(n_sweep)
+    values = chi2(sweep)
+    best_unit, best_value = sweep[int(np.argmin(values))], float(values.min())
+    with threadpool_limits(1):  # tiny problems: BLAS threads only fight over the shared cores
+        for start in sweep[np.argsort(values)[:3]]:
+            result = minimize(lambda u: float(chi2(u)[0]), start, method="L-BFGS-B", bounds=[(0, 1)] * len(start))
+            if result.fun < best_value:
+                best_unit, best_value = np.clip(result.x, 0, 1), float(result.fun)
+    return emulator.box.from_unit(best_unit)[0], best_value
+
+
+@dataclass(frozen=True)
+class Fold:
+    """A held-out fold: the outputs left out of the fit [q] bool, and the columns to simulate for them."""
+
+    description: str
+    held: np.ndarray
+    columns: tuple
+
+
+def held_out_folds(observables: Observables) -> list[Fold]:
+    """Leave one column out where there are several. With one column, leave one phase of the
+    runout out (fit the other phases, predict it); one runout point at a time when the points
+    cover a single phase. The deposit profile, if any, stays in the fit of a one-column fold."""
+    index, kind, x = observables.column_index, observables.kind, observables.x
+    if len(observables.columns) > 1:
+        return [Fold(f"column {c.name} (a = {c.aspect_ratio:g})", index == j, (j,))
+                for j, c in enumerate(observables.columns)]
+    runout = kind == "runout"
+    folds = []
+    for label, low, high in PHASES:
+        held = runout & (x > low) & (x <= high) if low > 0 else runout & (x <= high)
+        if held.any():
+            folds.append(Fold(label, held, (0,)))
+    if len(folds) < 2:
+        folds = [Fold(f"t/t* = {x[k]:g}", np.arange(observables.size) == k, (0,)) for k in np.flatnonzero(runout)]
+    return folds
+
+
+@dataclass
+class ModelScore:
+    """A model calibrated on its emulator, and how well it does there."""
+
+    model: str
+    parameter_names: list
+    theta: np.ndarray
+    predicted: np.ndarray            # [q] emulated observables at theta
+    chi2: float
+    n_data: int
+    n_parameters: int
+    fold_theta: list                 # [folds] parameters fitted without each fold
+    heldout_chi2: float
+    heldout_mse: float               # runout MSE (the objective) on held-out runout points
+    posterior: dict
+    emulator_loo_over_noise: float   # median over outputs of the emulator's LOO RMSE / total noise
+    mechanism_z_off: float | None = None   # |parameter - off| / std for an extension
+
+    @property
+    def bic(self) -> float:
+        return bic(self.chi2, self.n_parameters, self.n_data)
+
+    def to_dict(self, observables: Observables) -> dict:
+        runout = observables.kind == "runout"
+        return {"parameters": dict(zip(self.parameter_names, map(float, self.theta))), "posterior": self.posterior,
+                "chi2": self.chi2, "n_data": self.n_data, "n_parameters": self.n_parameters,
+                "p_value": p_value(self.chi2, self.n_parameters, self.n_data),
+                "aic": aic(self.chi2, self.n_parameters), "bic": self.bic,
+                "fit_mse": runout_mse(self.predicted[runout], observables.measured[runout]),
+                "heldout_chi2": self.heldout_chi2, "heldout_mse": self.heldout_mse,
+                "heldout_parameters": [dict(zip(self.parameter_names, map(float, t))) for t in self.fold_theta],
+                "emulator_loo_over_noise": self.emulator_loo_over_noise, "mechanism_z_off": self.mechanism_z_off}
+
+
+def aic(chi2: float, n_parameters: int) -> float:
+    """Akaike information criterion under Gaussian noise of known sigma: -2 log L = chi^2 + const."""
+    return chi2 + 2 * n_parameters
+
+
+def bic(chi2: float, n_parameters: int, n_data: int) -> float:
+    return chi2 + n_parameters * math.log(n_data)
+
+
+def p_value(chi2: float, n_parameters: int, n_data: int) -> float:
+    """P(chi^2 >= observed) with n - p degrees of freedom, if the model and the noise were right."""
+    return float(chi2_distribution.sf(chi2, max(n_data - n_parameters, 1)))
+
+
+def score_model(model: Model, emulator: GPEmulator, observables: Observables, sigma, folds, seed: int = 0) -> ModelScore:
+    """Calibrate `model` on its emulator on all data and without each fold; its Laplace posterior."""
+    target = observables.measured
+    theta, chi2 = fit_emulated(emulator, target, sigma, seed=seed)
+    predicted = emulator.predict(theta)[0]
+    heldout_chi2, squared, fold_theta = 0.0, [], []
+    for fold in folds:
+        theta_k, _ = fit_emulated(emulator, target, sigma, mask=~fold.held, seed=seed + 1, n_sweep=512)
+        prediction = emulator.predict(theta_k)[0]
+        heldout_chi2 += float(np.sum(((prediction[fold.held] - target[fold.held]) / sigma[fold.held]) ** 2))
+        runout = fold.held & (observables.kind == "runout")
+        squared += list((prediction[runout] - target[runout]) ** 2)
+        fold_theta.append(theta_k)
+    unit = model.box.to_unit(theta)[0]
+    jacobian = []
+    for j in range(model.n_parameters):   # central differences of 2% of the unit cube, kept inside it
+        up, down = unit.copy(), unit.copy()
+        up[j], down[j] = min(unit[j] + 0.02, 1.0), max(unit[j] - 0.02, 0.0)
+        theta_up, theta_down = model.box.from_unit(up)[0], model.box.from_unit(down)[0]
+        jacobian.append((emulator.predict(theta_up)[0] - emulator.predict(theta_down)[0])
+                        / (theta_up[j] - theta_down[j]))
+    posterior = laplace_posterior(list(model.parameter_names), theta, np.stack(jacobian, axis=1),
+                                  predicted - target, model.bounds.tolist(), sigma=sigma)
+    z_off = None
+    if model.mechanism is not None:
+        off = model.mechanism.off_value(theta[0], theta[1])
+        std = posterior.parameters[-1].std
+        z_off = float(abs(theta[-1] - off) / std) if std > 0 else math.inf
+    return ModelScore(model.name, list(model.parameter_names), theta, predicted, float(chi2), observables.size,
+                      model.n_parameters, fold_theta, heldout_chi2, float(np.mean(squared)) if squared else math.nan,
+                      posterior.to_dict(), float(np.median(emulator.loo_rmse() / sigma)), z_off)
+
+
+# -- scoring in the DEM itself ---------------------------------------------------------------------------
+def dem_runs(runner: DEMRunner, model: Model, score: ModelScore, folds, n_packings: int, first_packing: int = 0) -> dict:
+    """DEM runs of `model` at the emulator's optima: at the calibrated parameters and at each
+    fold's (every column, so that the runs can also refine the emulator), on `n_packings` packings.
+
+    Returns {"model", "theta" [p], "fit" [R, q], "fold_theta" [folds][p], "folds" [folds][R, q],
+    "packings" [R], "curves" (runout curves of the fit runs), "seconds" (total)}.
+    """
+    n_pool = len(runner.settings.packing_seeds)
+    packings = [(first_packing + r) % n_pool for r in range(n_packings)]
+    started = time.perf_counter()
+    fit, curves = [], []
+    for k in packings:
+        trajectories = runner.trajectories(model, score.theta, k)
+        fit.append(runner.observables.from_trajectories(trajectories))
+        curves.append([_thin_curve(tr) for tr in trajectories])
+    fold_runs = [np.array([runner.observe(model, theta_k, k) for k in packings]) for theta_k in score.fold_theta]
+    return {"model": model, "theta": score.theta, "fit": np.array(fit), "fold_theta": score.fold_theta,
+            "folds": fold_runs, "packings": packings, "curves": curves, "seconds": time.perf_counter() - started}
+
+
+def dem_evaluate(runs: dict, observables: Observables, folds, noise: NoiseModel) -> dict:
+    """The model scored by its DEM runs (`dem_runs`) instead of its emulator.
+
+    Fit: the mean observables of the runs at the calibrated parameters against the data give chi^2
+    (noise: measurement + packing scatter of the measured realisation + that of a mean of R runs),
+    AIC, BIC, p-value; the objective (runout MSE) is averaged over the runs. Held out: each fold's
+    runs at the parameters fitted without it, on the held-out outputs only.
+    """
+    model = runs["model"]
+    target = observables.measured
+    runout = observables.kind == "runout"
+    n_packings = len(runs["packings"])
+    sigma = np.sqrt(noise.measurement ** 2 + noise.packing ** 2 * (1 + 1 / n_packings))
+    mean = runs["fit"].mean(axis=0)
+    chi2 = float(np.sum(((mean - target) / sigma) ** 2))
+    heldout_chi2, squared, folds_out = 0.0, [], []
+    for fold, theta_k, fold_runs in zip(folds, runs["fold_theta"], runs["folds"]):
+        fold_mean = fold_runs.mean(axis=0)
+        fold_chi2 = float(np.sum(((fold_mean[fold.held] - target[fold.held]) / sigma[fold.held]) ** 2))
+        heldout_chi2 += fold_chi2
+        squared += list((fold_mean[fold.held & runout] - target[fold.held & runout]) ** 2)
+        folds_out.append({"held_out": fold.description, "chi2": fold_chi2,
+                          "parameters": dict(zip(model.parameter_names, map(float, theta_k)))})
+    objective = [runout_mse(r[runout], target[runout]) for r in runs["fit"]]
+    result = {"parameters": dict(zip(model.parameter_names, map(float, runs["theta"]))), "packings": runs["packings"],
+              "chi2": chi2, "n_data": observables.size, "n_parameters": model.n_parameters,
+              "p_value": p_value(chi2, model.n_parameters, observables.size), "aic": aic(chi2, model.n_parameters),
+              "bic": bic(chi2, model.n_parameters, observables.size), "objective": float(np.mean(objective)),
+              "objective_per_packing": objective, "heldout_chi2": heldout_chi2,
+              "heldout_mse": float(np.mean(squared)) if squared else math.nan, "heldout_folds": folds_out,
+              "observed_mean": mean.tolist(), "sigma": sigma.tolist(), "curves": runs["curves"],
+              "seconds": runs["seconds"]}
+    log.info("DEM score of %s: chi2 %.1f, BIC %.1f, held-out chi2 %.1f, objective %.4g", model.name, chi2,
+             result["bic"], heldout_chi2, result["objective"])
+    return result
+
+
+def _thin_curve(trajectory) -> list:
+    """[t/t* list, L* list] of a run's runout curve, every other frame (for the figure)."""
+    t, runout = runout_curve(trajectory)
+    return [t[::2].round(4).tolist(), runout[::2].round(4).tolist()]
+
+
+# -- residual structure ----------------------------------------------------------------------------------
+def runs_test(signs) -> float:
+    """One-sided p-value of the Wald-Wolfowitz runs test: few runs of equal sign = structure.
+
+    signs [n] of +1/-1 in order. All one sign: probability 2^(1-n) of that under a fair coin.
+    """
+    signs = np.asarray(signs)
+    n_plus, n_minus = int(np.sum(signs > 0)), int(np.sum(signs < 0))
+    n = n_plus + n_minus
+    if n < 2:
+        return 1.0
+    if n_plus == 0 or n_minus == 0:
+        return float(2.0 ** (1 - n))
+    runs = 1 + int(np.sum(signs[1:] != signs[:-1]))
+    mean = 2.0 * n_plus * n_minus / n + 1
+    variance = 2.0 * n_plus * n_minus * (2.0 * n_plus * n_minus - n) / (n ** 2 * (n - 1))
+    return float(norm.cdf((runs - mean) / math.sqrt(variance))) if variance > 0 else 1.0
+
+
+def residual_structure(observables: Observables, predicted, sigma, n_parameters: int) -> dict:
+    """Residuals (simulated - measured) of a calibrated model, grouped and put in words."""
+    target = observables.measured
+    residual = predicted - target
+    z = residual / sigma
+    chi2 = float(np.sum(z ** 2))
+    dof = max(observables.size - n_parameters, 1)
+    p_value = float(chi2_distribution.sf(chi2, dof))
+    groups, runs = [], []
+    for j, c in enumerate(observables.columns):
+        in_column = observables.column_index == j
+        runout = in_column & (observables.kind == "runout")
+        for label, low, high in PHASES:
+            rows = runout & (observables.x > low) & (observables.x <= high) if low > 0 else \
+                runout & (observables.x <= high)
+            if rows.any():
+                groups.append(_group(c, "runout", label, rows, residual, z))
+        profile = in_column & (observables.kind == "profile")
+        if profile.any():
+            near = profile & (observables.x <= c.L_i)
+            far = profile & (observables.x > c.L_i)
+            for rows, label in ((near, "deposit behind the gate (x <= L_i)"), (far, "deposit beyond the gate (x > L_i)")):
+                if rows.any():
+                    groups.append(_group(c, "profile", label, rows, residual, z))
+        runs.append({"column": c.name, "p_value": runs_test(np.sign(residual[runout]))})
+    words = _plain_words(observables, groups, runs, chi2, dof, p_value)
+    return {"chi2": chi2, "dof": dof, "p_value": p_value, "groups": groups, "runs_test": runs,
+            "residual": residual.tolist(), "z": z.tolist(), "summary": words}
+
+
+def _group(column: MeasuredColumn, kind: str, label: str, rows, residual, z) -> dict:
+    n = int(rows.sum())
+    bias_z = float(np.sum(z[rows]) / math.sqrt(n))
+    return {"column": column.name, "aspect_ratio": column.aspect_ratio, "kind": kind, "group": label, "n": n,
+            "mean_residual": float(np.mean(residual[rows])), "chi2": float(np.sum(z[rows] ** 2)),
+            "p_value": float(chi2_distribution.sf(np.sum(z[rows] ** 2), n)), "bias_z": bias_z,
+            "biased": abs(bias_z) > BIAS_Z}
+
+
+def _plain_words(observables, groups, runs, chi2, dof, p_value) -> str:
+    """Sentences such as "runout overshoots in the stopping phase in every column, more for a = 2"."""
+    sentences = []
+    verdict = "within" if p_value >= 0.01 else "beyond"
+    sentences.append(f"The residuals of the calibrated model are {verdict} the stated noise "
+                     f"(chi^2 = {chi2:.1f} for {dof} degrees of freedom, p = {p_value:.2g}).")
+    n_columns = len(observables.columns)
+    labels = [label for label, _, _ in PHASES] + ["deposit behind the gate (x <= L_i)",
+                                                  "deposit beyond the gate (x > L_i)"]
+    for label in labels:
+        rows = [g for g in groups if g["group"] == label]
+        biased = [g for g in rows if g["biased"]]
+        if not biased:
+            continue
+        is_runout = biased[0]["kind"] == "runout"
+        signs = {np.sign(g["mean_residual"]) for g in biased}
+        unit = (lambda v: f"{v:+.2f} L*") if is_runout else (lambda v: f"{v * 1e3:+.1f} mm")
+        words = ("overshoots", "undershoots") if is_runout else ("is higher than measured", "is lower than measured")
+        subject = "the simulated runout" if is_runout else "the simulated deposit"
+        where = label.split(" (")[0] if is_runout else label
+        if len(signs) == 1:
+            word = words[0] if signs.pop() > 0 else words[1]
+            scope = "in every column" if len(biased) == n_columns and n_columns > 1 else \
+                "in column " + ", ".join(f"{g['column']} (a = {g['aspect_ratio']:g})" for g in biased)
+            detail = ", ".join(f"a = {g['aspect_ratio']:g}: {unit(g['mean_residual'])}" for g in
+                               sorted(biased, key=lambda g: g["aspect_ratio"]))
+            trend = ""
+            if len(biased) > 1:
+                by_a = sorted(biased, key=lambda g: g["aspect_ratio"])
+                sizes = [abs(g["mean_residual"]) for g in by_a]
+                if all(b > a for a, b in zip(sizes, sizes[1:])):
+                    trend = ", more for taller columns"
+                elif all(b < a for a, b in zip(sizes, sizes[1:])):
+                    trend = ", more for shorter columns"
+            sentences.append(f"In the {where} {subject} {word} {scope}{trend} ({detail}).")
+        else:
+            detail = ", ".join(f"{g['column']}: {unit(g['mean_residual'])}" for g in biased)
+            sentences.append(f"In the {where} {subject} misses with opposite signs in different columns ({detail}).")
+    structured = [r for r in runs if r["p_value"] < 0.05]
+    if structured:
+        sentences.append("The runout residuals come in long runs of one sign (runs test p < 0.05) in "
+                         + ", ".join(r["column"] for r in structured) + ": a systematic, not random, misfit.")
+    if len(sentences) == 1 and p_value < 0.01:
+        sentences.append("No single phase or deposit region stands out: the misfit is spread over the curve.")
+    return " ".join(sentences)
+
+
+# -- the decision ----------------------------------------------------------------------------------------
+def decide(dem: dict, rule: DecisionRule, data_warnings, emulator_best: str | None = None) -> tuple[str, dict, str]:
+    """(cause, checks {name: bool}, verdict in words) from the DEM scores {model: dem_score dict},
+    which hold the base model and the candidates the emulator ranked highest.
+
+    The base model is each extension with its mechanism off, so "BIC beats base by 10" is a
+    likelihood-ratio test of "off" (chi^2 drop >= 10 + ln n for one parameter; p < 1e-3 for
+    n ~ 20). Whether the base model alone misfits beyond the noise is reported, not required: a
+    mechanism can be needed even when the noise is large enough to hide it from a chi^2 test.
+    emulator_best: the candidate the emulators rank first; the DEM must agree (where the two
+    disagree, one of them is wrong about the optimum, and the evidence is not decisive).
+    """
+    base = dem["base"]
+    ranked = sorted((n for n in dem if n != "base"), key=lambda n: dem[n]["bic"])
+    best = ranked[0]
+    runner_up = ranked[1] if len(ranked) > 1 else None
+    b, r = dem[best], dem[runner_up] if runner_up else None
+    checks = {
+        "data_without_warnings": not data_warnings,
+        "bic_beats_base": base["bic"] - b["bic"] >= rule.min_delta_bic_vs_base,
+        "bic_beats_runner_up": r is None or r["bic"] - b["bic"] >= rule.min_delta_bic_vs_runner_up,
+        "heldout_beats_base": b["heldout_chi2"] <= (1 - rule.min_heldout_gain) * base["heldout_chi2"],
+        "heldout_beats_runner_up": r is None or b["heldout_chi2"] < r["heldout_chi2"],
+        "emulator_agrees": emulator_best is None or emulator_best == best,
+    }
+    versus = f"runner-up {runner_up}: {base['bic'] - r['bic']:.1f}" if r else "no runner-up"
+    fits = "misfits beyond" if base["p_value"] < rule.misfit_p_value else "fits within"
+    if all(checks.values()):
+        verdict = (f"Cause: {best}. The calibrated base model {fits} the noise (p = {base['p_value']:.2g}); "
+                   f"adding {best} lowers the BIC by {base['bic'] - b['bic']:.1f} ({versus}) and the held-out "
+                   f"chi^2 from {base['heldout_chi2']:.1f} to {b['heldout_chi2']:.1f} (runner-up "
+                   f"{r['heldout_chi2'] if r else float('nan'):.1f}), all in DEM runs.")
+        return best, checks, verdict
+    failed = [k for k, ok in checks.items() if not ok]
+    if base["bic"] - b["bic"] < 0:
+        why = (f"no candidate improves on the calibrated base model, which {fits} the noise "
+               f"(p = {base['p_value']:.2g})")
+    else:
+        why = (f"the best candidate, {best} (BIC {base['bic'] - b['bic']:+.1f} vs base; {versus}), "
+               f"is not decisive: {', '.join(failed)} failed")
+    return "none", checks, f"No cause named: {why}."
+
+
+# -- the whole diagnosis -------------------------------------------------------------------------------------
+@dataclass
+class DiagnosisSettings:
+    """Everything the diagnosis needs besides the data (config section `diagnosis`)."""
+
+    simulation: SimulationSettings = field(default_factory=SimulationSettings)
+    candidates: tuple | None = None       # names of candidate mechanisms; None: all five
+    channel_width: float = 0.01           # m, channel of the side-wall candidate
+    n_base: int = 10                      # Latin-hypercube DEM runs of the base model
+    n_per_mechanism: int = 8              # ... of each extension
+    n_packings: int = 2                   # packings of every DEM scoring run
+    n_rounds: int = 1                     # DEM scoring rounds; each but the last refines the emulators
+    dem_top: int = 2                      # candidates (best emulator BIC) scored in the DEM
+    runout_noise: float | None = None     # std of L* when the file states none
+    profile_noise: float | None = None    # std of the deposit height (m)
+    assumed_runout_noise: float = 0.1
+    assumed_profile_noise: float = 1e-3
+    rule: DecisionRule = field(default_factory=DecisionRule)
+    seed: int = 0
+
+    def models(self) -> list[Model]:
+        return [Model()] + [Model(m) for m in get_mechanisms(self.candidates, self.channel_width)]
+
+    @classmethod
+    def from_config(cls, section: dict) -> "DiagnosisSettings":
+        """From the config section `diagnosis` (schema: workflow/schemas/config.schema.yaml)."""
+        section = dict(section)
+        simulation = SimulationSettings(size_scale=float(section.pop("size_scale", 4.0)),
+                                        packing_seeds=tuple(section.pop("packing_seeds", (101, 102, 103))))
+        rule = DecisionRule(**section.pop("rule", {}))
+        if section.get("candidates") is not None:
+            section["candidates"] = tuple(section["candidates"])
+        known = set(cls.__dataclass_fields__) - {"simulation", "rule"}
+        unknown = set(section) - known
+        if unknown:
+            raise DiagnosisError(f"config key diagnosis: unknown setting(s) {sorted(unknown)}; known: "
+                                 f"{sorted(known | {'size_scale', 'packing_seeds', 'rule'})}")
+        return cls(simulation=simulation, rule=rule, **section)
+
+    def to_dict(self) -> dict:
+        out = {k: getattr(self, k) for k in self.__dataclass_fields__ if k not in ("simulation", "rule")}
+        out.update(self.simulation.to_dict(), rule=self.rule.to_dict())
+        out["candidates"] = [m.name for m in self.models()[1:]]
+        return out
+
+    def library(self, observables: Observables, progress=None) -> Library:
+        """The design runs of every model for these observables."""
+        return build_library(observables, self.models(), self.simulation, self.n_base, self.n_per_mechanism,
+                             self.seed, progress)
+
+
+def diagnose(columns, settings: DiagnosisSettings, library: Library | None = None, runner: DEMRunner | None = None,
+             data_warnings=(), name: str = "") -> dict:
+    """The diagnosis of measured `columns` (list of MeasuredColumn) as a JSON-ready dict.
+
+    library: design runs for these columns (built here when None; not modified); runner: a
+    DEMRunner for them (keeps settled packings between calls). data_warnings: warnings raised
+    while reading the data (they forbid naming a cause).
+    """
+    started = time.perf_counter()
+    observables = Observables(columns)
+    models = settings.models()
+    if runner is None:
+        runner = DEMRunner(observables, settings.simulation)
+    if runner.observables.signature() != observables.signature() or runner.settings != settings.simulation:
+        raise DiagnosisError("the DEM runner was made for other columns or simulation settings")
+    if library is None:
+        library = settings.library(observables)
+    library.check(observables, models)
+    if float(library.settings["size_scale"]) != settings.simulation.size_scale:
+        raise DiagnosisError(f"the run library was built at size_scale {library.settings['size_scale']}, "
+                             f"the diagnosis asks for {settings.simulation.size_scale}")
+    if settings.n_packings < 1 or settings.n_rounds < 1 or settings.dem_top < 1:
+        raise DiagnosisError("n_packings, n_rounds and dem_top must be at least 1")
+    if settings.n_packings > len(settings.simulation.packing_seeds):
+        raise DiagnosisError(f"n_packings = {settings.n_packings} exceeds the {len(settings.simulation.packing_seeds)} "
+                             "packing seeds: repeated runs would repeat a packing, not sample the scatter")
+    noise, notes = noise_model(observables, library, settings.runout_noise, settings.profile_noise,
+                               settings.assumed_runout_noise, settings.assumed_profile_noise)
+    notes += check_data(observables, library, models, noise)
+    sigma = noise.total
+    folds = held_out_folds(observables)
+    library = library.copy()   # runs added while refining belong to these data, not to the shared library
+    by_name = {m.name: m for m in models}
+
+    def score(model_name):
+        model = by_name[model_name]
+        emulator = library.emulator(model, settings.seed + models.index(model))
+        return score_model(model, emulator, observables, sigma, folds, seed=settings.seed)
+
+    scores = {m.name: score(m.name) for m in models}
+    for round_ in range(settings.n_rounds):
+        leading = sorted((scores[m.name] for m in models[1:]), key=lambda s: s.bic)[:settings.dem_top]
+        runs = {n: dem_runs(runner, by_name[n], scores[n], folds, settings.n_packings, round_ * settings.n_packings)
+                for n in ["base"] + [s.model for s in leading]}
+        # the runs join their models' emulators (exact there from now on), and their repeats on
+        # different packings join the estimate of the packing scatter
+        for n, r in runs.items():
+            for theta, observed in [(r["theta"], r["fit"])] + list(zip(r["fold_theta"], r["folds"])):
+                for packing, one in zip(r["packings"], observed):
+                    library.add_runs(by_name[n], theta, one, packing, r["seconds"] / (len(r["folds"]) + 1) / len(observed))
+        noise, _ = noise_model(observables, library, settings.runout_noise, settings.profile_noise,
+                               settings.assumed_runout_noise, settings.assumed_profile_noise)
+        sigma = noise.total
+        # rescored on the emulators that now hold these runs: the next round's optima, and after
+        # the last round the emulators' final word, which the DEM ranking must agree with
+        scores = {m.name: score(m.name) for m in models}
+    dem = {n: dem_evaluate(r, observables, folds, noise) for n, r in runs.items()}
+    emulator_best = min((scores[m.name] for m in models[1:]), key=lambda s: s.bic).model
+    cause, checks, verdict = decide(dem, settings.rule, data_warnings, emulator_best)
+    base_dem = dem["base"]
+    structure = residual_structure(observables, np.array(base_dem["observed_mean"]), np.array(base_dem["sigma"]),
+                                   by_name["base"].n_parameters)
+    best = min((n for n in dem if n != "base"), key=lambda n: dem[n]["bic"])
+    after = cause if cause != "none" else best
+    runout = observables.kind == "runout"
+    emulator_notes = [f"emulator of {s.model}: leave-one-out error {s.emulator_loo_over_noise:.2g} x the noise "
+                      "(median over outputs)" for s in scores.values() if s.emulator_loo_over_noise > 1.0]
+
+    def evidence(model_name):
+        d = dem.get(model_name)
+        out = {"emulator": scores[model_name].to_dict(observables),
+               "dem": None if d is None else {k: v for k, v in d.items() if k != "runs"}}
+        if model_name != "base":
+            source = d if d is not None else out["emulator"]
+            reference = base_dem if d is not None else out_base["emulator"]
+            out.update(scored_in="dem" if d is not None else "emulator",
+                       delta_bic_vs_base=reference["bic"] - source["bic"],
+                       heldout_gain=1 - source["heldout_chi2"] / reference["heldout_chi2"])
+        return out
+
+    out_base = evidence("base")
+    return {
+        "name": name,
+        "cause": cause,
+        "verdict": verdict,
+        "checks": checks,
+        "decision_rule": settings.rule.to_dict(),
+        "simulator": {"description": SIMULATOR, "engine": "builtin", "gns_used": False,
+                      "size_scale": settings.simulation.size_scale,
+                      "design_runs": {n: int(np.sum(r.stage != "refine")) for n, r in library.runs.items()},
+                      "design_dem_seconds": float(sum(r.seconds[r.stage != "refine"].sum()
+                                                      for r in library.runs.values())),
+                      "refinement_runs": int(sum(np.sum(r.stage == "refine") for r in library.runs.values())),
+                      "scored_in_dem": list(dem), "packings_per_dem_score": settings.n_packings,
+                      "rounds": settings.n_rounds},
+        "settings": settings.to_dict(),
+        "columns": [{"name": c.name, "material": c.material, "aspect_ratio": c.aspect_ratio, "L_i": c.L_i,
+                     "source": c.source, "n_runout": len(c.t_over_tstar),
+                     "n_profile": 0 if c.profile_x is None else len(c.profile_x)} for c in observables.columns],
+        "observables": {"labels": [list(label) for label in observables.labels],
+                        "measured": observables.measured.tolist(),
+                        "noise_measurement": noise.measurement.tolist(), "noise_packing": noise.packing.tolist(),
+                        "noise_total": sigma.tolist(), "noise_source": noise.source},
+        "folds": [f.description for f in folds],
+        "residuals": structure,
+        "base": out_base,
+        "candidates": {m.name: evidence(m.name) for m in models[1:]},
+        "extended": None if cause == "none" else {"model": cause, **evidence(cause)},
+        "best_candidate": best,
+        "errors": {
+            "compared_model": after,
+            "fit_mse": {"before": base_dem["objective"], "after": dem[after]["objective"]},
+            "heldout_mse": {"before": base_dem["heldout_mse"], "after": dem[after]["heldout_mse"]},
+            "fit_chi2": {"before": base_dem["chi2"], "after": dem[after]["chi2"]},
+            "heldout_chi2": {"before": base_dem["heldout_chi2"], "after": dem[after]["heldout_chi2"]},
+            "note": (f"DEM runs ({settings.n_packings} packings) at the calibrated parameters; MSE = the runout "
+                     f"objective over {int(runout.sum())} points; held out = {folds[0].description.split(' (')[0]}"
+                     f"{' and the other folds' if len(folds) > 1 else ''}, fitted without them"),
+        },
+        "warnings": list(data_warnings) + notes + emulator_notes,
+        "seconds": time.perf_counter() - started,
+    }
+
+
+# Settings that change the design runs (the library); the others only change the analysis.
+LIBRARY_SETTINGS = ("size_scale", "packing_seeds", "candidates", "channel_width", "n_base", "n_per_mechanism", "seed")
+
+
+def run_library(measured_path, library_path, section: dict) -> Library:
+    """Design runs for the columns of a measured-data CSV (workflow rule diagnosis_library)."""
+    columns, _ = read_columns(measured_path)
+    settings = DiagnosisSettings.from_config({k: v for k, v in section.items() if k in LIBRARY_SETTINGS})
+    library = settings.library(Observables(columns))
+    library.save(library_path)
+    return library
+
+
+def run_diagnosis(measured_path, library_path, out_dir, section: dict, name: str = "") -> dict:
+    """Diagnose a measured-data CSV with its design runs; write diagnosis.json, residuals.png and
+    candidates.png to out_dir (workflow rule diagnosis)."""
+    from calibration.diagnosis_report import plot_candidates, plot_residuals
+    columns, data_warnings = read_columns(measured_path)
+    settings = DiagnosisSettings.from_config({k: v for k, v in section.items() if k != "enabled"})
+    result = diagnose(columns, settings, Library.load(library_path), data_warnings=data_warnings, name=name)
+    result["measured"] = str(measured_path)
+    out_dir = Path(out_dir)
+    write_diagnosis(result, out_dir / "diagnosis.json")
+    plot_residuals(result, out_dir / "residuals.png")
+    plot_candidates(result, out_dir / "candidates.png")
+    return result
+
+
+def read_columns(path) -> tuple[list[MeasuredColumn], list[str]]:
+    """Columns of a measured-data CSV and the warnings its reader raised (as strings)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", MeasuredDataWarning)
+        columns = list(read_measured(path).values())
+    return columns, [str(w.message) for w in caught if issubclass(w.category, MeasuredDataWarning)]
+
+
+def write_diagnosis(result: dict, path) -> None:
+    """diagnosis.json, atomically."""
+    write_text(path, json.dumps(result, indent=1, default=_json_default) + "\n")
+
+
+def _json_default(value):
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")

@@ -1,0 +1,161 @@
+"""Figures and the report section of the discrepancy diagnosis (reads only the diagnosis dict/JSON)."""
+from __future__ import annotations
+
+import math
+import os
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from dem.atomic import write_text  # noqa: E402
+from dem.plots import save_figure  # noqa: E402
+
+PHASE_EDGES = (1.0, 2.5)   # t/t*: the paper's free-fall | spreading | stopping phases
+BASE_COLOUR, EXTENDED_COLOUR = "tab:orange", "tab:blue"
+
+
+def _compared(result: dict) -> str:
+    """The extension drawn beside the base model: the cause, else the best candidate."""
+    return result["cause"] if result["cause"] != "none" else result["best_candidate"]
+
+
+def plot_residuals(result: dict, path) -> None:
+    """Per measured column: runout (measured, base and extended DEM runs), the base model's
+    normalised residuals by time phase, and the deposit profile when measured."""
+    labels = [tuple(label) for label in result["observables"]["labels"]]
+    measured = np.array(result["observables"]["measured"])
+    base = result["base"]["dem"]
+    other_name = _compared(result)
+    other = result["candidates"][other_name]["dem"]
+    sigma = np.array(base["sigma"])
+    columns = [c["name"] for c in result["columns"]]
+    has_profile = any(kind == "profile" for _, kind, _ in labels)
+    fig, axes = plt.subplots(len(columns), 3 if has_profile else 2, figsize=(13 if has_profile else 9, 3.2 * len(columns)),
+                             squeeze=False)
+    for row, name in enumerate(columns):
+        runout = np.array([lab[0] == name and lab[1] == "runout" for lab in labels])
+        profile = np.array([lab[0] == name and lab[1] == "profile" for lab in labels])
+        t = np.array([lab[2] for lab in labels])[runout]
+        ax = axes[row, 0]
+        for k, curves in enumerate(base["curves"]):
+            ax.plot(*curves[row], color=BASE_COLOUR, lw=1, alpha=0.7, label="base model (DEM)" if k == 0 else None)
+        for k, curves in enumerate(other["curves"]):
+            ax.plot(*curves[row], color=EXTENDED_COLOUR, lw=1, ls="--", alpha=0.8,
+                    label=f"+ {other_name} (DEM)" if k == 0 else None)
+        ax.errorbar(t, measured[runout], yerr=sigma[runout], fmt="o", color="k", ms=3, capsize=2, label="measured")
+        ax.set(xlabel="t / t*", ylabel="L*", title=f"{name}: runout")
+        ax.legend(fontsize=7)
+        ax.grid(alpha=0.3)
+        ax = axes[row, 1]
+        z_base = (np.array(base["observed_mean"]) - measured) / sigma
+        z_other = (np.array(other["observed_mean"]) - measured) / np.array(other["sigma"])
+        ax.axvspan(0, PHASE_EDGES[0], color="0.93")
+        ax.axvspan(PHASE_EDGES[1], max(t.max(), PHASE_EDGES[1]) + 0.5, color="0.93")
+        ax.bar(t, z_base[runout], width=0.18, color=BASE_COLOUR, label="base model")
+        ax.plot(t, z_other[runout], "s", mfc="none", color=EXTENDED_COLOUR, label=f"+ {other_name}")
+        for level in (-2, 2):
+            ax.axhline(level, color="0.5", ls=":", lw=0.8)
+        ax.axhline(0, color="k", lw=0.6)
+        ax.set(xlabel="t / t*  (shaded: free-fall | stopping phase)", ylabel="(simulated - measured) / sigma",
+               title="runout residuals, normalised by the noise")
+        ax.legend(fontsize=7)
+        if has_profile:
+            ax = axes[row, 2]
+            if profile.any():
+                x = np.array([lab[2] for lab in labels])[profile] * 1e3
+                ax.errorbar(x, measured[profile] * 1e3, yerr=sigma[profile] * 1e3, fmt="o", color="k", ms=3,
+                            capsize=2, label="measured")
+                ax.plot(x, np.array(base["observed_mean"])[profile] * 1e3, "-", color=BASE_COLOUR, label="base model")
+                ax.plot(x, np.array(other["observed_mean"])[profile] * 1e3, "--", color=EXTENDED_COLOUR,
+                        label=f"+ {other_name}")
+                ax.legend(fontsize=7)
+            ax.set(xlabel="x (mm)", ylabel="deposit height (mm)", title="deposit profile (last frame)")
+            ax.grid(alpha=0.3)
+    fig.suptitle(f"{result['name'] or 'diagnosis'}: cause = {result['cause']}   "
+                 f"(base model chi^2 = {base['chi2']:.1f} for {base['n_data']} values, p = {base['p_value']:.2g})",
+                 fontsize=10)
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def plot_candidates(result: dict, path) -> None:
+    """Evidence per candidate: BIC gain over the base model and held-out chi^2 relative to it."""
+    names = list(result["candidates"])
+    rule = result["decision_rule"]
+    gain = [result["candidates"][n]["delta_bic_vs_base"] for n in names]
+    heldout = [1 - result["candidates"][n]["heldout_gain"] for n in names]
+    in_dem = [result["candidates"][n]["scored_in"] == "dem" for n in names]
+    colours = [EXTENDED_COLOUR if n == result["cause"] else ("0.45" if d else "0.8") for n, d in zip(names, in_dem)]
+    fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))
+    ax = axes[0]
+    ax.barh(names, gain, color=colours)
+    ax.axvline(rule["min_delta_bic_vs_base"], color="tab:red", ls="--", lw=1, label="decisive margin")
+    ax.axvline(0, color="k", lw=0.6)
+    ax.set(xlabel="BIC(base) - BIC(candidate)", title="information criterion (grey: DEM, light: emulator)")
+    ax.legend(fontsize=7)
+    ax = axes[1]
+    ax.barh(names, heldout, color=colours)
+    ax.axvline(1 - rule["min_heldout_gain"], color="tab:red", ls="--", lw=1, label="required held-out gain")
+    ax.axvline(1, color="k", lw=0.6)
+    ax.set(xlabel="held-out chi^2 / base model's", title="prediction of held-out data")
+    ax.legend(fontsize=7)
+    for ax in axes:
+        ax.grid(alpha=0.3, axis="x")
+    fig.suptitle(f"{result['name'] or 'diagnosis'}: {result['verdict'][:150]}", fontsize=9)
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def _parameters(evidence: dict) -> str:
+    posterior = {p["name"]: p for p in evidence["emulator"]["posterior"]["parameters"]}
+    values = (evidence["dem"] or evidence["emulator"])["parameters"]
+    parts = []
+    for name, value in values.items():
+        std = posterior.get(name, {}).get("std", math.nan)
+        parts.append(f"{name} = {value:.3g} &plusmn; {std:.2g}")
+    return ", ".join(parts)
+
+
+def section_markdown(results: dict, section_path) -> str:
+    """The report section for {name: (diagnosis dict, folder with its figures)}."""
+    lines = ["What the calibrated DEM still gets wrong, and whether a missing mechanism explains it. "
+             "Each measured data set is fitted by the base model (friction, restitution) and by the base "
+             "model plus one candidate mechanism at a time; a cause is named only when the evidence is decisive "
+             "(rule below each table). Simulator: the builtin DEM, coarse-grained, through a Gaussian-process "
+             "emulator of its design runs, scored by DEM runs at the optima (the GNS is not trained on the "
+             "extension parameters).", ""]
+    for name, (result, folder) in results.items():
+        rel = os.path.relpath(folder, os.path.dirname(section_path))
+        errors = result["errors"]
+        lines += [f"### {name}", "",
+                  f"**Cause: {result['cause']}.** {result['verdict']}", "",
+                  f"Residuals of the calibrated base model: {result['residuals']['summary']}", "",
+                  f"Simulator: builtin DEM at size_scale {result['simulator']['size_scale']:g}; design runs "
+                  f"{sum(result['simulator']['design_runs'].values())}, refinement runs "
+                  f"{result['simulator']['refinement_runs']}; noise: {result['observables']['noise_source']}.", "",
+                  "| model | parameters (&plusmn; std) | chi^2 | BIC | BIC gain | held-out chi^2 | fit MSE | held-out MSE | scored in |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+        rows = [("base", result["base"])] + list(result["candidates"].items())
+        for model, evidence in rows:
+            score = evidence["dem"] or evidence["emulator"]
+            where = "DEM" if evidence["dem"] else "emulator"
+            gain = "" if model == "base" else f"{evidence['delta_bic_vs_base']:+.1f}"
+            fit_mse = score.get("objective", score.get("fit_mse"))
+            label = f"**{model}**" if model == result["cause"] else model
+            lines.append(f"| {label} | {_parameters(evidence)} | {score['chi2']:.1f} | {score['bic']:.1f} | {gain} | "
+                         f"{score['heldout_chi2']:.1f} | {fit_mse:.4f} | {score['heldout_mse']:.4f} | {where} |")
+        lines += ["", f"Gain ({errors['compared_model']} vs base, DEM runs): runout MSE "
+                      f"{errors['fit_mse']['before']:.4f} &rarr; {errors['fit_mse']['after']:.4f} (fit), "
+                      f"{errors['heldout_mse']['before']:.4f} &rarr; {errors['heldout_mse']['after']:.4f} (held out).", "",
+                  "Checks: " + ", ".join(f"{k} {'yes' if v else 'NO'}" for k, v in result["checks"].items()) + ".", ""]
+        if result["warnings"]:
+            lines += ["Warnings:", ""] + [f"- {w}" for w in result["warnings"]] + [""]
+        lines += [f"![residuals]({rel}/residuals.png)", "", f"![candidates]({rel}/candidates.png)", ""]
+    return "\n".join(lines) + "\n"
+
+
+def write_section(results: dict, section_path) -> None:
+    write_text(section_path, section_markdown(results, section_path))

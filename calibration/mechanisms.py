@@ -1,0 +1,141 @@
+"""Candidate mechanisms the paper's DEM model (friction mu, restitution e) leaves out.
+
+Each candidate is one small plug-in class behind one interface (`Mechanism`): a single physical
+parameter, "off" at `off_value`, that `case_fields` turns into CollapseCase fields of the builtin
+engine (dem/, README "The DEM model"; each checked against a known answer in
+tests/test_mechanisms.py). The diagnosis (calibration/diagnosis.py) adds one candidate at a time to
+the base model and asks whether the data want it.
+
+`bounds` is the box the diagnosis searches; `hidden_range` is the magnitude range the hidden-effect
+tests and benchmark draw from. It is stated for the coarse-grained test columns (quartz, L_i =
+0.02 m, a = 1 and 2, size_scale 4-5, runout to t/t* = 5) and chosen so that the effect on the
+data is several times the noise: below it the base model absorbs the effect (measured: sidewall
+friction 0.055 or rolling friction 0.12 changed the best base fit's BIC by less than 10), and no
+diagnosis, ours included, can then name it.
+
+The parameters are chosen so that the effect on the runout is roughly proportional to them (the
+emulator then needs few runs):
+- cohesion is a Bond number Bo = pull-off force of a mean pair / weight of a mean grain
+  = 1.5 pi w (d/4) / (rho g pi d^3 / 6) = 2.25 w / (rho g d^2); the same Bo means the same
+  physics for any material and grain size, w (J/m^2) itself does not;
+- basal friction is designed and emulated on a log scale: the runout grows steeply as the floor
+  friction falls towards zero and hardly changes between 0.5 and 1;
+- the gate is described by its slowness 1/v (s/m): the time it takes to clear a column of height H
+  is H/v, so the delay it causes grows linearly in 1/v, and 0 is the paper's instant removal.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from dem.case import GRAVITY, CollapseCase
+
+# The base model's parameters and the box they are calibrated in (the paper's DoE range, section 2.4).
+BASE_PARAMETERS = ("friction", "restitution")
+BASE_BOUNDS = ((0.3, 0.9), (0.3, 0.9))
+
+
+class MechanismError(ValueError):
+    """An unknown candidate name or a parameter value outside what the candidate allows."""
+
+
+@dataclass(frozen=True)
+class Mechanism:
+    """One candidate: a single parameter (`parameter`, in `unit`) added to the base model."""
+
+    name: str                             # the diagnosis' `cause` when this candidate is named
+    parameter: str                        # name of its parameter in reports
+    unit: str
+    bounds: tuple[float, float]           # search box of the diagnosis
+    hidden_range: tuple[float, float]     # magnitudes drawn by the hidden-effect tests
+    description: str
+    log_scale: bool = False               # design and emulator work in log(parameter)
+
+    def case_fields(self, value: float, case: CollapseCase) -> dict:
+        """CollapseCase fields that switch the mechanism on at `value` for `case` (its base fields)."""
+        raise NotImplementedError
+
+    def off_value(self, friction: float, restitution: float) -> float:
+        """The parameter value at which the extended model is the base model at (mu, e)."""
+        return 0.0
+
+    def check(self, value: float) -> float:
+        low, high = self.bounds
+        if not low - 1e-12 <= value <= high + 1e-12:
+            raise MechanismError(f"{self.name}: {self.parameter} = {value} outside its bounds [{low}, {high}] {self.unit}")
+        return float(value)
+
+
+class RollingResistance(Mechanism):
+    def case_fields(self, value, case):
+        return {"rolling_friction": self.check(value)}
+
+
+class Cohesion(Mechanism):
+    def case_fields(self, value, case):
+        return {"cohesion_energy": cohesion_energy_from_bond(self.check(value), case)}
+
+
+class BasalFriction(Mechanism):
+    def case_fields(self, value, case):
+        return {"friction_base": self.check(value)}
+
+    def off_value(self, friction, restitution):
+        return friction  # the base model's floor has the grains' friction
+
+
+@dataclass(frozen=True)
+class SidewallFriction(Mechanism):
+    channel_width: float = 0.01           # m, width of the quasi-2D channel (fixed, not fitted)
+
+    def case_fields(self, value, case):
+        return {"sidewall_friction": self.check(value), "channel_width": self.channel_width}
+
+
+class GateLift(Mechanism):
+    def case_fields(self, value, case):
+        slowness = self.check(value)
+        return {"gate_lift_speed": 1.0 / slowness if slowness > 0 else 0.0}
+
+
+def cohesion_energy_from_bond(bond: float, case: CollapseCase) -> float:
+    """Work of adhesion w (J/m^2) whose mean-pair pull-off force is `bond` mean-grain weights."""
+    return bond * case.density * GRAVITY * case.diameter ** 2 / 2.25
+
+
+def bond_from_cohesion_energy(cohesion_energy: float, case: CollapseCase) -> float:
+    return 2.25 * cohesion_energy / (case.density * GRAVITY * case.diameter ** 2)
+
+
+def candidate_mechanisms(channel_width: float = 0.01) -> dict[str, Mechanism]:
+    """The five candidates by name, in report order."""
+    candidates = (
+        RollingResistance(
+            "rolling_resistance", "rolling_friction", "-", (0.0, 0.4), (0.15, 0.35),
+            "type-C (EPSD2) rolling resistance mu_r: a torque up to mu_r R* |Fn| opposes rolling"),
+        Cohesion(
+            "cohesion", "bond_number", "-", (0.0, 60.0), (15.0, 45.0),
+            "JKR pull-off cohesion, as a Bond number (pull-off force / grain weight)"),
+        BasalFriction(
+            "basal_friction", "friction_base", "-", (0.02, 1.0), (0.03, 0.08),
+            "floor friction different from the grains' friction (base model: floor mu = grain mu)",
+            log_scale=True),
+        SidewallFriction(
+            "sidewall_friction", "sidewall_friction", "-", (0.0, 0.3), (0.08, 0.2),
+            f"Coulomb drag of the front/back walls of a {channel_width * 1e3:g} mm quasi-2D channel",
+            channel_width=channel_width),
+        GateLift(
+            "gate_lift", "gate_slowness", "s/m", (0.0, 4.0), (1.0, 3.3),
+            "gate lifted at finite speed v (parameter 1/v; 0 = removed at once, as in the paper)"),
+    )
+    return {m.name: m for m in candidates}
+
+
+def get_mechanisms(names=None, channel_width: float = 0.01) -> list[Mechanism]:
+    """The candidates named in `names` (all five when None), in the order given."""
+    known = candidate_mechanisms(channel_width)
+    if names is None:
+        return list(known.values())
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise MechanismError(f"unknown candidate mechanism(s) {unknown}; known: {list(known)}")
+    return [known[n] for n in names]

@@ -1,0 +1,160 @@
+"""Synthetic "measured" data with a hidden mechanism, for testing the diagnosis against a known answer.
+
+A hidden truth is the base model (mu, e) plus at most one candidate mechanism at a magnitude drawn
+from its stated `hidden_range` (calibration/mechanisms.py), simulated by the builtin DEM on a packing
+seed that the diagnosis' own runs never use, observed like a measurement (runout L* at t/t* points,
+deposit height at x points) and perturbed by Gaussian measurement noise of a stated std. The
+diagnosis is then given the data and the noise level, never the truth.
+"""
+from __future__ import annotations
+
+import csv
+from dataclasses import asdict, dataclass, replace
+
+import numpy as np
+
+from calibration.emulator import Model, Observables, SimulationSettings
+from calibration.measured import MeasuredColumn
+from calibration.mechanisms import Mechanism
+from dem.atomic import atomic_path
+from dem.collapse import simulate_collapse
+
+# The test columns of the diagnosis: small quartz columns of two aspect ratios, runout every 0.5 t*
+# up to 5 t* (the paper stops at 3.5; by 5 the base model's front still creeps on while rolling
+# resistance has stopped it, which is what tells rolling resistance from side-wall drag), and the
+# deposit profile at five positions (in units of L_i from the left wall) at the last frame.
+SYNTHETIC_TIMES = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0)
+SYNTHETIC_PROFILE_X_OVER_L_I = (0.25, 0.75, 1.25, 2.0, 3.0)
+# Inner part of the base box the hidden (mu, e) are drawn from: away from the edges, so that a
+# base-model truth is inside what the calibration can reach.
+TRUTH_BOX = ((0.4, 0.8), (0.4, 0.8))
+SEED_OFFSET = 10_000     # hidden packing seeds start here, far from the library's packing seeds
+
+
+@dataclass(frozen=True)
+class HiddenTruth:
+    """What generated the data: base parameters, the hidden mechanism (None: base model) and its
+    magnitude in the mechanism's own parameter, and the packing seed."""
+
+    friction: float
+    restitution: float
+    mechanism: str | None
+    magnitude: float | None
+    seed: int
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def draw_truth(rng: np.random.Generator, mechanism: Mechanism | None) -> HiddenTruth:
+    """A random truth with `mechanism` (None: the null case) at a magnitude in its hidden_range."""
+    friction, restitution = (float(rng.uniform(*box)) for box in TRUTH_BOX)
+    magnitude = None if mechanism is None else float(rng.uniform(*mechanism.hidden_range))
+    return HiddenTruth(friction, restitution, None if mechanism is None else mechanism.name, magnitude,
+                       SEED_OFFSET + int(rng.integers(0, 10_000)))
+
+
+def synthetic_columns(material: str = "quartz", L_i: float = 0.02, aspect_ratios=(1.0, 2.0),
+                 times=SYNTHETIC_TIMES, profile_x_over_L_i=SYNTHETIC_PROFILE_X_OVER_L_I) -> list[MeasuredColumn]:
+    """Columns to be "measured" (values still zero): one per aspect ratio."""
+    times = np.asarray(times, float)
+    profile_x = np.asarray(profile_x_over_L_i, float) * L_i
+    return [MeasuredColumn(name=f"{material}_a{a:g}", material=material, aspect_ratio=float(a), L_i=L_i,
+                           t_over_tstar=times, runout=np.zeros_like(times), runout_std=None,
+                           profile_x=profile_x if len(profile_x) else None,
+                           profile_height=np.zeros_like(profile_x) if len(profile_x) else None,
+                           source="synthetic") for a in aspect_ratios]
+
+
+def synthetic_measurement(truth: HiddenTruth, columns, mechanisms, settings: SimulationSettings,
+                          runout_noise: float, profile_noise: float, rng: np.random.Generator):
+    """The columns "measured" under `truth`: DEM observables plus Gaussian noise.
+
+    runout_noise: std of L* (-), stored as each runout row's std; profile_noise: std of the deposit
+    height (m). mechanisms: the candidates, to find the truth's by name. Returns (columns, clean
+    observables [q] before noise).
+    """
+    known = {m.name: m for m in mechanisms}
+    model = Model(None if truth.mechanism is None else known[truth.mechanism])
+    theta = [truth.friction, truth.restitution] + ([] if truth.mechanism is None else [truth.magnitude])
+    observables = Observables(columns)
+    # the truth settles its own packing with its own contact law, as a real column would
+    trajectories = [simulate_collapse(model.case(c, theta, settings, truth.seed)) for c in observables.columns]
+    clean = observables.from_trajectories(trajectories)
+    noisy = clean + rng.normal(0.0, 1.0, clean.shape) * np.where(observables.kind == "runout", runout_noise,
+                                                                  profile_noise)
+    out, k = [], 0
+    for c in observables.columns:
+        n_t = len(c.t_over_tstar)
+        runout, k = noisy[k:k + n_t], k + n_t
+        profile = None
+        if c.profile_x is not None:
+            profile, k = np.maximum(noisy[k:k + len(c.profile_x)], 0.0), k + len(c.profile_x)
+        out.append(replace(c, runout=runout, runout_std=np.full(n_t, runout_noise), profile_height=profile))
+    return out, clean
+
+
+def write_measured_csv(columns, path, comment: str = "") -> None:
+    """Write columns in the measured-data CSV schema (calibration/measured.py)."""
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", newline="", encoding="utf-8") as handle:
+            for line in comment.splitlines():
+                handle.write(f"# {line}\n")
+            writer = csv.writer(handle)
+            writer.writerow(["column", "material", "aspect_ratio", "L_i", "kind", "x", "value", "std"])
+            for c in columns:
+                std = c.runout_std if c.runout_std is not None else [None] * len(c.runout)
+                for t, value, s in zip(c.t_over_tstar, c.runout, std):
+                    writer.writerow([c.name, c.material, c.aspect_ratio, c.L_i, "runout", f"{t:g}", f"{value:.6g}",
+                                     "" if s is None else f"{s:.6g}"])
+                if c.profile_x is not None:
+                    for x, height in zip(c.profile_x, c.profile_height):
+                        writer.writerow([c.name, c.material, c.aspect_ratio, c.L_i, "profile", f"{x:.6g}",
+                                         f"{height:.6g}", ""])
+
+
+def diagnose_hidden_cases(truths, settings, columns=None, runout_noise: float = 0.05,
+                          profile_noise: float = 0.5e-3, seed: int = 0, library=None, progress=None) -> dict:
+    """Generate data for each HiddenTruth, diagnose it without the truth, and score the verdicts.
+
+    settings: a calibration.diagnosis.DiagnosisSettings (its profile_noise is set to the stated
+    `profile_noise`; the runout noise travels in the data as each point's std). columns: the
+    columns to measure (default `synthetic_columns()`); library: their design runs (built here
+    when None). Returns {"cases": [...], "hit_rate", "null_correct", "library_seconds"}.
+    """
+    from calibration.diagnosis import diagnose  # here: diagnosis does not depend on this module
+    from calibration.emulator import DEMRunner
+    columns = synthetic_columns() if columns is None else columns
+    observables = Observables(columns)
+    settings = replace(settings, profile_noise=profile_noise)
+    mechanisms = [m.mechanism for m in settings.models()[1:]]
+    if library is None:
+        library = settings.library(observables)
+    runner = DEMRunner(observables, settings.simulation)
+    rng = np.random.default_rng(seed)
+    cases = []
+    for k, truth in enumerate(truths):
+        data, _ = synthetic_measurement(truth, columns, mechanisms, settings.simulation, runout_noise, profile_noise, rng)
+        result = diagnose(data, settings, library=library, runner=runner, name=f"hidden_{k}")
+        expected = truth.mechanism or "none"
+        fitted = None
+        if truth.mechanism is not None:
+            evidence = result["candidates"][truth.mechanism]
+            fitted = (evidence["dem"] or evidence["emulator"])["parameters"]
+        errors = result["errors"]
+        cases.append({"truth": truth.to_dict(), "cause": result["cause"], "hit": result["cause"] == expected,
+                      "checks": result["checks"], "compared_model": errors["compared_model"],
+                      "fit_mse": errors["fit_mse"], "heldout_mse": errors["heldout_mse"],
+                      "delta_bic": {n: round(c["delta_bic_vs_base"], 2) for n, c in result["candidates"].items()},
+                      "emulator_bic": {n: round(c["emulator"]["bic"], 2) for n, c in
+                                       [("base", result["base"])] + list(result["candidates"].items())},
+                      "fitted_parameters_of_true_mechanism": fitted, "seconds": result["seconds"],
+                      "result": result})
+        if progress is not None:
+            progress((k + 1) / len(truths))
+    hidden = [c for c in cases if c["truth"]["mechanism"] is not None]
+    nulls = [c for c in cases if c["truth"]["mechanism"] is None]
+    return {"cases": cases, "hits": sum(c["hit"] for c in hidden), "n_hidden": len(hidden),
+            "hit_rate": sum(c["hit"] for c in hidden) / len(hidden) if hidden else None,
+            "null_correct": all(c["hit"] for c in nulls) if nulls else None,
+            "library_seconds": float(sum(r.seconds.sum() for r in library.runs.values()))}

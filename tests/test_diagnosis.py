@@ -1,0 +1,287 @@
+"""The discrepancy diagnosis: candidate registry, emulator, residual words, decision rule, bad input,
+and a hidden mechanism found in synthetic DEM data (plus a null case) on tiny coarse-grained columns.
+
+The DEM part (one module fixture) builds a CI-sized run library: quartz L_i = 0.02 m, a = 1 and 2,
+size_scale 5 (98 and 196 grains), 6 + 3 base runs and 5 per candidate, one DEM scoring round.
+benchmarks/diagnosis_hidden.py runs the full-size version (size_scale 4, five hidden cases).
+"""
+import json
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from calibration.diagnosis import (DecisionRule, DiagnosisError, DiagnosisSettings, check_data, decide, diagnose,
+                                   fit_emulated, held_out_folds, noise_model, residual_structure, run_diagnosis,
+                                   runs_test)
+from calibration.emulator import (DesignRuns, GPEmulator, Library, Model, Observables, ParameterBox,
+                                  SimulationSettings, latin_hypercube)
+from calibration.measured import MeasuredColumn
+from calibration.mechanisms import (MechanismError, bond_from_cohesion_energy, cohesion_energy_from_bond,
+                                    get_mechanisms)
+from calibration.synthetic import draw_truth, synthetic_columns, synthetic_measurement, write_measured_csv
+from dem.case import CollapseCase
+
+MECHANISMS = {m.name: m for m in get_mechanisms()}
+
+
+# -- candidate registry --------------------------------------------------------------------------------------
+def test_candidates_map_to_engine_fields():
+    case = CollapseCase("quartz", 0.02, 1.0, 0.5, 0.6, size_scale=4)
+    w = MECHANISMS["cohesion"].case_fields(30.0, case)["cohesion_energy"]
+    assert w == pytest.approx(cohesion_energy_from_bond(30.0, case))
+    assert bond_from_cohesion_energy(w, case) == pytest.approx(30.0)
+    # Bond number: pull-off 1.5 pi w d/4 over a mean grain's weight
+    weight = case.sphere_mass(case.diameter) * 9.81
+    assert 1.5 * math.pi * w * case.diameter / 4 / weight == pytest.approx(30.0, rel=1e-6)
+    assert MECHANISMS["gate_lift"].case_fields(2.0, case) == {"gate_lift_speed": 0.5}
+    assert MECHANISMS["gate_lift"].case_fields(0.0, case) == {"gate_lift_speed": 0.0}
+    assert MECHANISMS["sidewall_friction"].case_fields(0.1, case) == {"sidewall_friction": 0.1, "channel_width": 0.01}
+    assert MECHANISMS["rolling_resistance"].case_fields(0.2, case) == {"rolling_friction": 0.2}
+    assert MECHANISMS["basal_friction"].off_value(0.45, 0.6) == 0.45   # the base model's floor
+    assert MECHANISMS["rolling_resistance"].off_value(0.45, 0.6) == 0.0
+    with pytest.raises(MechanismError, match="rolling_friction = 0.9 outside"):
+        MECHANISMS["rolling_resistance"].case_fields(0.9, case)
+    with pytest.raises(MechanismError, match="unknown candidate mechanism"):
+        get_mechanisms(["rolling_resistance", "magnetism"])
+    for m in MECHANISMS.values():   # the hidden magnitudes lie inside the searched box, away from "off"
+        assert m.bounds[0] <= m.hidden_range[0] < m.hidden_range[1] <= m.bounds[1]
+
+
+def test_parameter_box_log_scale():
+    box = Model(MECHANISMS["basal_friction"]).box
+    theta = np.array([[0.5, 0.6, 0.02], [0.3, 0.9, 1.0], [0.9, 0.3, math.sqrt(0.02)]])
+    unit = box.to_unit(theta)
+    assert unit[:, 2] == pytest.approx([0.0, 1.0, 0.5])     # geometric middle of [0.02, 1]
+    assert box.from_unit(unit) == pytest.approx(theta)
+    design = latin_hypercube(box, 8, seed=1)
+    assert np.all(design >= box.bounds[:, 0]) and np.all(design <= box.bounds[:, 1])
+    assert np.sort(box.to_unit(design)[:, 2] * 8).astype(int).tolist() == list(range(8))  # one per stratum
+
+
+# -- emulator and fits -------------------------------------------------------------------------------------
+def response(theta):
+    """A smooth nonlinear two-output function of (x, y) in [0, 1]^2, one-to-one (Jacobian
+    determinant -1 - 2 y e^x < 0 everywhere)."""
+    x, y = theta[:, 0], theta[:, 1]
+    return np.column_stack([x + y ** 2, np.exp(x) - y])
+
+
+def test_emulator_reproduces_a_known_function_and_its_noise():
+    box = ParameterBox(np.array([[0.0, 1.0], [0.0, 1.0]]), (False, False))
+    rng = np.random.default_rng(0)
+    design = latin_hypercube(box, 30, seed=2)
+    noise = 0.02
+    emulator = GPEmulator(box, seed=0).fit(design, response(design) + rng.normal(0, noise, (30, 2)))
+    test = latin_hypercube(box, 50, seed=3)
+    error = emulator.predict(test) - response(test)
+    assert np.sqrt(np.mean(error ** 2)) < 3 * noise
+    # leave-one-out error: the noise itself, plus a little emulation error
+    assert np.all(emulator.loo_rmse() > 0.5 * noise) and np.all(emulator.loo_rmse() < 4 * noise)
+    truth = np.array([0.3, 0.7])
+    target = response(truth[None])[0]
+    found, chi2 = fit_emulated(emulator, target, np.full(2, noise))
+    assert found == pytest.approx(truth, abs=0.06)
+    assert chi2 < 4.0
+
+
+# -- plain words, runs test, held-out folds ----------------------------------------------------------------
+def two_columns(profile=True):
+    t = np.array([0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0])
+    columns = []
+    for a in (1.0, 2.0):
+        x = np.array([0.005, 0.015, 0.03]) if profile else None
+        columns.append(MeasuredColumn(f"q{a:g}", "quartz", a, 0.02, t, a * np.sqrt(t), np.full(len(t), 0.05),
+                                      x, None if x is None else np.array([0.02, 0.015, 0.005]), "memory"))
+    return columns
+
+
+def test_residuals_said_in_plain_words():
+    observables = Observables(two_columns())
+    measured = observables.measured
+    kind, x, column = observables.kind, observables.x, observables.column_index
+    predicted = measured.copy()
+    late = (kind == "runout") & (x > 2.5)
+    predicted[late] += np.where(column[late] == 0, 0.3, 0.6)           # overshoot, larger for a = 2
+    near_wall = (kind == "profile") & (x <= 0.02)
+    predicted[near_wall] -= 0.004                                      # deposit too low at the wall
+    sigma = np.where(kind == "runout", 0.05, 0.001)
+    words = residual_structure(observables, predicted, sigma, 2)
+    summary = words["summary"]
+    assert "beyond the stated noise" in summary
+    assert ("In the stopping phase the simulated runout overshoots in every column, more for taller columns "
+            "(a = 1: +0.30 L*, a = 2: +0.60 L*)") in summary
+    assert "deposit behind the gate (x <= L_i) the simulated deposit is lower than measured in every column" in summary
+    assert "free-fall" not in summary and "spreading" not in summary
+    stopping = [g for g in words["groups"] if g["group"].startswith("stopping")]
+    assert all(g["biased"] for g in stopping)
+    clean = residual_structure(observables, measured + 0.01 * np.sin(np.arange(len(measured))) * sigma, sigma, 2)
+    assert "within the stated noise" in clean["summary"] and "overshoots" not in clean["summary"]
+
+
+def test_runs_test():
+    assert runs_test([1, 1, 1, 1, 1, 1]) == pytest.approx(2.0 ** -5)
+    assert runs_test([1, -1, 1, -1, 1, -1, 1, -1]) > 0.9            # alternating: no structure
+    assert runs_test([-1, -1, -1, -1, 1, 1, 1, 1]) < 0.05           # two long runs: structure
+
+
+def test_held_out_folds():
+    two = Observables(two_columns())
+    folds = held_out_folds(two)
+    assert [f.columns for f in folds] == [(0,), (1,)]
+    assert np.array_equal(folds[0].held, two.column_index == 0)
+    one = Observables(two_columns()[:1])
+    phases = held_out_folds(one)
+    assert len(phases) == 3 and all(not f.held[one.kind == "profile"].any() for f in phases)
+    assert np.sum([f.held for f in phases], axis=0)[one.kind == "runout"].tolist() == [1] * 8
+
+
+# -- the decision rule ---------------------------------------------------------------------------------
+def dem_entry(chi2, heldout, n=20, p=3):
+    return {"chi2": chi2, "bic": chi2 + p * math.log(n), "heldout_chi2": heldout,
+            "p_value": 0.5 if chi2 < n else 1e-6}
+
+
+def test_decision_names_a_cause_only_when_decisive():
+    rule = DecisionRule()
+    decisive = {"base": dem_entry(120, 130, p=2), "cohesion": dem_entry(22, 30), "rolling_resistance": dem_entry(60, 80)}
+    cause, checks, verdict = decide(decisive, rule, [], "cohesion")
+    assert cause == "cohesion" and all(checks.values()) and verdict.startswith("Cause: cohesion")
+    close = dict(decisive, rolling_resistance=dem_entry(25, 35))                       # runner-up 3 behind
+    cause, checks, _ = decide(close, rule, [], "cohesion")
+    assert cause == "none" and not checks["bic_beats_runner_up"]
+    worse_heldout = dict(decisive, cohesion=dem_entry(22, 110))                        # held-out gain 15% only
+    assert decide(worse_heldout, rule, [], "cohesion")[0] == "none"
+    assert decide(decisive, rule, ["runout looks like metres"], "cohesion")[0] == "none"
+    assert decide(decisive, rule, [], "rolling_resistance")[0] == "none"               # emulator disagrees
+    nothing = {"base": dem_entry(18, 20, p=2), "cohesion": dem_entry(17, 22), "gate_lift": dem_entry(18, 25)}
+    cause, _, verdict = decide(nothing, rule, [], "cohesion")
+    assert cause == "none" and "no candidate improves" in verdict
+
+
+# -- bad input (a small library of real arrays, no DEM) ------------------------------------------------
+def small_library(observables, scale=1.0):
+    """Design runs of the base model only: the measured values times (1.5 - friction), 3 replicates."""
+    rng = np.random.default_rng(0)
+    box = Model().box
+    theta = np.vstack([latin_hypercube(box, 6, 0), np.tile(box.centre, (3, 1))])
+    base = np.concatenate([c.runout if c.profile_x is None else np.concatenate([c.runout, c.profile_height])
+                           for c in observables.columns])
+    observed = np.array([base * (1.5 - th[0]) * scale for th in theta]) + rng.normal(0, 0.01, (9, len(base)))
+    runs = DesignRuns("base", theta, observed, np.arange(9) % 3, np.ones(9),
+                      np.array(["design"] * 6 + ["replicate"] * 3))
+    return Library(observables.signature(), {"size_scale": 4.0}, {"base": runs})
+
+
+def test_bad_input_is_an_error_not_a_cause():
+    columns = two_columns(profile=False)
+    observables = Observables(columns)
+    library = small_library(observables)
+    noise, notes = noise_model(observables, library)
+    assert notes == [] and np.all(noise.total >= 0.05)
+    models = [Model()]
+    # runout given in metres (L - L_i = L* x 0.02 m): far below everything the simulator produced
+    metres = [replace(c, runout=c.runout * c.L_i) for c in columns]
+    with pytest.raises(DiagnosisError, match="metres"):
+        check_data(Observables(metres), library, models, noise)
+    # ... while a column that stands (L* small but flat, say cohesive grains) is data, not a unit error
+    standing = [replace(c, runout=np.full(len(c.runout), 0.02)) for c in columns]
+    assert check_data(Observables(standing), library, models, noise)   # only a note: out of the runs' range
+    # a single time point (or two) is no curve
+    short = [replace(columns[0], t_over_tstar=np.array([1.0, 2.0]), runout=np.array([1.0, 1.4]),
+                     runout_std=np.array([0.05, 0.05])), columns[1]]
+    with pytest.raises(DiagnosisError, match="2 runout point"):
+        check_data(Observables(short), small_library(Observables(short)), models, noise)
+    # a zero noise level would make any misfit "decisive"
+    with pytest.raises(DiagnosisError, match="positive standard deviation"):
+        noise_model(observables, library, runout_noise=0.0, profile_noise=0.0)
+    unknown = [replace(c, runout_std=None) for c in columns]
+    _, notes = noise_model(Observables(unknown), small_library(Observables(unknown)))
+    assert len(notes) == 2 and "assumed std 0.1" in notes[0]
+
+
+def test_library_round_trip(tmp_path):
+    observables = Observables(two_columns())
+    library = small_library(observables)
+    library.save(tmp_path / "library.npz")
+    loaded = Library.load(tmp_path / "library.npz")
+    assert loaded.signature == library.signature
+    assert np.array_equal(loaded.runs["base"].observed, library.runs["base"].observed)
+    assert loaded.runs["base"].stage.tolist() == library.runs["base"].stage.tolist()
+    assert loaded.packing_std() == pytest.approx(library.packing_std())
+    loaded.check(observables, [Model()])
+    with pytest.raises(Exception, match="no runs of model"):
+        loaded.check(observables, [Model(), Model(MECHANISMS["cohesion"])])
+
+
+# -- hidden mechanism in DEM data ---------------------------------------------------------------------
+CI_SETTINGS = DiagnosisSettings(simulation=SimulationSettings(size_scale=5.0), n_base=6, n_per_mechanism=5,
+                                n_rounds=1, n_packings=2, dem_top=2, profile_noise=5e-4, seed=0)
+RUNOUT_NOISE, PROFILE_NOISE = 0.05, 5e-4
+
+
+@pytest.fixture(scope="module")
+def ci_library(tmp_path_factory):
+    """Design runs for the CI columns (about 35 short DEM runs) and the hidden-truth generator."""
+    columns = synthetic_columns()
+    library = CI_SETTINGS.library(Observables(columns))
+    path = tmp_path_factory.mktemp("diagnosis") / "library.npz"
+    library.save(path)
+    return columns, library, path
+
+
+def hidden_data(columns, truth, seed):
+    rng = np.random.default_rng(seed)
+    data, _ = synthetic_measurement(truth, columns, get_mechanisms(), CI_SETTINGS.simulation, RUNOUT_NOISE,
+                                    PROFILE_NOISE, rng)
+    return data
+
+
+def test_hidden_mechanism_is_named_from_a_csv(ci_library, tmp_path):
+    """One mechanism drawn at random (seeded), its magnitude and the packing too; the diagnosis
+    reads the CSV the DEM "measured" and must name it, with the workflow's outputs."""
+    columns, _, library_path = ci_library
+    rng = np.random.default_rng(8)
+    mechanism = get_mechanisms()[int(rng.integers(5))]
+    truth = draw_truth(rng, mechanism)
+    csv = tmp_path / "hidden.csv"
+    write_measured_csv(hidden_data(columns, truth, 8), csv, comment="synthetic, hidden mechanism")
+    section = {"size_scale": 5.0, "n_base": 6, "n_per_mechanism": 5, "n_rounds": 1, "n_packings": 2,
+               "profile_noise": PROFILE_NOISE, "enabled": True}
+    result = run_diagnosis(csv, library_path, tmp_path / "out", section, name="hidden")
+    assert result["cause"] == truth.mechanism, (truth, result["verdict"], result["checks"])
+    written = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
+    assert written["cause"] == truth.mechanism
+    for figure in ("residuals.png", "candidates.png"):
+        assert (tmp_path / "out" / figure).stat().st_size > 10_000
+    # the contract: evidence per candidate, parameters with uncertainty, errors before/after, simulator
+    assert set(written["candidates"]) == set(MECHANISMS)
+    extended = written["extended"]
+    assert extended["model"] == truth.mechanism
+    posterior = {p["name"]: p for p in extended["emulator"]["posterior"]["parameters"]}
+    parameter = MECHANISMS[truth.mechanism].parameter
+    assert posterior[parameter]["std"] > 0 and posterior[parameter]["low"] < posterior[parameter]["high"]
+    errors = written["errors"]
+    assert errors["fit_mse"]["after"] < 0.5 * errors["fit_mse"]["before"]
+    assert errors["heldout_mse"]["after"] < errors["heldout_mse"]["before"]
+    assert written["simulator"]["engine"] == "builtin" and written["simulator"]["gns_used"] is False
+    assert "residuals" in written and written["residuals"]["summary"]
+
+
+def test_null_case_names_no_cause(ci_library):
+    columns, library, _ = ci_library
+    truth = draw_truth(np.random.default_rng(80), None)
+    result = diagnose(hidden_data(columns, truth, 80), CI_SETTINGS, library=library, name="null")
+    assert result["cause"] == "none", result["verdict"]
+    assert result["extended"] is None and result["verdict"].startswith("No cause named")
+
+
+def test_runout_in_metres_is_refused_before_any_run(ci_library):
+    columns, library, _ = ci_library
+    # a plausible runout curve L* = a sqrt(t/t*), given as L - L_i in metres
+    metres = [replace(c, runout=c.aspect_ratio * np.sqrt(c.t_over_tstar) * c.L_i,
+                      runout_std=np.full(len(c.t_over_tstar), 0.001),
+                      profile_height=np.zeros(len(c.profile_x))) for c in columns]
+    with pytest.raises(DiagnosisError, match="metres"):
+        diagnose(metres, CI_SETTINGS, library=library)

@@ -1,0 +1,8 @@
+"""DEM design runs of the base model and of every candidate extension for one measured data set."""
+import logging
+
+from calibration.diagnosis import run_library
+
+logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")  # noqa: F821
+library = run_library(snakemake.input.measured, snakemake.output[0], snakemake.params.settings)  # noqa: F821
+logging.info("library: %s", {name: len(runs.theta) for name, runs in library.runs.items()})
