@@ -1,36 +1,38 @@
 """What the calibrated simulation still gets wrong: residual structure, candidate mechanisms, the cause.
 
-Steps (`diagnose`):
-1. Noise model. Each measured number = DEM response + packing scatter + measurement noise. The
-   measurement noise is the file's std (runout) or a stated value; the packing scatter (the
-   measured column is one random packing, the model's mean is not) is measured from replicate runs
-   of the base model on different packings (calibration/emulator.py). Their variances add.
-2. Calibrate the base model (mu, e) and each extension (mu, e, one mechanism parameter) on a GP
-   emulator of DEM design runs (calibration/emulator.py): minimise chi^2 = sum((measured - model)^2
-   / sigma^2) over the box, a Sobol sweep then L-BFGS-B. The same noise serves every model, so the
-   chi^2 values compare.
-3. Residuals of the calibrated base model: chi^2 against the noise (goodness of fit), grouped by
-   time phase (the paper's free-fall t/t* <= 1, spreading 1-2.5, stopping > 2.5) and column, the
-   deposit profile, a runs test on the signs; then said in plain words and drawn.
-4. Score every model on data it was not fitted to (leave one column out where there are several,
-   else leave one runout point out) and by an information criterion (AIC, BIC; Gaussian noise with
-   the stated sigma, so -2 log L = chi^2 + const).
-5. Decide (`DecisionRule`): a cause is named only when the base model misfits beyond the noise, the
-   best extension beats the base model and the runner-up by stated BIC margins, predicts held-out
-   data better than both, and DEM runs at the two optima confirm the gain. Otherwise the cause is
-   "none", with the reason. (The base model is the extension with its mechanism off, so the BIC
-   margin over the base model is a likelihood-ratio test of "off"; the Laplace distance of the
-   parameter from "off" is reported, not used: at a bound of the box it is a poor approximation.)
-6. Confirm with the DEM: runs at the base and the best extension's optima on a few packings give
-   the objective (runout MSE, calibration/objective.py) before and after, from the simulator itself.
+`diagnose` takes measured columns and a library of DEM design runs (calibration/emulator.py) and:
 
-Simulator: the builtin DEM (dem.collapse.simulate_collapse), coarse-grained by `size_scale`, through
-the emulator. The GNS is not used: it is not trained on the extension parameters.
+1. Noise. Each measured value = DEM response + packing scatter + measurement noise. The
+   measurement noise is the file's std (runout) or a stated value (a missing one is assumed and
+   said so); the packing scatter (the measured column is one random packing, a model's mean is
+   not) is pooled over every set of runs repeated on different packings. Variances add. The same
+   noise serves every model, so their chi^2 values compare.
+2. Emulator fits. The base model (mu, e) and each extension (mu, e, one mechanism parameter,
+   calibration/mechanisms.py) are calibrated on a GP emulator of their design runs: chi^2 =
+   sum((measured - model)^2 / sigma^2) minimised over the box (Sobol sweep, then L-BFGS-B), on all
+   data and without each held-out fold (one column at a time where there are several, else one
+   phase of the runout at a time).
+3. DEM scoring. The emulator is cheap but not exact (its error near an optimum can exceed the
+   noise). So the base model and the `dem_top` best candidates are run in the DEM at their optima
+   and at their folds' optima, on `n_packings` packings; fit chi^2, AIC and BIC (Gaussian noise
+   of known sigma: -2 log L = chi^2 + const) and the held-out chi^2 come from these runs. The
+   runs then join the emulators (which become exact there) and, over `n_rounds`, the optima are
+   refined.
+4. Residuals of the calibrated base model (its DEM runs): chi^2 against the noise, grouped by time
+   phase (the paper's free-fall t/t* <= 1, spreading 1-2.5, stopping > 2.5), column and deposit
+   region, a runs test on the signs; said in plain words and drawn (calibration/diagnosis_report.py).
+5. Verdict (`decide`, `DecisionRule`): the cause is the best candidate only when, in DEM runs, it
+   beats the base model and the runner-up by stated BIC margins and predicts the held-out data
+   better than both (by a stated gain over the base model), the emulators rank it first too, and
+   the data raised no warning; otherwise "none", with the checks that failed.
+6. The gain: the objective (runout MSE, calibration/objective.py) of the DEM runs before (base
+   model) and after (the cause, else the best candidate), in fit and held out.
 
-Bad input: fewer than 3 runout points in a column, a zero or negative noise level, a runout far
-outside anything the simulator produced (L* given in metres, say): a DiagnosisError. A missing noise
-level: a stated assumption and a warning. Warnings raised while reading the data or about the
-emulator are recorded; a data warning forbids naming a cause.
+Simulator: the builtin DEM (dem.collapse.simulate_collapse), coarse-grained by `size_scale`. The
+GNS is not used: it is not trained on the extension parameters.
+
+Bad input: fewer than 3 runout points in a column, a zero or negative noise level, a runout that
+looks like metres or lies above everything the simulator can produce: a DiagnosisError.
 """
 from __future__ import annotations
 
@@ -50,12 +52,12 @@ from threadpoolctl import threadpool_limits
 
 from calibration.emulator import (DEMRunner, GPEmulator, Library, Model, Observables, SimulationSettings,
                                   build_library)
-from dem.runout import runout_curve
 from calibration.measured import MeasuredColumn, MeasuredDataWarning, read_measured
-from calibration.mechanisms import Mechanism, get_mechanisms
+from calibration.mechanisms import get_mechanisms
 from calibration.objective import runout_mse
 from calibration.uncertainty import laplace_posterior
 from dem.atomic import write_text
+from dem.runout import runout_curve
 
 log = logging.getLogger(__name__)
 
@@ -475,9 +477,11 @@ def _plain_words(observables, groups, runs, chi2, dof, p_value) -> str:
         if len(signs) == 1:
             word = words[0] if signs.pop() > 0 else words[1]
             scope = "in every column" if len(biased) == n_columns and n_columns > 1 else \
-                "in column " + ", ".join(f"{g['column']} (a = {g['aspect_ratio']:g})" for g in biased)
+                "in column " + ", ".join(f"{g['column']}" for g in biased)
             detail = ", ".join(f"a = {g['aspect_ratio']:g}: {unit(g['mean_residual'])}" for g in
                                sorted(biased, key=lambda g: g["aspect_ratio"]))
+            if n_columns == 1:
+                scope, detail = "", f"by {unit(biased[0]['mean_residual'])} on average"
             trend = ""
             if len(biased) > 1:
                 by_a = sorted(biased, key=lambda g: g["aspect_ratio"])
@@ -486,7 +490,7 @@ def _plain_words(observables, groups, runs, chi2, dof, p_value) -> str:
                     trend = ", more for taller columns"
                 elif all(b < a for a, b in zip(sizes, sizes[1:])):
                     trend = ", more for shorter columns"
-            sentences.append(f"In the {where} {subject} {word} {scope}{trend} ({detail}).")
+            sentences.append(f"In the {where} {subject} {word}{' ' + scope if scope else ''}{trend} ({detail}).")
         else:
             detail = ", ".join(f"{g['column']}: {unit(g['mean_residual'])}" for g in biased)
             sentences.append(f"In the {where} {subject} misses with opposite signs in different columns ({detail}).")
@@ -632,8 +636,9 @@ def diagnose(columns, settings: DiagnosisSettings, library: Library | None = Non
         emulator = library.emulator(model, settings.seed + models.index(model))
         return score_model(model, emulator, observables, sigma, folds, seed=settings.seed)
 
-    scores = {m.name: score(m.name) for m in models}
+    final = {m.name: score(m.name) for m in models}
     for round_ in range(settings.n_rounds):
+        scores = final   # the emulator optima this round runs in the DEM (reported with its DEM scores)
         leading = sorted((scores[m.name] for m in models[1:]), key=lambda s: s.bic)[:settings.dem_top]
         runs = {n: dem_runs(runner, by_name[n], scores[n], folds, settings.n_packings, round_ * settings.n_packings)
                 for n in ["base"] + [s.model for s in leading]}
@@ -648,9 +653,9 @@ def diagnose(columns, settings: DiagnosisSettings, library: Library | None = Non
         sigma = noise.total
         # rescored on the emulators that now hold these runs: the next round's optima, and after
         # the last round the emulators' final word, which the DEM ranking must agree with
-        scores = {m.name: score(m.name) for m in models}
+        final = {m.name: score(m.name) for m in models}
     dem = {n: dem_evaluate(r, observables, folds, noise) for n, r in runs.items()}
-    emulator_best = min((scores[m.name] for m in models[1:]), key=lambda s: s.bic).model
+    emulator_best = min((final[m.name] for m in models[1:]), key=lambda s: s.bic).model
     cause, checks, verdict = decide(dem, settings.rule, data_warnings, emulator_best)
     base_dem = dem["base"]
     structure = residual_structure(observables, np.array(base_dem["observed_mean"]), np.array(base_dem["sigma"]),
@@ -661,9 +666,14 @@ def diagnose(columns, settings: DiagnosisSettings, library: Library | None = Non
     emulator_notes = [f"emulator of {s.model}: leave-one-out error {s.emulator_loo_over_noise:.2g} x the noise "
                       "(median over outputs)" for s in scores.values() if s.emulator_loo_over_noise > 1.0]
 
+    for note in notes + emulator_notes:
+        warnings.warn(f"{name or 'diagnosis'}: {note}", DiagnosisWarning, stacklevel=2)
+
     def evidence(model_name):
         d = dem.get(model_name)
         out = {"emulator": scores[model_name].to_dict(observables),
+               "emulator_final": {k: v for k, v in final[model_name].to_dict(observables).items()
+                                  if k in ("parameters", "chi2", "bic", "heldout_chi2")},
                "dem": None if d is None else {k: v for k, v in d.items() if k != "runs"}}
         if model_name != "base":
             source = d if d is not None else out["emulator"]
@@ -709,8 +719,8 @@ def diagnose(columns, settings: DiagnosisSettings, library: Library | None = Non
             "fit_chi2": {"before": base_dem["chi2"], "after": dem[after]["chi2"]},
             "heldout_chi2": {"before": base_dem["heldout_chi2"], "after": dem[after]["heldout_chi2"]},
             "note": (f"DEM runs ({settings.n_packings} packings) at the calibrated parameters; MSE = the runout "
-                     f"objective over {int(runout.sum())} points; held out = {folds[0].description.split(' (')[0]}"
-                     f"{' and the other folds' if len(folds) > 1 else ''}, fitted without them"),
+                     f"objective over {int(runout.sum())} points; held out: "
+                     f"{'; '.join(f.description for f in folds)}, each predicted from a fit without it"),
         },
         "warnings": list(data_warnings) + notes + emulator_notes,
         "seconds": time.perf_counter() - started,

@@ -5,6 +5,7 @@ import math
 import os
 
 import matplotlib
+import matplotlib.ticker
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -82,29 +83,29 @@ def plot_residuals(result: dict, path) -> None:
 
 
 def plot_candidates(result: dict, path) -> None:
-    """Evidence per candidate: BIC gain over the base model and held-out chi^2 relative to it."""
-    names = list(result["candidates"])
-    rule = result["decision_rule"]
-    gain = [result["candidates"][n]["delta_bic_vs_base"] for n in names]
-    heldout = [1 - result["candidates"][n]["heldout_gain"] for n in names]
-    in_dem = [result["candidates"][n]["scored_in"] == "dem" for n in names]
-    colours = [EXTENDED_COLOUR if n == result["cause"] else ("0.45" if d else "0.8") for n, d in zip(names, in_dem)]
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.6))
-    ax = axes[0]
-    ax.barh(names, gain, color=colours)
-    ax.axvline(rule["min_delta_bic_vs_base"], color="tab:red", ls="--", lw=1, label="decisive margin")
-    ax.axvline(0, color="k", lw=0.6)
-    ax.set(xlabel="BIC(base) - BIC(candidate)", title="information criterion (grey: DEM, light: emulator)")
-    ax.legend(fontsize=7)
-    ax = axes[1]
-    ax.barh(names, heldout, color=colours)
-    ax.axvline(1 - rule["min_heldout_gain"], color="tab:red", ls="--", lw=1, label="required held-out gain")
-    ax.axvline(1, color="k", lw=0.6)
-    ax.set(xlabel="held-out chi^2 / base model's", title="prediction of held-out data")
-    ax.legend(fontsize=7)
-    for ax in axes:
+    """Evidence per model: BIC and held-out chi^2 on its emulator (light) and in DEM runs (dark,
+    the base model and the leading candidates), lower is better; the cause is outlined."""
+    rows = [("base", result["base"])] + list(result["candidates"].items())
+    names = [n for n, _ in rows]
+    y = np.arange(len(rows))
+    fig, axes = plt.subplots(1, 2, figsize=(12, 0.45 * len(rows) + 2.2))
+    for ax, key, title in ((axes[0], "bic", "BIC (fit + complexity)"), (axes[1], "heldout_chi2", "held-out chi^2")):
+        emulated = [evidence["emulator"][key] for _, evidence in rows]
+        dem = [evidence["dem"][key] if evidence["dem"] else np.nan for _, evidence in rows]
+        ax.barh(y + 0.2, emulated, height=0.38, color="0.8", label="emulator")
+        ax.barh(y - 0.2, dem, height=0.38, color=[EXTENDED_COLOUR if n == result["cause"] else "0.35" for n in names],
+                label="DEM runs")
+        ax.set_yticks(y, names)
+        ax.set_xscale("log")
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+        ax.set(xlabel=f"{title}, lower is better", title=title)
+        ax.invert_yaxis()
         ax.grid(alpha=0.3, axis="x")
-    fig.suptitle(f"{result['name'] or 'diagnosis'}: {result['verdict'][:150]}", fontsize=9)
+        ax.legend(fontsize=7)
+    rule = result["decision_rule"]
+    fig.suptitle(f"{result['name'] or 'diagnosis'}: cause = {result['cause']}  (rule: BIC {rule['min_delta_bic_vs_base']:g} "
+                 f"below the base model and {rule['min_delta_bic_vs_runner_up']:g} below the runner-up, held-out chi^2 "
+                 f"{100 * rule['min_heldout_gain']:.0f}% below the base model's and below the runner-up's)", fontsize=9)
     fig.tight_layout()
     save_figure(fig, path)
 
@@ -132,7 +133,7 @@ def section_markdown(results: dict, section_path) -> str:
         errors = result["errors"]
         lines += [f"### {name}", "",
                   f"**Cause: {result['cause']}.** {result['verdict']}", "",
-                  f"Residuals of the calibrated base model: {result['residuals']['summary']}", "",
+                  f"What the calibrated base model gets wrong: {result['residuals']['summary']}", "",
                   f"Simulator: builtin DEM at size_scale {result['simulator']['size_scale']:g}; design runs "
                   f"{sum(result['simulator']['design_runs'].values())}, refinement runs "
                   f"{result['simulator']['refinement_runs']}; noise: {result['observables']['noise_source']}.", "",

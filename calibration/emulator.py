@@ -15,10 +15,10 @@ rolling, so "final" means "at the end of the measured window").
 
 Packings: the grains' packing is a random realisation; two packings of the same column give runouts
 that differ by several per cent late in the collapse. Design runs cycle through a pool of settled
-packings (seeded, settled once per column at the centre of the base box), so the emulator learns
-the mean response; `n_replicates` runs of the base model at the box centre, one per packing,
-measure the packing-to-packing scatter that any single realisation (such as the measured one)
-carries on top of it.
+packings (seeded, settled once per column at settings.reference), so the emulator learns the mean
+response (its white-noise term takes the scatter); one run of the base model per packing at the box
+centre, and every repeat a diagnosis adds, measure the packing-to-packing scatter that any single
+realisation (such as the measured one) carries on top of it (`Library.packing_std`).
 """
 from __future__ import annotations
 
@@ -306,6 +306,8 @@ class DesignRuns:
     stage: np.ndarray
 
     def append(self, theta, observed, packing, seconds, stage: str) -> None:
+        if stage not in STAGES:
+            raise LibraryError(f"run stage {stage!r} is not one of {STAGES}")
         self.theta = np.vstack([self.theta, np.atleast_2d(theta)])
         self.observed = np.vstack([self.observed, np.atleast_2d(observed)])
         self.packing = np.append(self.packing, packing)
