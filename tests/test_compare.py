@@ -35,7 +35,8 @@ def tiny(tmp_path_factory):
         write_trajectory(paths[-1], simulate_collapse(tiny_case(mu, e, seed=k)))
     build_dataset({"train": paths, "valid": paths[:1], "test": paths[1:]}, folder / "metadata.json", "tiny")
     truth = simulate_collapse(tiny_case(0.5, 0.6, seed=7))
-    measured = synthetic_measured(truth, [0.5, 1.0, 1.5, 2.0, 2.5], 0.05, seed=0, name="tiny_target")
+    measured = synthetic_measured(truth, [0.5, 1.0, 1.5, 2.0, 2.5], 0.05, seed=0, name="tiny_target",
+                                  packing_std=0.0)        # one run, its packing taken as the truth
     csv_path = folder / "measured.csv"
     with open(csv_path, "w") as handle:
         handle.write("column,material,aspect_ratio,L_i,kind,x,value,std\n")
@@ -68,7 +69,7 @@ def test_dem_run_at_a_point_uses_the_measured_column_and_the_datasets_dem_model(
     assert (trajectory.attrs["friction"], trajectory.attrs["restitution"]) == (0.5, 0.6)
     # the measured curve is this very run plus noise of 0.05: the objective is near the noise variance
     assert summary["mse"] == pytest.approx(objective(trajectory, synthetic_measured(
-        trajectory, [0.5, 1.0, 1.5, 2.0, 2.5], 0.05, seed=0, name="tiny_target")), rel=1e-9)
+        trajectory, [0.5, 1.0, 1.5, 2.0, 2.5], 0.05, seed=0, name="tiny_target", packing_std=0.0)), rel=1e-9)
     assert summary["mse"] < 4 * 0.05 ** 2 and len(summary["runout"]) == 5
 
 

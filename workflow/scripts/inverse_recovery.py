@@ -9,7 +9,8 @@ logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asc
 torch.set_num_threads(snakemake.threads)  # noqa: F821
 s, i, o = snakemake.params.settings, snakemake.input, snakemake.output  # noqa: F821
 summary = run_recovery(i.model, i.metadata, o.result, o.figure, n_cases=s["recovery_cases"],
-                       noise_std=s["recovery_noise_std"], evaluation_path=i.evaluation, seed=s["seed"],
+                       noise_std=s["recovery_noise_std"], packings=s["recovery_packings"],
+                       evaluation_path=i.evaluation, seed=s["seed"],
                        start=s["start"], bounds=[s["friction"], s["restitution"]], n_starts=s["starts"],
                        gradient=s["gradient"], fd_step=s["fd_step"], max_iterations=s["max_iterations"])
 logging.info("mu within %g in %d of %d, truth inside 95%% in %d", summary["mu_tolerance"], summary["mu_within"],
