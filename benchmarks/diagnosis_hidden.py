@@ -5,13 +5,16 @@ Five synthetic data sets, each made by the builtin DEM with one candidate mechan
 range, random base parameters and a packing seed the diagnosis never uses), plus one null data
 set (base model only); measurement noise added (runout std 0.05 L*, deposit height std 0.5 mm).
 The diagnosis gets the data and the noise level, never the truth. Target: 5 of 5 named and the
-null case "none". Prints the hit rate and, per case, the verdict, the BIC gains and the error
-before/after (runout MSE, fit and held out, from DEM runs).
+null case "none". Prints the hit rate and, per case, the verdict, the BIC gains (from DEM runs for
+the models scored there, from the final emulator fits for every candidate; never mixed), how far the
+best candidate's evidence lies from the decision rule's margins, and the error before/after (runout
+MSE and chi^2, fit and held out, from DEM runs).
 
 Columns: quartz, L_i = 0.02 m, a = 1 and 2, coarse-grained (size_scale 4: 153 and 307 grains),
-runout every 0.5 t* up to 5 t*, deposit profile at five points. About 15-25 minutes on 2 cores.
+runout every 0.5 t* up to 5 t*, deposit profile at five points. About 10-25 minutes on 2 cores
+(load-dependent).
 
-    python benchmarks/diagnosis_hidden.py [--size-scale 4] [--seed 2024] [--rounds 2] [--quick]
+    python benchmarks/diagnosis_hidden.py [--size-scale 4] [--seed 2024] [--rounds 3] [--quick]
 """
 import argparse
 import json
@@ -33,7 +36,10 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size-scale", type=float, default=4.0)
     parser.add_argument("--seed", type=int, default=2024, help="draws the order, magnitudes and packings")
-    parser.add_argument("--rounds", type=int, default=2, help="DEM scoring rounds (refinement)")
+    # 3 rounds: with 2, the rolling-resistance extension (its effect on the runout is strongly
+    # nonlinear in mu_r and mu together) was DEM-scored at an optimum its emulator had not yet
+    # settled on, and tied with side-wall friction or cohesion (seeds 2024 and 7)
+    parser.add_argument("--rounds", type=int, default=3, help="DEM scoring rounds (refinement)")
     parser.add_argument("--n-base", type=int, default=10)
     parser.add_argument("--n-per-mechanism", type=int, default=8)
     parser.add_argument("--quick", action="store_true", help="CI-sized: size_scale 5, small design, 1 round")
@@ -48,12 +54,14 @@ def main():
     order = rng.permutation(len(mechanisms))
     truths = [draw_truth(rng, mechanisms[k]) for k in order] + [draw_truth(rng, None)]
     started = time.perf_counter()
-    summary = diagnose_hidden_cases(truths, settings, seed=args.seed)
+    summary = diagnose_hidden_cases(truths, settings, seed=args.seed,
+                                    progress=lambda f: logging.info("hidden cases: %.0f%% done", 100 * f))
     print(json.dumps({
         "benchmark": "diagnosis_hidden", "date": time.strftime("%Y-%m-%d %H:%M"),
         "machine": platform.processor() or platform.machine(), "load_average_1min": os.getloadavg()[0],
         "settings": {"size_scale": args.size_scale, "n_base": args.n_base, "n_per_mechanism": args.n_per_mechanism,
-                     "rounds": args.rounds, "seed": args.seed, "runout_noise": 0.05, "profile_noise_m": 5e-4},
+                     "rounds": args.rounds, "seed": args.seed, "runout_noise": 0.05, "profile_noise_m": 5e-4,
+                     "decision_rule": settings.rule.to_dict()},
         "hits": summary["hits"], "n_hidden": summary["n_hidden"], "hit_rate": summary["hit_rate"],
         "null_correct": summary["null_correct"],
         "meets_target": summary["hits"] == summary["n_hidden"] and bool(summary["null_correct"]),

@@ -105,7 +105,8 @@ def plot_candidates(result: dict, path) -> None:
     rule = result["decision_rule"]
     fig.suptitle(f"{result['name'] or 'diagnosis'}: cause = {result['cause']}  (rule: BIC {rule['min_delta_bic_vs_base']:g} "
                  f"below the base model and {rule['min_delta_bic_vs_runner_up']:g} below the runner-up, held-out chi^2 "
-                 f"{100 * rule['min_heldout_gain']:.0f}% below the base model's and below the runner-up's)", fontsize=9)
+                 f"{100 * rule['min_heldout_gain']:.0f}% below the base model's and no worse than the runner-up's "
+                 f"beyond {rule.get('heldout_tie_sd', 0):g} sd)", fontsize=9)
     fig.tight_layout()
     save_figure(fig, path)
 

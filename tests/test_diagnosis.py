@@ -16,12 +16,15 @@ from calibration.diagnosis import (DecisionRule, DiagnosisError, DiagnosisSettin
                                    fit_emulated, held_out_folds, noise_model, residual_structure, run_diagnosis,
                                    runs_test)
 from calibration.emulator import (DesignRuns, GPEmulator, Library, Model, Observables, ParameterBox,
-                                  SimulationSettings, latin_hypercube)
+                                  SimulationSettings, front_runout, latin_hypercube)
 from calibration.measured import MeasuredColumn
 from calibration.mechanisms import (MechanismError, bond_from_cohesion_energy, cohesion_energy_from_bond,
                                     get_mechanisms)
-from calibration.synthetic import draw_truth, synthetic_columns, synthetic_measurement, write_measured_csv
+from calibration.synthetic import (draw_truth, evidence_margins, synthetic_columns, synthetic_measurement,
+                                   write_measured_csv)
 from dem.case import CollapseCase
+from dem.runout import runout_curve
+from dem.trajectory import Trajectory
 
 MECHANISMS = {m.name: m for m in get_mechanisms()}
 
@@ -58,6 +61,25 @@ def test_parameter_box_log_scale():
     design = latin_hypercube(box, 8, seed=1)
     assert np.all(design >= box.bounds[:, 0]) and np.all(design <= box.bounds[:, 1])
     assert np.sort(box.to_unit(design)[:, 2] * 8).astype(int).tolist() == list(range(8))  # one per stratum
+
+
+def test_runout_front_never_moves_back():
+    """A block of leading grains that comes to rest more than 2 d ahead of the rest drops out of
+    dem.runout's connected deposit; the diagnosis' runout keeps the farthest front reached."""
+    radius = np.full(20, 1e-3)
+    row = np.column_stack([1e-3 + 2e-3 * np.arange(20), radius])          # 20 touching grains on the floor
+    split = row.copy()
+    split[10:, 0] += 10e-3                                                 # the leading 10 grains 5 d ahead
+    grown = row.copy()
+    grown[:, 0] *= 1.5                                                     # gaps of 1 mm (< 2 d): still one deposit
+    positions = np.stack([row, grown, split, split]).astype(np.float32)
+    trajectory = Trajectory(positions, radius, np.zeros(20, np.int32), {"L_i": 0.01, "dt_frame": 0.01, "t_star": 0.1})
+    t, raw = runout_curve(trajectory)
+    t_front, front = front_runout(trajectory)
+    assert np.array_equal(t, t_front)
+    assert raw[2] < raw[1] - 2.0                                           # the connected front jumps back
+    assert front[:2] == pytest.approx(raw[:2]) and front[1] > front[0]    # a growing front is read as is
+    assert front[2] == front[3] == pytest.approx(raw[1])                  # ... and never moves back
 
 
 # -- emulator and fits -------------------------------------------------------------------------------------
@@ -139,7 +161,7 @@ def test_held_out_folds():
 
 # -- the decision rule ---------------------------------------------------------------------------------
 def dem_entry(chi2, heldout, n=20, p=3):
-    return {"chi2": chi2, "bic": chi2 + p * math.log(n), "heldout_chi2": heldout,
+    return {"chi2": chi2, "bic": chi2 + p * math.log(n), "heldout_chi2": heldout, "n_heldout": n,
             "p_value": 0.5 if chi2 < n else 1e-6}
 
 
@@ -153,11 +175,33 @@ def test_decision_names_a_cause_only_when_decisive():
     assert cause == "none" and not checks["bic_beats_runner_up"]
     worse_heldout = dict(decisive, cohesion=dem_entry(22, 110))                        # held-out gain 15% only
     assert decide(worse_heldout, rule, [], "cohesion")[0] == "none"
+    # held out no better than the runner-up: a tie (within sqrt(2 n) = 6.3 of a chi^2 over 20
+    # held-out values) leaves the BIC margin to decide; clearly worse out of sample is overfitting
+    tie = dict(decisive, cohesion=dem_entry(22, 84))
+    assert decide(tie, rule, [], "cohesion")[0] == "cohesion"
+    overfit = dict(decisive, cohesion=dem_entry(22, 87))
+    cause, checks, _ = decide(overfit, rule, [], "cohesion")
+    assert cause == "none" and not checks["heldout_no_worse_than_runner_up"]
     assert decide(decisive, rule, ["runout looks like metres"], "cohesion")[0] == "none"
     assert decide(decisive, rule, [], "rolling_resistance")[0] == "none"               # emulator disagrees
     nothing = {"base": dem_entry(18, 20, p=2), "cohesion": dem_entry(17, 22), "gate_lift": dem_entry(18, 25)}
     cause, _, verdict = decide(nothing, rule, [], "cohesion")
     assert cause == "none" and "no candidate improves" in verdict
+
+
+def test_benchmark_margins_never_mix_dem_and_emulator_bic():
+    """A candidate scored only on its emulator is compared with the emulator's base fit, never the DEM's."""
+    def evidence(dem_bic, dem_heldout, final_bic):
+        return {"dem": None if dem_bic is None else {"bic": dem_bic, "heldout_chi2": dem_heldout},
+                "emulator_final": {"bic": final_bic}}
+    result = {"base": evidence(100.0, 80.0, 150.0),
+              "candidates": {"cohesion": evidence(30.0, 20.0, 40.0), "gate_lift": evidence(45.0, 30.0, 50.0),
+                             "basal_friction": evidence(None, None, 35.0)}}
+    margins = evidence_margins(result)
+    assert margins["delta_bic_dem"] == {"cohesion": 70.0, "gate_lift": 55.0}
+    assert margins["delta_bic_emulator"] == {"cohesion": 110.0, "gate_lift": 100.0, "basal_friction": 115.0}
+    assert margins["margins"] == {"dem_best": "cohesion", "bic_vs_base": 70.0, "bic_vs_runner_up": 15.0,
+                                  "heldout_gain": 0.75}
 
 
 # -- bad input (a small library of real arrays, no DEM) ------------------------------------------------
