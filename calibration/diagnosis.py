@@ -178,7 +178,9 @@ def check_data(observables: Observables, library: Library, models, noise: NoiseM
     base_runs = library.runs["base"].observed
     target, sigma = observables.measured, noise.total
     runout = observables.kind == "runout"
-    wrong = []
+    # Units belong to a file, not to one column: a short cohesive column that barely moves, beside a
+    # taller one of the same file that collapses, is data; every column of a file low like that is metres.
+    wrong, metres_like = [], {}
     for j, c in enumerate(observables.columns):
         rows = np.flatnonzero(runout & (observables.column_index == j))
         peak, lowest = float(target[rows].max()), float(target[rows].min())
@@ -186,17 +188,24 @@ def check_data(observables: Observables, library: Library, models, noise: NoiseM
         base_peak = base_runs[:, rows].max(axis=1)
         if (peak < base_peak.min() - margin and peak - lowest > 0.5 * peak
                 and base_peak.min() / 3 <= peak / c.L_i <= 3 * base_peak.max()):
-            wrong.append(f"{c.name!r} ({c.source}) peaks at L* = {peak:g}, every base-model run at "
-                         f"{base_peak.min():.3g} to {base_peak.max():.3g}; divided by L_i = {c.L_i:g} m it would "
-                         f"be {peak / c.L_i:.3g}: it looks like metres (L - L_i), not L* = (L - L_i)/L_i")
+            metres_like.setdefault(c.source, []).append(
+                f"{c.name!r} ({c.source}) peaks at L* = {peak:g}, every base-model run at {base_peak.min():.3g} "
+                f"to {base_peak.max():.3g}; divided by L_i = {c.L_i:g} m it would be {peak / c.L_i:.3g}")
         elif peak > observed[:, rows].max() + margin:
             wrong.append(f"{c.name!r} ({c.source}) peaks at L* = {peak:g}, above every run of every candidate "
                          f"model (at most {observed[:, rows].max():.3g}): check the units of L*")
+    notes = []
+    for source, why in metres_like.items():
+        n_columns = sum(c.source == source for c in observables.columns)
+        if len(why) == n_columns:
+            wrong.append("; ".join(why) + ": it looks like metres (L - L_i), not L* = (L - L_i)/L_i")
+        else:
+            notes += [f"{w}: read as a column that barely moved (other columns of {source} are not that low)"
+                      for w in why]
     if wrong:
         raise DiagnosisError("measured runout the simulator cannot have produced: " + "; ".join(wrong))
     low, high = observed.min(axis=0), observed.max(axis=0)
     outside = (target < low - 3 * sigma) | (target > high + 3 * sigma)
-    notes = []
     if np.any(outside):
         k = np.flatnonzero(outside)
         notes.append(f"{len(k)} measured value(s) lie outside the range of every simulated model "

@@ -229,7 +229,10 @@ def test_bad_input_is_an_error_not_a_cause():
     metres = [replace(c, runout=c.runout * c.L_i) for c in columns]
     with pytest.raises(DiagnosisError, match="metres"):
         check_data(Observables(metres), library, models, noise)
-    # ... while a column that stands (L* small but flat, say cohesive grains) is data, not a unit error
+    # ... but units belong to the file: one short column that barely moved beside one that collapsed is data
+    mixed = [replace(columns[0], runout=columns[0].runout * columns[0].L_i), columns[1]]
+    assert any("barely moved" in note for note in check_data(Observables(mixed), library, models, noise))
+    # ... and so is a column that stands (L* small but flat, say cohesive grains)
     standing = [replace(c, runout=np.full(len(c.runout), 0.02)) for c in columns]
     assert check_data(Observables(standing), library, models, noise)   # only a note: out of the runs' range
     # a single time point (or two) is no curve
