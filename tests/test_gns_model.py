@@ -19,13 +19,7 @@ from tests.gns_synthetic import synthetic_dataset
 TINY = dict(latent_size=16, n_message_passing=2, connectivity_radius=4.0, noise_std=0.05)
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """Tiny graphs: one thread is faster than two and does not spin against other jobs."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # tests/conftest.py
 
 
 @pytest.fixture(scope="module")

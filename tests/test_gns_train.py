@@ -27,12 +27,7 @@ TINY = dict(latent_size=16, n_message_passing=2, connectivity_radius=4.0, noise_
             checkpoint_every=5, validate_every=30, learning_rate=3e-3, learning_rate_decay_steps=1000)
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # tests/conftest.py
 
 
 @pytest.fixture(scope="module")

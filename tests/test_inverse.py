@@ -37,12 +37,7 @@ def tiny_case(friction, restitution, seed=0):
                         size_scale=4, output_interval=0.004, duration_over_tstar=3.0, seed=seed)
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")   # tests/conftest.py
 
 
 @pytest.fixture(scope="module")
