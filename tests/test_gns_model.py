@@ -8,12 +8,12 @@ import pytest
 import torch
 
 from dem.trajectory import read_trajectory
-from gns.data import read_metadata
+from gns.data import TrajectoryWindows, read_metadata
 from gns.graph import NeighbourCapWarning, radius_graph
 from gns.network import EncodeProcessDecode
 from gns.rollout import RolloutError, context_from_trajectory, rollout
 from gns.simulator import CheckpointError, Context, LearnedSimulator, load_simulator, model_payload
-from gns.train import TrainSettings, random_walk_noise, simulator_config
+from gns.train import TrainSettings, one_step_loss, pushforward_loss, random_walk_noise, simulator_config
 from tests.gns_synthetic import synthetic_dataset
 
 TINY = dict(latent_size=16, n_message_passing=2, connectivity_radius=4.0, noise_std=0.05)
@@ -123,6 +123,32 @@ def test_random_walk_noise_ends_with_requested_std():
     last_velocity_noise = noise[:, -1] - noise[:, -2]
     # the velocity noise is a random walk: its last step has variance 5 * (0.3^2 / 5)
     assert abs(float(last_velocity_noise.std()) - 0.3) < 0.01
+
+
+def test_pushforward_loss_scores_the_models_own_state_against_the_true_frame(metadata, dataset):
+    sim = tiny_simulator(metadata)
+    c = sim.config
+    paths = metadata["splits"]["train"]
+    plain = TrajectoryWindows(paths, c.n_input_frames, c.parameter_names).batch([3])
+    zero = torch.zeros_like(plain.position_sequence)
+    assert torch.equal(pushforward_loss(sim, plain, 0), one_step_loss(sim, plain, zero))
+    # p = 2: the window starting at the same frame, 2 frames longer; inputs are the model's own frames
+    pushed = TrajectoryWindows(paths, c.n_input_frames + 2, c.parameter_names).batch([3])
+    assert torch.equal(pushed.position_sequence[:, :c.n_input_frames], plain.position_sequence)
+    sequence = pushed.position_sequence[:, :c.n_input_frames]
+    with torch.no_grad():
+        for _ in range(2):
+            sequence = torch.cat([sequence[:, 1:], sim.predict_positions(sequence, pushed.context)[:, None]], dim=1)
+    expected = torch.mean(torch.sum((sim(sequence, pushed.context)
+                                     - sim.inverse_postprocess(pushed.next_position, sequence)) ** 2, dim=-1))
+    loss = pushforward_loss(sim, pushed, 2)
+    assert torch.allclose(loss, expected) and loss.requires_grad
+    # the state the model reached differs from the true one, so this is not the one-step loss
+    assert not torch.allclose(sequence[:, -1], pushed.position_sequence[:, -1])
+    loss.backward()          # the gradient reaches the weights through the last step only
+    assert all(p.grad is not None for p in sim.network.decoder.parameters())
+    with pytest.raises(ValueError, match="pushforward_fraction"):
+        TrainSettings(pushforward_fraction=1.5)
 
 
 # -- rollout ---------------------------------------------------------------------------------------
