@@ -57,6 +57,7 @@ def validate_config(config: dict, schema_path) -> dict:
     config = copy.deepcopy(dict(config))
     validator = jsonschema.Draft202012Validator(schema)
     problems = [_describe(error, schema) for error in validator.iter_errors(config)]
+    problems += _check_gns_per_dataset(config.get("gns", {}), schema)
     if problems:
         raise ConfigError("invalid config:\n  " + "\n  ".join(sorted(set(problems))))
     _fill_defaults(config, schema, schema)
@@ -65,6 +66,21 @@ def validate_config(config: dict, schema_path) -> dict:
     if problems:
         raise ConfigError("invalid config:\n  " + "\n  ".join(problems))
     return config
+
+
+def _check_gns_per_dataset(gns: dict, schema: dict) -> list[str]:
+    """Each gns.per_dataset entry checked as the gns section it makes for its dataset."""
+    problems = []
+    for name, override in (gns.get("per_dataset") or {}).items():
+        where = f"gns.per_dataset.{name}"
+        fixed = sorted(set(override) & {"datasets", "threads", "per_dataset"})
+        if fixed:
+            problems.append(f"{where}: {fixed} apply to the whole gns section, not to one dataset")
+            continue
+        section = {**{k: v for k, v in gns.items() if k != "per_dataset"}, **override}
+        validator = jsonschema.Draft202012Validator(schema["properties"]["gns"])
+        problems += [f"{where}: {_describe(error, schema)}" for error in validator.iter_errors(section)]
+    return problems
 
 
 def _describe(error, schema) -> str:

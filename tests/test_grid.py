@@ -50,6 +50,10 @@ def test_shipped_configs_validate_and_fill_defaults(name):
     (lambda c: c["datasets"]["tiny_friction"].update(overrides={"case_009": {"friction": 0.5}}),
      ["overrides.case_009", "no such case", "case_000..case_004"]),
     (lambda c: c["datasets"]["tiny_friction"].pop("output_interval"), ["output_interval", "required"]),
+    (lambda c: c["gns"].update(per_dataset={"tiny_friction": {"pushforward_fraction": 2}}),
+     ["gns.per_dataset.tiny_friction", "pushforward_fraction", "<= 1"]),
+    (lambda c: c["gns"].update(per_dataset={"tiny_friction": {"latent": 8}}),
+     ["gns.per_dataset.tiny_friction", "latent: unknown key", "latent_size"]),
 ])
 def test_bad_config_names_key_and_allowed_values(edit, words):
     config = load("test.yaml")

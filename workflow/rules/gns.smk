@@ -6,11 +6,17 @@
 # not a declared output, so a failed job does not delete it.
 GNS = config["gns"]
 GNS_THREADS = GNS["threads"]
-GNS_SETTINGS = {k: v for k, v in GNS.items() if k not in ("datasets", "threads")}
+GNS_SETTINGS = {k: v for k, v in GNS.items() if k not in ("datasets", "threads", "per_dataset")}
 GNS_DATASETS = GNS.get("datasets", DATASETS)
-for _name in GNS_DATASETS:
-    if _name not in config["datasets"]:
-        raise WorkflowError(f"config key gns.datasets: {_name!r} is not a dataset (datasets: {DATASETS})")
+for _key in ("datasets", "per_dataset"):
+    for _name in GNS.get(_key, []):
+        if _name not in config["datasets"]:
+            raise WorkflowError(f"config key gns.{_key}: {_name!r} is not a dataset (datasets: {DATASETS})")
+
+
+def gns_settings(dataset):
+    """Training settings of one dataset: the gns section with gns.per_dataset[dataset] laid over it."""
+    return {**GNS_SETTINGS, **GNS.get("per_dataset", {}).get(dataset, {})}
 
 
 def gns_test_cases(dataset):
@@ -25,7 +31,7 @@ rule gns_train:
         metrics="results/gns/{dataset}/train/metrics.csv",
         figure="results/gns/{dataset}/train/loss_curve.png",
     params:
-        settings=GNS_SETTINGS,
+        settings=lambda w: gns_settings(w.dataset),
     log:
         "results/logs/gns/gns_train/{dataset}.log",
     benchmark:
