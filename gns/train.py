@@ -36,7 +36,7 @@ import torch
 
 from dem.atomic import atomic_path
 from dem.trajectory import read_trajectory
-from gns.data import TrajectoryWindows, read_metadata, split_paths
+from gns.data import Batch, TrajectoryWindows, read_metadata, split_paths
 from gns.graph import graph_summary, radius_graph
 from gns.simulator import CheckpointError, LearnedSimulator, SimulatorConfig, model_payload
 
@@ -145,9 +145,8 @@ def pushforward_loss(simulator: LearnedSimulator, batch, pushforward_steps: int)
         for _ in range(pushforward_steps):
             predicted = simulator.predict_positions(sequence, batch.context)
             sequence = torch.cat([sequence[:, 1:], predicted[:, None]], dim=1)
-    predicted = simulator(sequence, batch.context)
-    target = simulator.inverse_postprocess(batch.next_position, sequence)
-    return torch.mean(torch.sum((predicted - target) ** 2, dim=-1))
+    pushed = Batch(sequence, batch.next_position, batch.context)
+    return one_step_loss(simulator, pushed, torch.zeros_like(sequence))
 
 
 def resolve_device(name: str) -> torch.device:
@@ -159,8 +158,8 @@ def resolve_device(name: str) -> torch.device:
 class Trainer:
     """State of one training run; `run()` trains to settings.steps, resuming when it can."""
 
-    COLUMNS = ("step", "learning_rate", "train_loss", "train_pushforward_loss", "edges_per_node", "particles_per_graph", "steps_per_s",
-               "valid_one_step_loss", "valid_position_mse", "valid_runout_mse", "valid_rollouts_failed")
+    COLUMNS = ("step", "learning_rate", "train_loss", "train_pushforward_loss", "edges_per_node",
+               "particles_per_graph", "steps_per_s", "valid_one_step_loss", "valid_position_mse", "valid_runout_mse", "valid_rollouts_failed")
 
     def __init__(self, metadata_path, out_dir, settings: TrainSettings):
         self.metadata_path = str(metadata_path)
