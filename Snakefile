@@ -14,6 +14,7 @@ include: "workflow/rules/gns.smk"
 include: "workflow/rules/doe.smk"
 include: "workflow/rules/inverse.smk"
 include: "workflow/rules/diagnosis.smk"
+include: "workflow/rules/runout.smk"
 # later stages go here, before report.smk (the report collects what they registered)
 include: "workflow/rules/report.smk"
 

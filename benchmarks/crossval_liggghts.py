@@ -31,11 +31,12 @@ from dem.collapse import simulate_collapse  # noqa: E402
 from dem.engines import get_engine  # noqa: E402
 from dem.engines.base import runout_agreement  # noqa: E402
 from dem.packing import settle_column  # noqa: E402
-from dem.runout import runout_curve  # noqa: E402
+from dem.runout import RunoutMethod  # noqa: E402
 
 PAIRS = ((0.3, 0.3), (0.3, 0.9), (0.6, 0.6), (0.9, 0.3), (0.9, 0.9))
 TOLERANCE = 0.05
 PERTURBED_DT = 1 / 65   # dt / t_c of the builtin rerun that measures the chaotic noise floor
+RUNOUT = RunoutMethod()  # the project's default runout method (config key runout), for both engines
 
 
 def crossval_pair(liggghts, mu, e, args, scratch):
@@ -45,10 +46,10 @@ def crossval_pair(liggghts, mu, e, args, scratch):
         case = CollapseCase("quartz", args.column_length, args.aspect_ratio, mu, e, seed=seed,
                             size_scale=args.size_scale, name=f"mu{mu}_e{e}_s{seed}")
         packing = settle_column(case)
-        curves["builtin"].append(runout_curve(simulate_collapse(case, packing))[1])
-        curves["builtin_dt"].append(runout_curve(simulate_collapse(case.replace(dt_over_contact_time=PERTURBED_DT),
+        curves["builtin"].append(RUNOUT.curve(simulate_collapse(case, packing))[1])
+        curves["builtin_dt"].append(RUNOUT.curve(simulate_collapse(case.replace(dt_over_contact_time=PERTURBED_DT),
                                                                    packing))[1])
-        curves["liggghts"].append(runout_curve(liggghts.simulate(case, packing, os.path.join(scratch, case.name)))[1])
+        curves["liggghts"].append(RUNOUT.curve(liggghts.simulate(case, packing, os.path.join(scratch, case.name)))[1])
         per_seed.append({"seed": seed, "final_runout_builtin": round(float(curves["builtin"][-1][-1]), 4),
                          "final_runout_liggghts": round(float(curves["liggghts"][-1][-1]), 4),
                          "final_relative_difference": round(float(curves["builtin"][-1][-1] / curves["liggghts"][-1][-1] - 1), 4)})

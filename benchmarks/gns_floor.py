@@ -3,12 +3,14 @@
   python benchmarks/gns_floor.py [--dataset results/datasets/quartz_multiple/metadata.json]
                                  [--model results/gns/quartz_multiple/train/model_best.pt]
                                  [--reruns 6] [--perturbation 1e-3] [--figure PATH]
+                                 [--runout dense_front_reached]
 
 A GNS rollout starts from the first C frames of a DEM run and is scored against the rest of that
-one run (gns.evaluate.runout_mse). A granular collapse is chaotic: the builtin DEM rerun from the
+one run (gns.evaluate.rollout_runout_mse). A granular collapse is chaotic: the builtin DEM rerun from the
 same settled packing with every grain moved by `perturbation` mean diameters (normal, seeded),
 far below any overlap that matters, ends on a different runout curve. For every test case this
-reruns the DEM `reruns` times and reports, with L* from dem.runout.runout_curve as the metric:
+reruns the DEM `reruns` times (dem.runout_study.perturbed_reruns) and reports, with L* read by
+the runout method `--runout` (dem.runout; every method side by side: benchmarks/runout_methods.py):
 
   rerun_mse         mean over reruns of the runout MSE of a rerun against the original: what a
                     surrogate that is exactly a DEM (one more realisation) would score
@@ -31,13 +33,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-PHASES = {"free_fall": (0.0, 1.0), "spreading": (1.0, 2.5), "stopping": (2.5, np.inf)}   # t/t*, paper section 3
 
-
-def phase_means(t, squared_error) -> dict:
-    """Mean of squared_error [T] over each phase of t/t* [T]."""
-    return {name: round(float(np.mean(squared_error[(t > lo) & (t <= hi)])), 4) for name, (lo, hi) in PHASES.items()
-            if np.any((t > lo) & (t <= hi))}
+from dem.runout import METHODS, RunoutMethod  # noqa: E402
+from dem.runout_study import phase_means  # noqa: E402
 
 
 def main():
@@ -50,15 +48,13 @@ def main():
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--figure", default=None, help="runout curves of every run and the GNS (PNG)")
+    parser.add_argument("--runout", choices=METHODS, default=RunoutMethod().method, help="runout method (dem.runout)")
     args = parser.parse_args()
     os.environ["NUMBA_NUM_THREADS"] = str(args.threads)
     import torch
 
-    from gns_speed import case_of   # the CollapseCase of a builtin trajectory (same folder)
-
-    from dem.collapse import simulate_collapse
-    from dem.runout import runout_curve
-    from dem.trajectory import Trajectory, read_trajectory
+    from dem.runout_study import perturbed_reruns
+    from dem.trajectory import read_trajectory
     from gns.data import read_metadata, split_paths
     from gns.rollout import rollout_trajectory
     from gns.simulator import load_simulator
@@ -67,35 +63,30 @@ def main():
     metadata = read_metadata(args.dataset)
     model_path = Path(args.model or f"results/gns/{metadata['name']}/train/model_best.pt")
     simulator = load_simulator(model_path, metadata) if model_path.exists() else None
-    rng = np.random.default_rng(args.seed)
+    method = RunoutMethod(args.runout)
     cases, plotted = [], []
-    for path in split_paths(metadata, "test"):
+    for k, path in enumerate(split_paths(metadata, "test")):
         dem = read_trajectory(path)
-        case = case_of(dem)
-        diameter = 2.0 * float(np.mean(dem.radius))
-        t, original = runout_curve(dem)
-        reruns = []
-        for _ in range(args.reruns):
-            moved = dem.positions[:1] + rng.normal(0.0, args.perturbation * diameter, dem.positions[:1].shape)
-            packing = Trajectory(moved.astype(np.float32), dem.radius, dem.particle_type, dict(dem.attrs))
-            reruns.append(runout_curve(simulate_collapse(case, packing=packing))[1])
-        reruns = np.array(reruns)
+        t, original = method.curve(dem)
+        reruns = np.array([method.curve(r)[1] for r in perturbed_reruns(dem, args.reruns, args.perturbation,
+                                                                          args.seed + k)])
         runs = np.vstack([original, reruns])
         variance = np.var(runs, axis=0, ddof=1)            # [T], across the realisations
         row = {"case": Path(path).stem, "friction": float(dem.attrs["friction"]),
                "restitution": float(dem.attrs["restitution"]),
                "rerun_mse": round(float(np.mean((reruns - original) ** 2)), 4),
                "rerun_mse_each": [round(float(np.mean((r - original) ** 2)), 4) for r in reruns],
-               "ideal_mse": round(float(np.mean(variance)), 4), "ideal_mse_by_phase": phase_means(t, variance),
+               "ideal_mse": round(float(np.mean(variance)), 4),
+               "ideal_mse_by_phase": {p: round(v, 4) for p, v in phase_means(t, variance).items()},
                "final_runout_spread": round(float(np.std(runs[:, -1], ddof=1)), 3)}
         gns_curve = None
         if simulator is not None:
             gns = rollout_trajectory(simulator, dem, on_invalid="flag")
             if gns.attrs["rollout_valid"]:
-                gns_curve = runout_curve(gns)[1]
+                gns_curve = method.curve(gns)[1]
                 row.update(gns_mse=round(float(np.mean((gns_curve - original) ** 2)), 4),
                            gns_mse_to_mean=round(float(np.mean((gns_curve - runs.mean(axis=0)) ** 2)), 4),
-                           gns_mse_by_phase=phase_means(t, (gns_curve - original) ** 2))
+                           gns_mse_by_phase={p: round(v, 4) for p, v in phase_means(t, (gns_curve - original) ** 2).items()})
             else:
                 row["gns_problem"] = gns.attrs["rollout_problem"]
         cases.append(row)
@@ -105,6 +96,7 @@ def main():
     mean = lambda key: round(float(np.mean([c[key] for c in cases])), 4) if all(key in c for c in cases) else None  # noqa: E731
     summary = {"dataset": metadata["name"], "model": str(model_path) if simulator is not None else None,
                "reruns": args.reruns, "perturbation_diameters": args.perturbation, "seed": args.seed,
+               "runout": method.to_config(),
                "rerun_mse": mean("rerun_mse"), "ideal_mse": mean("ideal_mse"),
                "gns_mse": mean("gns_mse"), "gns_mse_to_mean": mean("gns_mse_to_mean"),
                "target_mse": 0.05, "target_below_floor": mean("ideal_mse") > 0.05, "cases": cases}

@@ -22,7 +22,6 @@ Target (issue 5): GNS rollout at least 2x faster than the builtin DEM.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import sys
@@ -31,16 +30,6 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-
-def case_of(trajectory):
-    """The CollapseCase a builtin trajectory was run for, from its attributes."""
-    from dem.case import CollapseCase, Material
-
-    a = trajectory.attrs
-    fields = {f.name: a[f.name] for f in dataclasses.fields(CollapseCase) if f.name in a and f.name != "material"}
-    material = Material(a["material"], a["material_diameter"], a["material_density"], a["material_solid_fraction"])
-    return CollapseCase(material=material, **fields)
 
 
 def timed(function):
@@ -87,6 +76,8 @@ def main():
     dem = read_trajectory(case_path)
     rollout_trajectory(simulator, dem, n_steps=2)              # warm-up
     gns, gns_wall, gns_cpu = timed(lambda: rollout_trajectory(simulator, dem, on_invalid="flag"))
+
+    from dem.runout_study import case_of
 
     case = case_of(dem)
     packing = Trajectory(dem.positions[:1], dem.radius, dem.particle_type, dict(dem.attrs))

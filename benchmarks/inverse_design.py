@@ -37,6 +37,7 @@ from calibration.inverse import (FD_STEP, PAPER_START, SCIPY_DEFAULT_STEP, GNSOb
 from calibration.recovery import (PACKINGS_PER_TARGET, TRUTH_SEED_OFFSET, observation_times,  # noqa: E402
                                   recovery_study, recovery_targets, synthetic_measured)
 from dem.collapse import simulate_collapse  # noqa: E402
+from dem.runout import RunoutMethod  # noqa: E402
 from gns.data import read_metadata  # noqa: E402
 from gns.simulator import load_simulator  # noqa: E402
 
@@ -84,9 +85,10 @@ def main():
                  f"workflow/profiles/default {results}/gns/{args.dataset}/evaluation/summary.json")
     metadata = read_metadata(metadata_path)
     simulator = load_simulator(model_path, metadata)
+    runout = RunoutMethod()     # the project's default (config key runout); the evaluation must match it
     model_error = model_error_from_evaluation(results / "gns" / args.dataset / "evaluation" / "summary.json"
                                               if (results / "gns" / args.dataset / "evaluation" / "summary.json").exists()
-                                              else None)
+                                              else None, runout)
     trained = read_training_attrs(metadata)
     reference = trained[0]
     t_points = observation_times(float(reference.get("duration_over_tstar", 4.0)))
@@ -97,8 +99,8 @@ def main():
     truths = [simulate_collapse(case_like(reference, *map(float, truth_params), seed=TRUTH_SEED_OFFSET + j))
               for j in range(2)]
     dem_s = (time.perf_counter() - t0) / 3
-    measured = synthetic_measured(truths, t_points, 0.05, seed=0, name="timed_target")   # mean of 2 packings
-    objective = GNSObjective(simulator, start, measured)
+    measured = synthetic_measured(truths, t_points, 0.05, seed=0, name="timed_target", runout=runout)  # 2 packings
+    objective = GNSObjective(simulator, start, measured, runout=runout)
     out = {"device": platform.processor() or platform.machine(), "torch_threads": args.threads,
            "cpu_count": os.cpu_count(), "load_average": os.getloadavg(), "dataset": args.dataset,
            "n_particles": start.n_particles, "rollout_steps": objective.n_steps,
@@ -108,7 +110,7 @@ def main():
             + ([] if args.skip_fd else [("finite-difference", 1)]))
     for gradient, starts in runs:
         result = inverse_design(simulator, start, measured, metadata, trained, gradient=gradient, n_starts=starts,
-                                max_iterations=args.max_iterations, model_error_std=model_error)
+                                max_iterations=args.max_iterations, model_error_std=model_error, runout=runout)
         seconds = result.seconds
         rollouts = sum(len(s.evaluations.values) for s in result.starts)
         key = f"{gradient}_{starts}_start{'s' if starts > 1 else ''}"

@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT))
 
 from dem.collapse import simulate_collapse  # noqa: E402
 from dem.grid import case_from_row, sample_dataset, validate_config  # noqa: E402
-from dem.runout import runout_at  # noqa: E402
+from dem.runout import RunoutMethod, runout_at  # noqa: E402
 from dem.trajectory import write_trajectory  # noqa: E402
 
 T_POINTS = np.array([0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5])   # the measured curve's t/t*
@@ -47,6 +47,7 @@ SEED_BASE = 30_000                                         # packing seeds far f
 MEASUREMENT_NOISE = 0.05                                   # L*, per point
 K_PACKINGS = (1, 2, 4, 8, 16)
 MU_TOLERANCE = 0.03
+RUNOUT = RunoutMethod()                                    # the project's default runout method (config key runout)
 Z95 = 1.959963984540054
 
 
@@ -67,7 +68,7 @@ def runs_at(case, friction, restitution, seeds, save=None) -> np.ndarray:
                                                     name=name))
         if save is not None:
             write_trajectory(save / f"{name}.h5", trajectory)
-        curves.append(runout_at(trajectory, T_POINTS))
+        curves.append(runout_at(trajectory, T_POINTS, RUNOUT))
         print(f"mu {friction:.2f} e {restitution:.2f} seed {seed}: L*(3.5) = {curves[-1][-1]:.3f} "
               f"({time.perf_counter() - t0:.1f} s)", file=sys.stderr, flush=True)
     return np.array(curves)

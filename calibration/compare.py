@@ -28,7 +28,7 @@ from calibration.measured import MeasuredColumn
 from calibration.objective import objective
 from dem.atomic import atomic_path, write_text
 from dem.case import CollapseCase
-from dem.runout import runout_at, runout_curve
+from dem.runout import RunoutMethod, check_same_method, runout_at, runout_curve
 from dem.trajectory import Trajectory, read_attrs, read_trajectory
 
 log = logging.getLogger(__name__)
@@ -97,17 +97,18 @@ def dem_run(measured: MeasuredColumn, params: dict, case_fields: dict, name: str
     return simulate_collapse(case, progress=progress)
 
 
-def validation_summary(trajectory: Trajectory, measured: MeasuredColumn) -> dict:
-    """Objective and L* at the measured t/t* of a DEM run, with its parameters and run time."""
-    return {"mse": objective(trajectory, measured),
-            "runout": runout_at(trajectory, measured.t_over_tstar).tolist(),
+def validation_summary(trajectory: Trajectory, measured: MeasuredColumn, runout: RunoutMethod) -> dict:
+    """Objective and L* (read by `runout`) at the measured t/t* of a DEM run, with its parameters
+    and run time."""
+    return {"mse": objective(trajectory, measured, runout),
+            "runout": runout_at(trajectory, measured.t_over_tstar, runout).tolist(),
             "friction": float(trajectory.attrs["friction"]), "restitution": float(trajectory.attrs["restitution"]),
             "dem_wall_time_s": float(trajectory.attrs.get("wall_time_s", math.nan))}
 
 
 # -- Bayesian optimisation directly on the DEM ----------------------------------------------------------
-def bayesopt_on_dem(measured: MeasuredColumn, case_fields: dict, bounds, budget: int = BO_MAX_RUNS,
-                    n_initial: int = 6, seed: int = 0, names=("friction", "restitution")):
+def bayesopt_on_dem(measured: MeasuredColumn, case_fields: dict, bounds, runout: RunoutMethod,
+                    budget: int = BO_MAX_RUNS, n_initial: int = 6, seed: int = 0, names=("friction", "restitution")):
     """GP expected-improvement BO where every objective call is a DEM run of the measured column.
 
     Returns (OptimisationHistory, best trajectory, seconds spent). The best run's objective is a
@@ -119,7 +120,7 @@ def bayesopt_on_dem(measured: MeasuredColumn, case_fields: dict, bounds, budget:
 
     def dem_objective(params):
         trajectory = dem_run(measured, dict(zip(names, params)), case_fields, name=f"bayesopt")
-        value = objective(trajectory, measured)
+        value = objective(trajectory, measured, runout)
         if value < best["value"]:
             best.update(value=value, trajectory=trajectory)
         return value
@@ -130,9 +131,9 @@ def bayesopt_on_dem(measured: MeasuredColumn, case_fields: dict, bounds, budget:
     return history, best["trajectory"], time.perf_counter() - start
 
 
-def write_bayesopt(history: OptimisationHistory, seconds: float, path) -> None:
-    write_text(path, json.dumps({**history.to_dict(), "dem_runs": len(history.values), "seconds": seconds},
-                                indent=1) + "\n")
+def write_bayesopt(history: OptimisationHistory, seconds: float, path, runout: RunoutMethod) -> None:
+    write_text(path, json.dumps({**history.to_dict(), "dem_runs": len(history.values), "seconds": seconds,
+                                 "runout": runout.to_config()}, indent=1) + "\n")
 
 
 def plot_bayesopt(history: dict, path, title: str = "") -> None:
@@ -258,19 +259,22 @@ def plot_comparison(routes: list[Route], path, title: str = "") -> None:
     save_figure(fig, path)
 
 
-def plot_validation_runout(measured: MeasuredColumn, trajectories: dict, path, title: str = "") -> None:
+def plot_validation_runout(measured: MeasuredColumn, trajectories: dict, path, runout: RunoutMethod,
+                           title: str = "") -> None:
     """DEM runout curves at each route's optimum against the measured points (the paper's Fig. 10).
 
     trajectories: {label: Trajectory}; labels get their objective appended.
     """
     from doe.plots import plot_runout_comparison
 
-    curves = {f"{label}, MSE {objective(t, measured):.3f}": runout_curve(t) for label, t in trajectories.items()}
+    curves = {f"{label}, MSE {objective(t, measured, runout):.3f}": runout_curve(t, runout)
+              for label, t in trajectories.items()}
     plot_runout_comparison(measured, curves, path, title=title)
 
 
 def comparison_routes(measured: MeasuredColumn, inverse: dict, gns_validation: Trajectory, start: Trajectory,
-                      times: dict, doe: dict | None = None, bayesopt: dict | None = None) -> list[Route]:
+                      times: dict, runout: RunoutMethod, doe: dict | None = None,
+                      bayesopt: dict | None = None) -> list[Route]:
     """The comparison rows of one measured column.
 
     inverse: the inverse design's result (inverse.json); gns_validation: DEM run at its optimum;
@@ -278,13 +282,13 @@ def comparison_routes(measured: MeasuredColumn, inverse: dict, gns_validation: T
     files): "start", "gns_dataset" (seconds, DEM runs), "gns_training", "gns_validation", and when
     given "doe" (seconds, DEM runs of the design and its analysis), "doe_validation" {model: s},
     "bayesopt". doe: {model: Trajectory} of the DoE validation runs, or None; bayesopt: the
-    bayesopt.json dict, or None.
+    bayesopt.json dict, or None. runout: how every validated L* is read.
     """
-    first = validation_summary(start, measured)
+    first = validation_summary(start, measured, runout)
     routes = [Route("start point", "total", 1, times.get("start", math.nan), "one DEM run at the paper's start",
                     first["mse"], first["friction"], first["restitution"])]
     dataset_s, dataset_runs = times["gns_dataset"]
-    gns = validation_summary(gns_validation, measured)
+    gns = validation_summary(gns_validation, measured, runout)
     routes += [Route("GNS inverse design", "offline", dataset_runs, dataset_s + times["gns_training"],
                      "DEM dataset + GNS training"),
                Route("GNS inverse design", "online", 1, inverse["seconds"]["online"] + times["gns_validation"],
@@ -292,7 +296,7 @@ def comparison_routes(measured: MeasuredColumn, inverse: dict, gns_validation: T
                      gns["mse"], gns["friction"], gns["restitution"])]
     for model, trajectory in (doe or {}).items():
         doe_s, doe_runs = times["doe"]
-        summary = validation_summary(trajectory, measured)
+        summary = validation_summary(trajectory, measured, runout)
         routes.append(Route(f"DoE ({model})", "total", doe_runs + 1, doe_s + times["doe_validation"][model],
                             "factorial DEM runs + regression + 1 DEM validation", summary["mse"],
                             summary["friction"], summary["restitution"]))
@@ -365,9 +369,11 @@ def _progress_logger(label: str):
     return progress
 
 
-def run_dem_point(measured_path, metadata_path, params: dict, out_path, seed: int = 0, name: str = "") -> dict:
+def run_dem_point(measured_path, metadata_path, params: dict, out_path, *, runout, seed: int = 0,
+                  name: str = "") -> dict:
     """DEM run of a measured column at params with the GNS dataset's DEM model; writes the
-    trajectory (atomically) and returns its validation summary."""
+    trajectory (atomically) and returns its validation summary (L* read by `runout`, the config's
+    runout section)."""
     from calibration.measured import load_column
     from dem.trajectory import write_trajectory
     from gns.data import read_metadata
@@ -376,42 +382,48 @@ def run_dem_point(measured_path, metadata_path, params: dict, out_path, seed: in
     fields = measured_case_fields(read_metadata(metadata_path), seed)
     trajectory = dem_run(measured, params, fields, name=name, progress=_progress_logger(f"DEM run {name}"))
     write_trajectory(out_path, trajectory)
-    summary = validation_summary(trajectory, measured)
+    summary = validation_summary(trajectory, measured, RunoutMethod.from_config(runout))
     log.info("%s: objective %.4g against %s", name, summary["mse"], measured.name)
     return summary
 
 
-def run_bayesopt(measured_path, metadata_path, out_json, out_figure, out_best, bounds, budget: int = BO_MAX_RUNS,
-                 n_initial: int = 6, seed: int = 0) -> dict:
-    """The BO arm: bayesopt.json (every run), its figure and the best run's trajectory."""
+def run_bayesopt(measured_path, metadata_path, out_json, out_figure, out_best, bounds, *, runout,
+                 budget: int = BO_MAX_RUNS, n_initial: int = 6, seed: int = 0) -> dict:
+    """The BO arm: bayesopt.json (every run), its figure and the best run's trajectory; every
+    objective reads L* by `runout` (the config's runout section)."""
     from calibration.measured import load_column
     from dem.trajectory import write_trajectory
     from gns.data import read_metadata
 
     measured = load_column(measured_path)
     fields = measured_case_fields(read_metadata(metadata_path), seed)
-    history, best, seconds = bayesopt_on_dem(measured, fields, bounds, budget, n_initial, seed)
+    runout = RunoutMethod.from_config(runout)
+    history, best, seconds = bayesopt_on_dem(measured, fields, bounds, runout, budget, n_initial, seed)
     write_trajectory(out_best, best)
-    write_bayesopt(history, seconds, out_json)
+    write_bayesopt(history, seconds, out_json, runout)
     data = json.loads(Path(out_json).read_text())
     plot_bayesopt(data, out_figure, title=f"BO on DEM runs of {measured.name}")
     return data
 
 
 def run_comparison(measured_path, inverse_path, validation_path, start_path, out_table, out_figure, out_runout,
-                   benchmarks: dict, dem_runs: dict, bayesopt_path=None, bayesopt_best_path=None,
+                   benchmarks: dict, dem_runs: dict, *, runout, bayesopt_path=None, bayesopt_best_path=None,
                    doe_validation: dict | None = None) -> list[Route]:
     """The comparison of one measured column: table (CSV), accuracy-cost figure, runout figure.
 
     benchmarks: {"start" | "gns_dataset" | "gns_training" | "gns_validation" | "doe" | "bayesopt":
     [benchmark files], "doe_validation": {model: [files]}}; dem_runs: {"gns_dataset": n, "doe": n}.
     doe_validation: {model: trajectory path} of the DoE's validation runs (None: no DoE arm).
+    runout: the config's runout section; every validated L* is read by it, and the inverse design's
+    and the BO's results must have been scored by it too (else RunoutError).
     """
     from calibration.inverse import read_result
     from calibration.measured import load_column
 
     measured = load_column(measured_path)
     inverse = read_result(inverse_path)
+    runout = RunoutMethod.from_config(runout)
+    check_same_method(inverse.get("runout"), runout, f"inverse design {inverse_path}")
     seconds = lambda key: benchmark_seconds(benchmarks.get(key, []))[0]  # noqa: E731
     times = {"start": seconds("start"), "gns_dataset": (seconds("gns_dataset"), dem_runs["gns_dataset"]),
              "gns_training": seconds("gns_training"), "gns_validation": seconds("gns_validation"),
@@ -419,8 +431,10 @@ def run_comparison(measured_path, inverse_path, validation_path, start_path, out
              "doe_validation": {m: benchmark_seconds(p)[0] for m, p in benchmarks.get("doe_validation", {}).items()}}
     doe = {model: read_trajectory(path) for model, path in (doe_validation or {}).items()}
     bayesopt = json.loads(Path(bayesopt_path).read_text()) if bayesopt_path else None
+    if bayesopt is not None:
+        check_same_method(bayesopt.get("runout"), runout, f"Bayesian optimisation {bayesopt_path}")
     validation, start = read_trajectory(validation_path), read_trajectory(start_path)
-    routes = comparison_routes(measured, inverse, validation, start, times, doe, bayesopt)
+    routes = comparison_routes(measured, inverse, validation, start, times, runout, doe, bayesopt)
     write_table(routes, out_table)
     plot_comparison(routes, out_figure, title=f"calibration routes for {measured.name}")
     curves = {f"start ({start.attrs['friction']:.2f}, {start.attrs['restitution']:.2f})": start,
@@ -429,7 +443,7 @@ def run_comparison(measured_path, inverse_path, validation_path, start_path, out
     if bayesopt_best_path:
         best = read_trajectory(bayesopt_best_path)
         curves[f"BO best run ({best.attrs['friction']:.2f}, {best.attrs['restitution']:.2f})"] = best
-    plot_validation_runout(measured, curves, out_runout, title=f"{measured.name}: DEM runs at each optimum")
+    plot_validation_runout(measured, curves, out_runout, runout, title=f"{measured.name}: DEM runs at each optimum")
     return routes
 
 

@@ -52,12 +52,13 @@ from scipy.stats import norm, qmc
 from threadpoolctl import threadpool_limits
 
 from calibration.emulator import (DEMRunner, GPEmulator, Library, Model, Observables, SimulationSettings,
-                                  build_library, front_runout)
+                                  build_library)
 from calibration.measured import MeasuredColumn, MeasuredDataWarning, read_measured
 from calibration.mechanisms import get_mechanisms
 from calibration.objective import runout_mse
 from calibration.uncertainty import laplace_posterior
 from dem.atomic import write_text
+from dem.runout import RunoutMethod
 
 log = logging.getLogger(__name__)
 
@@ -361,7 +362,7 @@ def dem_runs(runner: DEMRunner, model: Model, score: ModelScore, folds, n_packin
     for k in packings:
         trajectories = runner.trajectories(model, score.theta, k)
         fit.append(runner.observables.from_trajectories(trajectories))
-        curves.append([_thin_curve(tr) for tr in trajectories])
+        curves.append([_thin_curve(tr, runner.observables.runout) for tr in trajectories])
     fold_runs = [np.array([runner.observe(model, theta_k, k) for k in packings]) for theta_k in score.fold_theta]
     return {"model": model, "theta": score.theta, "fit": np.array(fit), "fold_theta": score.fold_theta,
             "folds": fold_runs, "packings": packings, "curves": curves, "seconds": time.perf_counter() - started}
@@ -405,9 +406,9 @@ def dem_evaluate(runs: dict, observables: Observables, folds, noise: NoiseModel)
     return result
 
 
-def _thin_curve(trajectory) -> list:
+def _thin_curve(trajectory, runout: RunoutMethod) -> list:
     """[t/t* list, L* list] of a run's runout curve as the diagnosis reads it, every other frame (for the figure)."""
-    t, runout = front_runout(trajectory)
+    t, runout = runout.curve(trajectory)
     return [t[::2].round(4).tolist(), runout[::2].round(4).tolist()]
 
 
@@ -581,29 +582,31 @@ class DiagnosisSettings:
     assumed_profile_noise: float = 1e-3
     rule: DecisionRule = field(default_factory=DecisionRule)
     seed: int = 0
+    runout: RunoutMethod = field(default_factory=RunoutMethod)   # the config's `runout` section
 
     def models(self) -> list[Model]:
         return [Model()] + [Model(m) for m in get_mechanisms(self.candidates, self.channel_width)]
 
     @classmethod
-    def from_config(cls, section: dict) -> "DiagnosisSettings":
-        """From the config section `diagnosis` (schema: workflow/schemas/config.schema.yaml)."""
+    def from_config(cls, section: dict, runout=None) -> "DiagnosisSettings":
+        """From the config section `diagnosis` (schema: workflow/schemas/config.schema.yaml) and the
+        config's `runout` section (None: dem.runout's default)."""
         section = dict(section)
         simulation = SimulationSettings(size_scale=float(section.pop("size_scale", 4.0)),
                                         packing_seeds=tuple(section.pop("packing_seeds", (101, 102, 103))))
         rule = DecisionRule(**section.pop("rule", {}))
         if section.get("candidates") is not None:
             section["candidates"] = tuple(section["candidates"])
-        known = set(cls.__dataclass_fields__) - {"simulation", "rule"}
+        known = set(cls.__dataclass_fields__) - {"simulation", "rule", "runout"}
         unknown = set(section) - known
         if unknown:
             raise DiagnosisError(f"config key diagnosis: unknown setting(s) {sorted(unknown)}; known: "
                                  f"{sorted(known | {'size_scale', 'packing_seeds', 'rule'})}")
-        return cls(simulation=simulation, rule=rule, **section)
+        return cls(simulation=simulation, rule=rule, runout=RunoutMethod.from_config(runout), **section)
 
     def to_dict(self) -> dict:
-        out = {k: getattr(self, k) for k in self.__dataclass_fields__ if k not in ("simulation", "rule")}
-        out.update(self.simulation.to_dict(), rule=self.rule.to_dict())
+        out = {k: getattr(self, k) for k in self.__dataclass_fields__ if k not in ("simulation", "rule", "runout")}
+        out.update(self.simulation.to_dict(), rule=self.rule.to_dict(), runout=self.runout.to_config())
         out["candidates"] = [m.name for m in self.models()[1:]]
         return out
 
@@ -622,7 +625,7 @@ def diagnose(columns, settings: DiagnosisSettings, library: Library | None = Non
     while reading the data (they forbid naming a cause).
     """
     started = time.perf_counter()
-    observables = Observables(columns)
+    observables = Observables(columns, settings.runout)
     models = settings.models()
     if runner is None:
         runner = DEMRunner(observables, settings.simulation)
@@ -747,21 +750,23 @@ def diagnose(columns, settings: DiagnosisSettings, library: Library | None = Non
 LIBRARY_SETTINGS = ("size_scale", "packing_seeds", "candidates", "channel_width", "n_base", "n_per_mechanism", "seed")
 
 
-def run_library(measured_path, library_path, section: dict) -> Library:
-    """Design runs for the columns of a measured-data CSV (workflow rule diagnosis_library)."""
+def run_library(measured_path, library_path, section: dict, *, runout) -> Library:
+    """Design runs for the columns of a measured-data CSV (workflow rule diagnosis_library); their
+    runouts read by `runout` (the config's runout section), which the library records."""
     columns, _ = read_columns(measured_path)
-    settings = DiagnosisSettings.from_config({k: v for k, v in section.items() if k in LIBRARY_SETTINGS})
-    library = settings.library(Observables(columns))
+    settings = DiagnosisSettings.from_config({k: v for k, v in section.items() if k in LIBRARY_SETTINGS}, runout)
+    library = settings.library(Observables(columns, settings.runout))
     library.save(library_path)
     return library
 
 
-def run_diagnosis(measured_path, library_path, out_dir, section: dict, name: str = "") -> dict:
+def run_diagnosis(measured_path, library_path, out_dir, section: dict, *, runout, name: str = "") -> dict:
     """Diagnose a measured-data CSV with its design runs; write diagnosis.json, residuals.png and
-    candidates.png to out_dir (workflow rule diagnosis)."""
+    candidates.png to out_dir (workflow rule diagnosis). runout: the config's runout section; a
+    library read by another method is refused (LibraryError)."""
     from calibration.diagnosis_report import plot_candidates, plot_residuals
     columns, data_warnings = read_columns(measured_path)
-    settings = DiagnosisSettings.from_config({k: v for k, v in section.items() if k != "enabled"})
+    settings = DiagnosisSettings.from_config({k: v for k, v in section.items() if k != "enabled"}, runout)
     result = diagnose(columns, settings, Library.load(library_path), data_warnings=data_warnings, name=name)
     result["measured"] = str(measured_path)
     out_dir = Path(out_dir)

@@ -11,8 +11,8 @@ hidden-effect tests use this).
 Observables (`Observables`): for every measured column, the runout L* at its measured t/t* points
 and, when a deposit profile was measured, the deposit height (m) at its measured x points, taken
 from the last simulated frame (the last measured t/t*: this model's grains never quite stop
-rolling, so "final" means "at the end of the measured window"). The runout is the farthest the
-connected deposit's front has reached so far (`front_runout`), as a measured runout is.
+rolling, so "final" means "at the end of the measured window"). The runout is read by the
+configured dem.runout method (`Observables.runout`), the same as every other stage's.
 
 Packings: the grains' packing is a random realisation; two packings of the same column give runouts
 that differ by several per cent late in the collapse. Design runs cycle through a pool of settled
@@ -43,13 +43,10 @@ from calibration.objective import simulated_runout_at
 from dem.atomic import atomic_path
 from dem.collapse import simulate_collapse
 from dem.packing import settle_column
-from dem.runout import deposit_profile, runout_curve
+from dem.runout import RunoutMethod, deposit_profile
 
 log = logging.getLogger(__name__)
 
-# How the runout is read off a run (`front_runout`); part of a library's signature, so that design
-# runs read another way are refused instead of silently mixed.
-RUNOUT_DEFINITION = "running maximum of dem.runout.runout_curve"
 PROFILE_BIN_DIAMETERS = 4.0   # deposit-profile bin width in mean grain diameters (dem.runout.deposit_profile)
 FRAMES_PER_TSTAR = 25         # output frames per t*: the measured t/t* are interpolated between them
 
@@ -63,14 +60,16 @@ class LibraryError(ValueError):
 class Observables:
     """The simulated numbers compared with the measurement, in one flat order [q].
 
-    Per column, in column order: runout L* at its t/t* points, then (if measured) deposit height
-    (m) at its profile x points.
+    Per column, in column order: runout L* at its t/t* points (read by `runout`, a
+    dem.runout.RunoutMethod), then (if measured) deposit height (m) at its profile x points.
     """
 
     columns: tuple[MeasuredColumn, ...]
+    runout: RunoutMethod = field(default_factory=RunoutMethod)
 
     def __post_init__(self):
         object.__setattr__(self, "columns", tuple(self.columns))
+        object.__setattr__(self, "runout", RunoutMethod.from_config(self.runout))
         if not self.columns:
             raise LibraryError("no measured columns to observe")
         names = [c.name for c in self.columns]
@@ -127,7 +126,7 @@ class Observables:
         """What a library built for these observables must match (geometry, observation points and
         how the runout is read off a run)."""
         return {"columns": [[c.name, c.material, c.aspect_ratio, c.L_i] for c in self.columns],
-                "labels": [list(label) for label in self.labels], "runout": RUNOUT_DEFINITION}
+                "labels": [list(label) for label in self.labels], "runout": self.runout.to_config()}
 
     def from_trajectories(self, trajectories, columns=None) -> np.ndarray:
         """Observables of one simulated trajectory per column: [q] for all columns, or, with
@@ -137,26 +136,11 @@ class Observables:
         parts = []
         for j, trajectory in zip(columns, trajectories, strict=True):
             column = self.columns[j]
-            t, runout = front_runout(trajectory)
+            t, runout = self.runout.curve(trajectory)
             parts.append(simulated_runout_at(t, runout, column))
             if column.profile_x is not None:
                 parts.append(profile_at(trajectory, column.profile_x))
         return np.concatenate(parts)
-
-
-def front_runout(trajectory) -> tuple[np.ndarray, np.ndarray]:
-    """(t/t* [T], L* [T]): the farthest the connected deposit's front has reached up to each frame.
-
-    dem.runout reads the front off the grains connected to the column foot (gaps under 2 mean
-    diameters). Late in a collapse with rolling resistance or cohesion, a block of leading grains
-    can come to rest more than 2 diameters ahead of the rest; the connected front then jumps back
-    by up to 0.7 L* from one frame to the next, in some packings and not others. A front of
-    grains does not move back, and a measured runout curve never does: the running maximum is
-    what a measurement reads, and it keeps that spurious jump out of the model means and out of
-    the packing scatter (both of which the diagnosis compares models by).
-    """
-    t, runout = runout_curve(trajectory)
-    return t, np.maximum.accumulate(runout)
 
 
 def profile_at(trajectory, x) -> np.ndarray:
@@ -347,8 +331,9 @@ class Library:
     def check(self, observables: Observables, models) -> None:
         if json.loads(json.dumps(observables.signature())) != json.loads(json.dumps(self.signature)):
             raise LibraryError("the run library was built for other columns, observation points or runout "
-                               f"definition (columns {[c[0] for c in self.signature['columns']]}, runout "
-                               f"{self.signature.get('runout', 'dem.runout.runout_curve')!r}); rebuild it")
+                               f"method (columns {[c[0] for c in self.signature['columns']]}, runout "
+                               f"{self.signature.get('runout', 'not recorded')!r}; asked for "
+                               f"{observables.runout.to_config()!r}); rebuild it")
         missing = [m.name for m in models if m.name not in self.runs]
         if missing:
             raise LibraryError(f"the run library has no runs of model(s) {missing}; it holds {list(self.runs)}")

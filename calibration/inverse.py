@@ -25,13 +25,9 @@ noise = the measured std (or, when the file gives none, estimated from the resid
 with the surrogate's own runout error against the DEM; a parameter the runout cannot pin down is
 reported as not identifiable.
 
-Differentiable runout: dem.runout takes L as the mean x + r of the 8 leading grains of the
-deposit connected to the column foot. Here the connected deposit is the same discrete mask
-(dem.runout.deposit_mask on the detached positions: connectivity carries no gradient, like the
-GNS radius graph), and the top-8 mean is replaced by a soft top-k: weights
-sigmoid((x + r - c) / tau) with the threshold c set so that they sum to 8, tau = SOFT_TEMPERATURE
-mean grain diameters. It tends to dem.runout's value as tau -> 0 (tests/test_inverse.py checks
-the difference on DEM trajectories).
+Differentiable runout: gns.runout, the twin of dem.runout's configured method (`runout`, a
+dem.runout.RunoutMethod): the same discrete choice of grains, a soft top-k where dem.runout takes
+a mean or a maximum, an exact running maximum for the "_reached" methods.
 """
 from __future__ import annotations
 
@@ -44,15 +40,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from scipy.optimize import OptimizeResult, brentq, minimize
-from scipy.special import expit
+from scipy.optimize import OptimizeResult, minimize
 
 from calibration.bayesopt import OptimisationHistory
 from calibration.measured import MeasuredColumn
 from calibration.objective import runout_mse
 from calibration.uncertainty import finite_difference_jacobian, laplace_posterior
-from dem.runout import GAP_TOLERANCE, N_LEADING, deposit_mask
+from dem.runout import RunoutError, RunoutMethod
 from dem.trajectory import Trajectory
+from gns.runout import frames_needed, soft_runout_at
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +69,6 @@ ROUGHNESS_RADIUS = 2e-3
 # Two opposite diagonal probes: each probe is a whole rollout of online time (~10 CPU-s at 589
 # grains), and the spread of three values already shows noise against the Jacobian's trend.
 ROUGHNESS_PROBES = 2
-SOFT_TEMPERATURE = 0.25               # soft top-k width, in mean grain diameters
 # Rollout steps per checkpointed segment of a differentiated rollout (GNSObjective._rollout): the
 # backward pass holds one segment's activations, ~40 MB per step per 589-grain graph at latent 64.
 SEGMENT_STEPS = 10
@@ -122,64 +117,6 @@ def check_step(step: float, bounds, dtype=np.float32) -> None:
                     f"finite-difference step {step:g} vanishes in {np.dtype(dtype).name} at {value:g} "
                     f"({value:g} + {step:g} == {value:g}): the differences would be exactly zero; "
                     f"use a step above {np.spacing(dtype(high)):.2g} (default {FD_STEP:g})")
-
-
-# -- differentiable runout ------------------------------------------------------------------------
-def soft_top_k_mean(values: torch.Tensor, k: int, temperature: float) -> torch.Tensor:
-    """Smooth mean of the k largest of `values` [n] (same units as temperature).
-
-    Weights w_i = sigmoid((v_i - c) / temperature) with sum w = k; c is found on detached values
-    and its gradient added by the implicit-function theorem (dc/dv_i = s_i / sum s, s = w (1 - w)),
-    so the result's gradient is exact for the smooth function. n <= k gives the plain mean.
-    """
-    if values.numel() <= k:
-        return values.mean()
-    v = values.detach().double().cpu().numpy()
-    excess = lambda c: float(np.sum(expit((v - c) / temperature))) - k  # noqa: E731
-    low, high = v.min() - 50 * temperature, v.max() + 50 * temperature
-    c0 = brentq(excess, low, high, xtol=1e-12 * max(1.0, abs(high)))
-    w0 = expit((v - c0) / temperature)
-    slope = torch.as_tensor(w0 * (1.0 - w0), dtype=values.dtype, device=values.device)
-    threshold = c0 + torch.sum(slope * (values - values.detach())) / max(float(slope.sum()), 1e-300)
-    weights = torch.sigmoid((values - threshold) / temperature)
-    return torch.sum(weights * values) / torch.sum(weights)
-
-
-def soft_front_position(positions: torch.Tensor, radius: torch.Tensor, n_leading: int = N_LEADING,
-                        gap_tolerance: float = GAP_TOLERANCE, temperature: float = SOFT_TEMPERATURE):
-    """Differentiable L (m): soft mean of x + r over the n_leading leading grains of the connected
-    deposit. positions [N, 2] (m), radius [N] (m); temperature in mean grain diameters."""
-    radius_np = radius.detach().cpu().numpy().astype(np.float64)
-    mask = deposit_mask(positions.detach().cpu().numpy(), radius_np, gap_tolerance)
-    index = torch.as_tensor(np.flatnonzero(mask), device=positions.device)
-    front = positions[index, 0] + radius[index]
-    return soft_top_k_mean(front, n_leading, temperature * 2.0 * float(radius_np.mean()))
-
-
-def frame_weights(t_points, t_star: float, dt_frame: float, n_frames: int) -> list[tuple[int, float]]:
-    """[(frame k, weight w)] per t/t* point: L*(t) = (1 - w) L*[k] + w L*[k + 1], as np.interp on the
-    frame times (frame j at t = j dt_frame)."""
-    pairs = []
-    for t in np.asarray(t_points, float):
-        u = t * t_star / dt_frame
-        k = min(int(math.floor(u + 1e-9)), n_frames - 2)
-        pairs.append((k, float(np.clip(u - k, 0.0, 1.0))))
-    return pairs
-
-
-def soft_runout_at(positions: torch.Tensor, radius: torch.Tensor, L_i: float, t_star: float, dt_frame: float,
-                   t_points, temperature: float = SOFT_TEMPERATURE) -> torch.Tensor:
-    """Differentiable L* [K] at t/t* points from frames positions [T, N, 2] (m), frame j at j dt_frame."""
-    fronts = {}
-
-    def runout(k):
-        if k not in fronts:
-            fronts[k] = (soft_front_position(positions[k], radius, temperature=temperature) - L_i) / L_i
-        return fronts[k]
-
-    values = [(1.0 - w) * runout(k) + w * runout(k + 1) if w > 0 else runout(k)
-              for k, w in frame_weights(t_points, t_star, dt_frame, positions.shape[0])]
-    return torch.stack(values)
 
 
 # -- the objective through the GNS --------------------------------------------------------------
@@ -261,11 +198,12 @@ class GNSObjective:
     """
 
     def __init__(self, simulator, start: Trajectory, measured: MeasuredColumn, design_names=DESIGN_NAMES,
-                 temperature: float = SOFT_TEMPERATURE, checkpoint: bool = True,
+                 runout: RunoutMethod | None = None, temperature: float | None = None, checkpoint: bool = True,
                  segment_steps: int = SEGMENT_STEPS):
         config = simulator.config
         self.simulator = simulator
         self.measured = measured
+        self.runout_method = RunoutMethod.from_config(runout)
         self.design_names = list(design_names)
         self.temperature = temperature
         self.checkpoint = checkpoint
@@ -283,8 +221,7 @@ class GNSObjective:
         if start.n_frames < config.n_input_frames:
             raise InverseDesignError(f"start trajectory has {start.n_frames} frames; the GNS needs C = "
                                      f"{config.n_input_frames} to start from")
-        last = max(k for k, _ in frame_weights(measured.t_over_tstar, self.t_star, self.dt_frame, 10 ** 9))
-        self.n_frames = last + 2                         # frames the runout needs
+        self.n_frames = frames_needed(measured.t_over_tstar, self.t_star, self.dt_frame)   # frames the runout reads
         self.n_steps = max(self.n_frames - config.n_input_frames, 0)
         dtype = simulator.bounds.dtype
         device = simulator.bounds.device
@@ -320,8 +257,12 @@ class GNSObjective:
         except (RolloutError, ValueError) as exc:
             raise InverseDesignError(f"GNS rollout at {self._describe(theta)} failed: {exc}") from None
         positions = positions.reshape(positions.shape[0], g, n, 2)
-        runout = torch.stack([soft_runout_at(positions[:, j], self.radius, self.L_i, self.t_star, self.dt_frame,
-                                             self.measured.t_over_tstar, self.temperature) for j in range(g)])
+        try:     # a rollout spread too thin has no front by the configured rule
+            runout = torch.stack([soft_runout_at(positions[:, j], self.radius, self.L_i, self.t_star, self.dt_frame,
+                                                 self.measured.t_over_tstar, self.runout_method, self.temperature)
+                                  for j in range(g)])
+        except RunoutError as exc:
+            raise InverseDesignError(f"GNS rollout at {self._describe(theta)} has no runout: {exc}") from None
         self.timing["rollouts"] += g
         self.timing["forward_s"] += time.perf_counter() - t0
         return runout
@@ -667,12 +608,13 @@ class InverseResult:
     model_error_std: float | None = None  # GNS runout error (L*) joined to the noise model
     roughness: dict | None = None     # objective near the optimum (see posterior_at)
     start_packing_std: list | None = None  # packing scatter of L* [K] joined to the noise model
+    runout: dict | None = None        # the runout method (dem.runout.RunoutMethod.to_config) every L* was read by
 
     def to_dict(self) -> dict:
         data = {k: getattr(self, k) for k in ("measured", "names", "bounds", "gradient", "best_params", "best_value",
                                               "best_runout", "start_runout", "posterior", "geometry", "seconds",
                                               "n_batches", "landscape", "model_error_std", "roughness",
-                                              "start_packing_std")}
+                                              "start_packing_std", "runout")}
         data["starts"] = [s.to_dict() for s in self.starts]
         return data
 
@@ -732,20 +674,22 @@ def inverse_design(simulator, start: Trajectory, measured: MeasuredColumn, metad
                    fd_step: float = FD_STEP, max_iterations: int = 20, ftol: float = FTOL, gtol: float = GTOL,
                    max_evaluations: int | None = None, model_error_std: float | None = None,
                    landscape_levels: int = 0, seed: int = 0, start_packing_std=None,
-                   design_names=DESIGN_NAMES) -> InverseResult:
+                   design_names=DESIGN_NAMES, runout: RunoutMethod | None = None) -> InverseResult:
     """Calibrate design_names against `measured` through the GNS `simulator`.
 
     start: DEM trajectory of the measured column giving the first C frames (see GNSObjective);
     metadata: the GNS dataset's metadata; training_attrs: attributes of its training trajectories
     (for the geometry check). bounds: [(low, high) or None] per design parameter (see design_bounds).
     model_error_std, start_packing_std: the posterior's model-side noise (see noise_level).
+    runout: how L* is read (dem.runout.RunoutMethod; None: its default).
     Returns an InverseResult; seconds["online"] is the wall time of the
     optimisation and the posterior (the landscape, a figure, is timed apart).
     """
     names = list(design_names)
     bounds = design_bounds(bounds, names, metadata["parameter_ranges"])
     geometry = check_geometry(measured, metadata, training_attrs)
-    objective = GNSObjective(simulator, start, measured, names)
+    runout = RunoutMethod.from_config(runout)
+    objective = GNSObjective(simulator, start, measured, names, runout=runout)
     starts = starting_points(n_starts, bounds, first_start, seed)
     log.info("inverse design of %s: %d starts, %s gradients, %d rollout steps of %d grains", measured.name,
              len(starts), gradient, objective.n_steps, objective.n_particles)
@@ -782,7 +726,8 @@ def inverse_design(simulator, start: Trajectory, measured: MeasuredColumn, metad
                                   "rollout_steps": objective.n_steps},
                          n_batches=n_batches, landscape=grid, model_error_std=model_error_std,
                          roughness=roughness, start_packing_std=None if start_packing_std is None else
-                         np.broadcast_to(start_packing_std, measured.runout.shape).tolist())
+                         np.broadcast_to(start_packing_std, measured.runout.shape).tolist(),
+                         runout=runout.to_config())
 
 
 # -- outputs ----------------------------------------------------------------------------------------
@@ -878,6 +823,7 @@ def plot_deposits(objective: GNSObjective, params: dict, path, title: str = "") 
     labels = list(params)
     theta = objective._theta(np.array([params[k] for k in labels]))
     from gns.rollout import rollout
+    from gns.runout import frame_weights
 
     with torch.no_grad():
         result = rollout(objective.simulator, objective.initial.repeat(1, len(labels), 1), objective._context(theta),
@@ -906,23 +852,29 @@ def plot_deposits(objective: GNSObjective, params: dict, path, title: str = "") 
 
 
 # -- workflow stage ----------------------------------------------------------------------------------
-def model_error_from_evaluation(path) -> float | None:
-    """RMS runout error (L*) of the GNS against the DEM on its test split (gns.evaluate's summary)."""
+def model_error_from_evaluation(path, runout: RunoutMethod) -> float | None:
+    """RMS runout error (L*) of the GNS against the DEM on its test split (gns.evaluate's summary),
+    which must have been read by the same runout method."""
     import json
     from pathlib import Path
 
+    from dem.runout import check_same_method
+
     if not path:
         return None
-    value = json.loads(Path(path).read_text()).get("runout_mse")
+    summary = json.loads(Path(path).read_text())
+    check_same_method(summary.get("runout"), runout, f"GNS evaluation {path}")
+    value = summary.get("runout_mse")
     return math.sqrt(value) if value is not None and math.isfinite(value) else None
 
 
 def run_inverse_design(model_path, metadata_path, start_path, measured_path, out_json, out_paths, out_deposits,
-                       settings: dict, evaluation_path=None, doe_responses_path=None) -> InverseResult:
+                       settings: dict, *, runout, evaluation_path=None, doe_responses_path=None) -> InverseResult:
     """The inverse-design stage of one measured column: inverse.json and the two figures.
 
     settings: the config's `inverse` section (friction, restitution bounds, start, starts, gradient,
-    fd_step, max_iterations, landscape_levels, seed). evaluation_path: the GNS's test-split summary
+    fd_step, max_iterations, landscape_levels, seed); runout: the config's `runout` section (every L*
+    is read by it). evaluation_path: the GNS's test-split summary
     (its runout error joins the noise model); doe_responses_path: the DoE's DEM objective values,
     drawn under the paths.
     """
@@ -936,23 +888,24 @@ def run_inverse_design(model_path, metadata_path, start_path, measured_path, out
     simulator = load_simulator(model_path, metadata)
     measured = load_column(measured_path)
     start = read_trajectory(start_path)
-    model_error = model_error_from_evaluation(evaluation_path)
+    runout = RunoutMethod.from_config(runout)
+    model_error = model_error_from_evaluation(evaluation_path, runout)
     result = inverse_design(simulator, start, measured, metadata, read_training_attrs(metadata),
                             bounds=[settings["friction"], settings["restitution"]], n_starts=settings["starts"],
                             first_start=settings["start"], gradient=settings["gradient"], fd_step=settings["fd_step"],
                             max_iterations=settings["max_iterations"], model_error_std=model_error,
-                            landscape_levels=settings["landscape_levels"], seed=settings["seed"])
+                            landscape_levels=settings["landscape_levels"], seed=settings["seed"], runout=runout)
     write_result(result, out_json)
     dem_points = None
     if doe_responses_path:
-        import pandas as pd
+        from doe.study import read_responses    # stage glue: the DoE's DEM points drawn under the paths
 
-        table = pd.read_csv(doe_responses_path)
+        table = read_responses(doe_responses_path, runout)
         dem_points = {name: table[name].to_numpy(float) for name in list(result.names) + ["mse"]}
     plot_paths(result.to_dict(), out_paths, dem_points)
     best = min(result.starts, key=lambda r: r.value)
     middle = best.iterates[len(best.iterates) // 2][0]
-    plot_deposits(GNSObjective(simulator, start, measured, result.names),
+    plot_deposits(GNSObjective(simulator, start, measured, result.names, runout=runout),
                   {"start": best.start, f"iteration {len(best.iterates) // 2}": middle, "optimum": best.params},
                   out_deposits)
     return result

@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from calibration.measured import MeasuredColumn
-from dem.runout import runout_at
+from dem.runout import RunoutMethod, runout_at
 
 GEOMETRY_RTOL = 1e-6
 
@@ -80,13 +80,12 @@ def check_same_column(trajectory_attrs: dict, measured: MeasuredColumn, where: s
                                  f"{measured.name!r} ({key} = {value:g}, {measured.source})")
 
 
-def objective(trajectory, measured: MeasuredColumn, **runout_kwargs) -> float:
-    """MSE of a trajectory's runout (dem.runout, connected-deposit front) against `measured`.
+def objective(trajectory, measured: MeasuredColumn, runout: RunoutMethod) -> float:
+    """MSE of a trajectory's runout, read by the runout method `runout`, against `measured`.
 
     trajectory: a dem.trajectory.Trajectory (DEM or GNS rollout) of the measured column's geometry.
-    runout_kwargs go to dem.runout.runout_at (n_leading, gap_tolerance).
     """
     check_same_column(trajectory.attrs, measured)
     t = trajectory.t_over_tstar
     check_window(t[0], t[-1], measured)
-    return runout_mse(runout_at(trajectory, measured.t_over_tstar, **runout_kwargs), measured.runout)
+    return runout_mse(runout_at(trajectory, measured.t_over_tstar, runout), measured.runout)

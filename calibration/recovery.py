@@ -28,7 +28,7 @@ import numpy as np
 from calibration.compare import case_like, read_training_attrs
 from calibration.inverse import BOUNDS, DESIGN_NAMES, inverse_design
 from calibration.measured import MeasuredColumn
-from dem.runout import runout_at
+from dem.runout import RunoutMethod, runout_at
 from dem.trajectory import Trajectory
 
 log = logging.getLogger(__name__)
@@ -66,16 +66,18 @@ def packing_scatter(curves) -> tuple[np.ndarray, int]:
 
 
 def synthetic_measured(truths, t_points, noise_std: float, seed: int, name: str,
-                       packing_std=None) -> MeasuredColumn:
+                       packing_std=None, runout: RunoutMethod | None = None) -> MeasuredColumn:
     """The mean runout of DEM runs of one (mu, e) at t_points plus Gaussian noise (std noise_std).
 
     truths: a Trajectory or a list of k (one per packing). Its stated std is that of a mean of k
     packings with measurement noise: sqrt(noise_std^2 + packing_std^2 / k); packing_std [K] or
-    scalar (L*), None: estimated from the truths themselves (which needs k >= 2).
+    scalar (L*), None: estimated from the truths themselves (which needs k >= 2). runout: how L*
+    is read off the runs (None: dem.runout's default).
     """
+    runout = RunoutMethod.from_config(runout)
     truths = [truths] if isinstance(truths, Trajectory) else list(truths)
     t_points = np.asarray(t_points, float)
-    curves = np.array([runout_at(truth, t_points) for truth in truths])
+    curves = np.array([runout_at(truth, t_points, runout) for truth in truths])
     if packing_std is None:
         if len(truths) < 2:
             raise ValueError(f"{name}: one packing tells nothing of the packing scatter; pass packing_std or "
@@ -92,21 +94,23 @@ def synthetic_measured(truths, t_points, noise_std: float, seed: int, name: str,
 
 def recover_case(simulator, metadata, training_attrs, start: Trajectory, truths, t_points,
                  noise_std: float, seed: int, mu_tolerance: float = 0.03, packing_std=None,
-                 **inverse_kwargs) -> dict:
+                 runout: RunoutMethod | None = None, **inverse_kwargs) -> dict:
     """Inverse design against one synthetic target; returns truth, estimate, intervals and verdicts.
 
     truths: the target's DEM runs (a Trajectory or a list, one per packing, same (mu, e));
     packing_std: the packing scatter of L* [K] (None: from the truths); it enters the target's
     stated std (as a mean of len(truths) packings) and the posterior's model side (the GNS rolls
-    out one packing, `start`).
+    out one packing, `start`). runout: how L* is read, for the targets and the inverse design alike.
     """
+    runout = RunoutMethod.from_config(runout)
     truths = [truths] if isinstance(truths, Trajectory) else list(truths)
     if packing_std is None:
-        packing_std = packing_scatter([[runout_at(t, t_points) for t in truths]])[0] if len(truths) > 1 else None
-    measured = synthetic_measured(truths, t_points, noise_std, seed, name=f"target_{seed}", packing_std=packing_std)
+        packing_std = packing_scatter([[runout_at(t, t_points, runout) for t in truths]])[0] if len(truths) > 1 else None
+    measured = synthetic_measured(truths, t_points, noise_std, seed, name=f"target_{seed}", packing_std=packing_std,
+                                  runout=runout)
     t0 = time.perf_counter()
     result = inverse_design(simulator, start, measured, metadata, training_attrs, start_packing_std=packing_std,
-                            **inverse_kwargs)
+                            runout=runout, **inverse_kwargs)
     seconds = time.perf_counter() - t0
     truth_values = [float(truths[0].attrs[n]) for n in result.names]
     parameters = result.posterior["parameters"]
@@ -185,11 +189,12 @@ def observation_times(duration_over_tstar: float, times=PAPER_TIMES) -> np.ndarr
 
 def recovery_study(simulator, metadata, n_cases: int = 5, noise_std: float = 0.05, model_error_std=None,
                    seed: int = 0, mu_tolerance: float = 0.03, start=None, bounds=None,
-                   packings: int = PACKINGS_PER_TARGET, **inverse_kwargs) -> dict:
+                   packings: int = PACKINGS_PER_TARGET, runout: RunoutMethod | None = None,
+                   **inverse_kwargs) -> dict:
     """Recover n_cases synthetic DEM targets of the GNS dataset's own column, each the mean of
     `packings` DEM runs; returns the summary (recovery_summary plus dataset, t/t* points, noise,
     packing scatter and model error). bounds: as calibration.inverse.design_bounds (None: the
-    paper's, narrowed to the trained range)."""
+    paper's, narrowed to the trained range). runout: how every L* is read (None: dem.runout's default)."""
     from calibration.inverse import PAPER_START, design_bounds
     from dem.collapse import simulate_collapse
 
@@ -210,31 +215,36 @@ def recovery_study(simulator, metadata, n_cases: int = 5, noise_std: float = 0.0
                                                    seed=TRUTH_SEED_OFFSET + PACKING_SEED_STRIDE * k + j,
                                                    name=f"target_{k}_packing_{j}")) for j in range(packings)])
         log.info("target %d/%d: %d DEM packings run", k + 1, n_cases, packings)
-    packing_std, packing_dof = packing_scatter([[runout_at(t, t_points) for t in group] for group in truths])
+    runout = RunoutMethod.from_config(runout)
+    packing_std, packing_dof = packing_scatter([[runout_at(t, t_points, runout) for t in group] for group in truths])
     log.info("packing scatter of L* (pooled, %d dof): %s", packing_dof, np.round(packing_std, 3).tolist())
     rows = []
     for k, group in enumerate(truths):
         rows.append(recover_case(simulator, metadata, trained, start_run, group, t_points, noise_std, seed + k,
                                  mu_tolerance, packing_std=packing_std, bounds=bounds, first_start=start,
-                                 model_error_std=model_error_std, **inverse_kwargs))
+                                 model_error_std=model_error_std, runout=runout, **inverse_kwargs))
         log.info("target %d/%d done", k + 1, n_cases)
     summary = recovery_summary(rows, mu_tolerance)
     summary.update(dataset=metadata["name"], t_over_tstar=t_points.tolist(), noise_std=noise_std, packings=packings,
                    packing_std=packing_std.tolist(), packing_dof=packing_dof,
-                   model_error_std=model_error_std, bounds=[list(b) for b in bounds])
+                   model_error_std=model_error_std, bounds=[list(b) for b in bounds], runout=runout.to_config())
     return summary
 
 
-def run_recovery(model_path, metadata_path, out_json, out_figure, evaluation_path=None, **study_kwargs) -> dict:
-    """The recovery stage: recovery_study with the GNS at model_path; writes JSON and figure."""
+def run_recovery(model_path, metadata_path, out_json, out_figure, *, runout, evaluation_path=None,
+                 **study_kwargs) -> dict:
+    """The recovery stage: recovery_study with the GNS at model_path, L* read by `runout` (the
+    config's runout section); writes JSON and figure."""
     from calibration.inverse import model_error_from_evaluation
     from dem.atomic import write_text
     from gns.data import read_metadata
     from gns.simulator import load_simulator
 
     metadata = read_metadata(metadata_path)
+    runout = RunoutMethod.from_config(runout)
     summary = recovery_study(load_simulator(model_path, metadata), metadata,
-                             model_error_std=model_error_from_evaluation(evaluation_path), **study_kwargs)
+                             model_error_std=model_error_from_evaluation(evaluation_path, runout), runout=runout,
+                             **study_kwargs)
     write_text(out_json, json.dumps(summary, indent=1) + "\n")
     plot_recovery(summary, out_figure, title=f"{metadata['name']} (targets: mean of {summary['packings']} packings): mu "
                   f"within {summary['mu_tolerance']:g} in {summary['mu_within']} of {summary['n_cases']}, truth inside "

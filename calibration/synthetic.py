@@ -67,8 +67,9 @@ def synthetic_columns(material: str = "quartz", L_i: float = 0.02, aspect_ratios
 
 
 def synthetic_measurement(truth: HiddenTruth, columns, mechanisms, settings: SimulationSettings,
-                          runout_noise: float, profile_noise: float, rng: np.random.Generator):
-    """The columns "measured" under `truth`: DEM observables plus Gaussian noise.
+                          runout_noise: float, profile_noise: float, rng: np.random.Generator, runout=None):
+    """The columns "measured" under `truth`: DEM observables plus Gaussian noise; runout: how its
+    L* is read (dem.runout.RunoutMethod; None: the default).
 
     runout_noise: std of L* (-), stored as each runout row's std; profile_noise: std of the deposit
     height (m). mechanisms: the candidates, to find the truth's by name. Returns (columns, clean
@@ -77,7 +78,7 @@ def synthetic_measurement(truth: HiddenTruth, columns, mechanisms, settings: Sim
     known = {m.name: m for m in mechanisms}
     model = Model(None if truth.mechanism is None else known[truth.mechanism])
     theta = [truth.friction, truth.restitution] + ([] if truth.mechanism is None else [truth.magnitude])
-    observables = Observables(columns)
+    observables = Observables(columns, runout)
     # the truth settles its own packing with its own contact law, as a real column would
     trajectories = [simulate_collapse(model.case(c, theta, settings, truth.seed)) for c in observables.columns]
     clean = observables.from_trajectories(trajectories)
@@ -149,7 +150,7 @@ def diagnose_hidden_cases(truths, settings, columns=None, runout_noise: float = 
     from calibration.diagnosis import diagnose  # here: diagnosis does not depend on this module
     from calibration.emulator import DEMRunner
     columns = synthetic_columns() if columns is None else columns
-    observables = Observables(columns)
+    observables = Observables(columns, settings.runout)
     settings = replace(settings, profile_noise=profile_noise)
     mechanisms = [m.mechanism for m in settings.models()[1:]]
     if library is None:
@@ -158,7 +159,8 @@ def diagnose_hidden_cases(truths, settings, columns=None, runout_noise: float = 
     rng = np.random.default_rng(seed)
     cases = []
     for k, truth in enumerate(truths):
-        data, _ = synthetic_measurement(truth, columns, mechanisms, settings.simulation, runout_noise, profile_noise, rng)
+        data, _ = synthetic_measurement(truth, columns, mechanisms, settings.simulation, runout_noise, profile_noise, rng,
+                                        runout=settings.runout)
         result = diagnose(data, settings, library=library, runner=runner, name=f"hidden_{k}")
         expected = truth.mechanism or "none"
         fitted = None

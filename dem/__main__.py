@@ -11,7 +11,7 @@ from pathlib import Path
 from dem.case import CaseError, CollapseCase
 from dem.collapse import simulate_collapse
 from dem.plots import plot_case
-from dem.runout import runout_curve
+from dem.runout import METHODS, RunoutMethod
 from dem.trajectory import write_trajectory
 
 log = logging.getLogger("dem")
@@ -37,6 +37,8 @@ def main(argv=None):
     parser.add_argument("--restitution", type=float, default=0.65)
     parser.add_argument("--size-scale", type=float, default=3.0, help="coarse-graining factor on the diameter")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--runout", choices=METHODS, default=RunoutMethod().method,
+                        help="how L* is read off the run (dem.runout; default parameters)")
     parser.add_argument("--out", type=Path, default=Path("results/one_case/case.h5"))
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
@@ -48,8 +50,9 @@ def main(argv=None):
     log.info("case %s: %d grains, dt = %.3g s, t* = %.3g s", case.name, case.n_particles, case.time_step, case.t_star)
     traj = simulate_collapse(case, progress=progress_logger(f"case {case.name}"))
     write_trajectory(args.out, traj)
-    plot_case(traj, args.out.with_suffix(".png"))
-    t, runout = runout_curve(traj)
+    runout_method = RunoutMethod(args.runout)
+    plot_case(traj, args.out.with_suffix(".png"), runout_method)
+    t, runout = runout_method.curve(traj)
     log.info("wrote %s and %s; final L* = %.3f at t/t* = %.2f", args.out, args.out.with_suffix(".png"),
              runout[-1], t[-1])
     return 0

@@ -169,16 +169,19 @@ def dataset_paths(metadata: dict) -> list[tuple[str, str]]:
     return [(s, p) for s in SPLITS for p in metadata["splits"][s]]
 
 
-def plot_dataset(metadata: dict, path) -> dict:
+def plot_dataset(metadata: dict, path, runout) -> dict:
     """Summary figure of a dataset: the cases in parameter space coloured by split, and every
-    case's runout curve L*(t/t*) coloured by friction. Returns {trajectory path: final L*}."""
+    case's runout curve L*(t/t*) (read by `runout`, a dem.runout.RunoutMethod, config dict or
+    name) coloured by friction. Returns {trajectory path: final L*}."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     from dem.plots import save_figure
-    from dem.runout import runout_curve
+    from dem.runout import RunoutMethod
+
+    runout = RunoutMethod.from_config(runout)
 
     fig, (ax_p, ax_r) = plt.subplots(1, 2, figsize=(11, 4.2))
     ranges = metadata["parameter_ranges"]
@@ -201,17 +204,17 @@ def plot_dataset(metadata: dict, path) -> dict:
         ax_p.scatter(float(a[x_key]), float(a[y_key]), s=22, color=colours[split], marker=marker,
                      label=split if split not in seen else None)
         seen.add(split)
-        t, runout = runout_curve(traj)
-        final[traj_path] = float(runout[-1])
+        t, curve = runout.curve(traj)
+        final[traj_path] = float(curve[-1])
         shade = 0.5 if hi == lo else (float(a["friction"]) - lo) / (hi - lo)
-        ax_r.plot(t, runout, color=cmap(shade), lw=0.8, alpha=0.8)
+        ax_r.plot(t, curve, color=cmap(shade), lw=0.8, alpha=0.8)
     title = f"{metadata['name']}: cases by split"
     if len(markers) > 1:
         title += "\nmarkers: a = " + ", ".join(f"{m} {k:g}" for k, m in sorted(markers.items()))
     ax_p.set(xlabel=x_key, ylabel=y_key, title=title)
     ax_p.legend(fontsize=8)
     ax_p.grid(alpha=0.3)
-    ax_r.set(xlabel="t / t*", ylabel="L* = (L - L_i) / L_i", title="runout, coloured by friction")
+    ax_r.set(xlabel="t / t*", ylabel="L* = (L - L_i) / L_i", title=f"runout, coloured by friction\n{runout.label}")
     ax_r.grid(alpha=0.3)
     norm = matplotlib.colors.Normalize(lo, hi if hi > lo else lo + 1e-9)
     fig.colorbar(matplotlib.cm.ScalarMappable(norm=norm, cmap=cmap), ax=ax_r, label="friction mu")

@@ -31,6 +31,7 @@ import yaml
 
 from dem.atomic import write_text
 from dem.case import CaseError, CollapseCase
+from dem.runout import RunoutError, RunoutMethod
 
 # Parameters that may vary over a dataset, in the order cases are sorted for the splits.
 VARIED = ("aspect_ratio", "L_i", "friction", "restitution", "friction_wall", "restitution_wall")
@@ -63,6 +64,10 @@ def validate_config(config: dict, schema_path) -> dict:
     _fill_defaults(config, schema, schema)
     for name, spec in config.get("datasets", {}).items():
         problems += _check_dataset(name, spec)
+    try:     # the schema checks each key; the class is the one definition every stage builds from it
+        RunoutMethod.from_config(config.get("runout"))
+    except RunoutError as exc:
+        problems.append(str(exc))
     if problems:
         raise ConfigError("invalid config:\n  " + "\n  ".join(problems))
     return config

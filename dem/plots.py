@@ -10,7 +10,7 @@ from matplotlib.collections import EllipseCollection  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 
 from dem.atomic import atomic_path  # noqa: E402
-from dem.runout import runout_curve  # noqa: E402
+from dem.runout import RunoutMethod  # noqa: E402
 
 SNAPSHOT_TSTAR = (0.0, 1.0, 1.5, 2.0, 4.0)
 
@@ -30,9 +30,11 @@ def save_figure(fig, path):
     plt.close(fig)
 
 
-def plot_case(trajectory, path, compare=None, snapshots=SNAPSHOT_TSTAR):
-    """Snapshots at t/t* in `snapshots` and the runout curve L*(t/t*); `compare` (another
-    trajectory of the same case, e.g. a GNS rollout) is drawn over it in blue."""
+def plot_case(trajectory, path, runout, compare=None, snapshots=SNAPSHOT_TSTAR):
+    """Snapshots at t/t* in `snapshots` and the runout curve L*(t/t*) read by `runout` (a
+    dem.runout.RunoutMethod, config dict or name); `compare` (another trajectory of the same case,
+    e.g. a GNS rollout) is drawn over it in blue."""
+    runout = RunoutMethod.from_config(runout)
     t_over_tstar = trajectory.t_over_tstar
     shown = [t for t in snapshots if t <= t_over_tstar[-1] + 1e-9]
     fig, axes = plt.subplots(len(shown) + 1, 1, figsize=(8, 1.6 * len(shown) + 3))
@@ -55,9 +57,10 @@ def plot_case(trajectory, path, compare=None, snapshots=SNAPSHOT_TSTAR):
     ax = axes[-1]
     for traj, style in ((trajectory, "-"), (compare, "--")):
         if traj is not None:
-            t, runout = runout_curve(traj)
-            ax.plot(t, runout, style, label=traj.attrs["engine"])
+            t, curve = runout.curve(traj)
+            ax.plot(t, curve, style, label=traj.attrs["engine"])
     ax.set(xlabel="t / t*", ylabel="L* = (L - L_i) / L_i")
+    ax.set_title(runout.label, fontsize=8, loc="left")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     a = trajectory.attrs

@@ -33,6 +33,7 @@ class Trajectory:
     radius: np.ndarray                    # [N] (m)
     particle_type: np.ndarray             # [N] int32
     attrs: dict = field(default_factory=dict)
+    source: str = ""                      # the file it was read from, for error messages (not written)
 
     @property
     def n_frames(self) -> int:
@@ -96,7 +97,8 @@ def read_trajectory(path, frames=None) -> Trajectory:
                     raise TrajectoryError(f"{path}: missing dataset {key!r}")
             positions = f["positions"][frames if frames is not None else slice(None)]
             traj = Trajectory(positions=np.asarray(positions, np.float32), radius=f["radius"][()],
-                              particle_type=f["particle_type"][()], attrs=_plain_attrs(f.attrs))
+                              particle_type=f["particle_type"][()], attrs=_plain_attrs(f.attrs),
+                              source=str(path))
     except OSError as exc:
         raise TrajectoryError(f"{path}: not a readable HDF5 file ({exc})") from exc
     return traj.validate(str(path))

@@ -15,16 +15,17 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from calibration.objective import objective, runout_mse
+from calibration.objective import check_same_column, objective, runout_mse
 from dem.atomic import atomic_path, write_text
 from calibration.measured import load_column
-from dem.runout import runout_at, runout_curve
+from dem.runout import RunoutMethod, check_same_method, runout_at, runout_curve
 from dem.trajectory import read_trajectory
 from doe.design import design_cases
 from doe.plots import plot_runout_comparison
 from doe.regression import analyse, prediction_expression
 
 RUNOUT_PREFIX = "L_star_t"  # response columns L_star_t0.5, ... : simulated L* at the measured t/t*
+RUNOUT_METHOD_COLUMN = "runout_method"   # the runout method (JSON) every response was read by
 
 
 def case_rows(design: pd.DataFrame, measured, dataset: str, **case_fields) -> list[dict]:
@@ -44,22 +45,26 @@ def case_rows(design: pd.DataFrame, measured, dataset: str, **case_fields) -> li
     return rows
 
 
-def collect_responses(design: pd.DataFrame, trajectory_paths: dict, measured) -> pd.DataFrame:
+def collect_responses(design: pd.DataFrame, trajectory_paths: dict, measured, runout: RunoutMethod) -> pd.DataFrame:
     """The design table with the response of every run: mse (calibration.objective) and the
-    simulated L* at each measured t/t* (columns L_star_t<t>), plus dem_wall_time_s.
+    simulated L* at each measured t/t* (columns L_star_t<t>), plus dem_wall_time_s and the runout
+    method they were read by (column runout_method, JSON).
 
-    trajectory_paths: {run_id: path of the run's trajectory HDF5}.
+    trajectory_paths: {run_id: path of the run's trajectory HDF5}; runout: how L* is read.
     """
+    runout = RunoutMethod.from_config(runout)
     missing = [r for r in design["run_id"] if r not in trajectory_paths]
     if missing:
         raise KeyError(f"no trajectory for design run(s) {missing}")
     records = []
     for run_id in design["run_id"]:
         trajectory = read_trajectory(trajectory_paths[run_id])
-        runout = runout_at(trajectory, measured.t_over_tstar)
-        record = {"run_id": run_id, "mse": objective(trajectory, measured),
-                  "dem_wall_time_s": float(trajectory.attrs.get("wall_time_s", math.nan))}
-        record.update({f"{RUNOUT_PREFIX}{t:g}": float(v) for t, v in zip(measured.t_over_tstar, runout)})
+        check_same_column(trajectory.attrs, measured, str(trajectory_paths[run_id]))
+        values = runout_at(trajectory, measured.t_over_tstar, runout)
+        record = {"run_id": run_id, "mse": runout_mse(values, measured.runout),
+                  "dem_wall_time_s": float(trajectory.attrs.get("wall_time_s", math.nan)),
+                  RUNOUT_METHOD_COLUMN: json.dumps(runout.to_config(), sort_keys=True)}
+        record.update({f"{RUNOUT_PREFIX}{t:g}": float(v) for t, v in zip(measured.t_over_tstar, values)})
         records.append(record)
     return design.merge(pd.DataFrame(records), on="run_id")
 
@@ -181,36 +186,38 @@ def section(name: str, measured, summary: dict, responses: pd.DataFrame, validat
 
 
 def report_section(names, measured_paths, analysis_paths, centre_paths, validation_paths: dict, runout_figures,
-                   benchmark_paths: dict, section_path) -> str:
+                   benchmark_paths: dict, section_path, *, runout) -> str:
     """The DoE report section for every measured column `names[k]`; draws its runout figure.
 
     Per name k: measured_paths[k] (CSV), analysis_paths[k] (analysis.json, beside it the response
     surface figure response_surface.png), centre_paths[k] (trajectory of the design centre, the
     "before" curve), validation_paths[name] {model: trajectory path}, runout_figures[k] (written
-    here), benchmark_paths[name] (Snakemake benchmark files of this DoE's DEM jobs).
+    here), benchmark_paths[name] (Snakemake benchmark files of this DoE's DEM jobs). runout: the
+    config's runout method, by which every L* here is read (responses read another way are refused).
     """
+    runout = RunoutMethod.from_config(runout)
     parts = []
     for k, name in enumerate(names):
         measured = load_column(measured_paths[k])
         summary = json.loads(Path(analysis_paths[k]).read_text())
         centre = read_trajectory(centre_paths[k])
         curves = {f"before: design centre (mu={float(centre.attrs['friction']):g}, "
-                  f"e={float(centre.attrs['restitution']):g}), MSE {objective(centre, measured):.3f}":
-                  runout_curve(centre)}
+                  f"e={float(centre.attrs['restitution']):g}), MSE {objective(centre, measured, runout):.3f}":
+                  runout_curve(centre, runout)}
         validation, integration_s = {}, 0.0
         for model, path in validation_paths[name].items():
             trajectory = read_trajectory(path)
-            validation[model] = {"mse": objective(trajectory, measured),
-                                 "runout": runout_at(trajectory, measured.t_over_tstar).tolist(),
+            validation[model] = {"mse": objective(trajectory, measured, runout),
+                                 "runout": runout_at(trajectory, measured.t_over_tstar, runout).tolist(),
                                  "friction": float(trajectory.attrs["friction"]),
                                  "restitution": float(trajectory.attrs["restitution"])}
             curves[f"after: {model} optimum (mu={validation[model]['friction']:.2f}, "
                    f"e={validation[model]['restitution']:.2f}), MSE {validation[model]['mse']:.3f}"] = \
-                runout_curve(trajectory)
+                runout_curve(trajectory, runout)
             integration_s += float(trajectory.attrs.get("wall_time_s", 0.0))
         plot_runout_comparison(measured, curves, runout_figures[k],
                                title=f"DoE calibration of {name}: runout before and after")
-        responses = pd.read_csv(Path(analysis_paths[k]).with_name("responses.csv"))
+        responses = read_responses(Path(analysis_paths[k]).with_name("responses.csv"), runout)
         jobs_s, jobs = benchmark_seconds(benchmark_paths[name])
         time_spent = {"dem_jobs_s": jobs_s, "dem_jobs": jobs, "analysis_s": summary["analysis_time_s"],
                       "dem_integration_s": integration_s + float(responses["dem_wall_time_s"].sum())}
@@ -222,6 +229,16 @@ def report_section(names, measured_paths, analysis_paths, centre_paths, validati
 def _levels_text(summary: dict) -> str:
     bounds = ", ".join(f"{name} in [{lo:g}, {hi:g}]" for name, (lo, hi) in summary["factors"].items())
     return f"full factorial, {bounds}, plus the replicated centre"
+
+
+def read_responses(path, runout: RunoutMethod) -> pd.DataFrame:
+    """responses.csv of collect_responses; RunoutError when it was read by another runout method."""
+    table = pd.read_csv(path)
+    runout = RunoutMethod.from_config(runout)
+    methods = set(table[RUNOUT_METHOD_COLUMN].fillna("")) if RUNOUT_METHOD_COLUMN in table else {""}
+    for found in methods:
+        check_same_method(json.loads(found) if found else None, runout, f"DoE responses {path}")
+    return table
 
 
 def write_responses(path, responses: pd.DataFrame) -> None:

@@ -1,7 +1,7 @@
 """Accuracy of GNS rollouts against the DEM on held-out cases, with figures like the paper's Figs. 6-8.
 
 Runout MSE (the paper's metric, 0.172 quartz / 0.167 copper): mean over every frame of
-(L*_GNS - L*_DEM)^2, L* from dem.runout.runout_curve for both. Position MSE: mean squared
+(L*_GNS - L*_DEM)^2, L* read by the configured runout method (dem.runout) for both. Position MSE: mean squared
 distance between GNS and DEM grain centres over the predicted frames, in m^2 and in mean grain
 diameters^2 (comparable across coarse-graining).
 """
@@ -16,19 +16,19 @@ from pathlib import Path
 import numpy as np
 
 from dem.atomic import atomic_path, write_text
-from dem.runout import runout_curve
+from dem.runout import RunoutError, RunoutMethod, runout_curve
 from dem.trajectory import Trajectory, read_trajectory, write_trajectory
 
 log = logging.getLogger(__name__)
 SNAPSHOT_TSTAR = (0.0, 1.0, 1.5, 2.0, 4.0)
 
 
-def runout_mse(dem: Trajectory, gns: Trajectory) -> float:
-    """Mean over frames of (L*_gns - L*_dem)^2; both must cover the same frames."""
+def rollout_runout_mse(dem: Trajectory, gns: Trajectory, runout: RunoutMethod) -> float:
+    """Mean over frames of (L*_gns - L*_dem)^2, both read by `runout`; both must cover the same frames."""
     if gns.n_frames != dem.n_frames:
         raise ValueError(f"GNS rollout has {gns.n_frames} frames, DEM {dem.n_frames}: a rollout that stopped "
                          f"early ({gns.attrs.get('rollout_problem', '')}) has no full runout curve")
-    return float(np.mean((runout_curve(gns)[1] - runout_curve(dem)[1]) ** 2))
+    return float(np.mean((runout_curve(gns, runout)[1] - runout_curve(dem, runout)[1]) ** 2))
 
 
 def position_mse(dem: Trajectory, gns: Trajectory, n_input_frames: int) -> float:
@@ -57,13 +57,15 @@ def rollout_case(model_path, dem_path, out_path, metadata_path=None) -> Trajecto
     return gns
 
 
-def evaluate_rollouts(pairs, out_dir, n_input_frames: int | None = None) -> dict:
+def evaluate_rollouts(pairs, out_dir, runout: RunoutMethod | dict | str, n_input_frames: int | None = None) -> dict:
     """Score GNS rollouts against their DEM trajectories and draw the figures.
 
     pairs: [(dem trajectory path, gns rollout path)]. Writes in out_dir: metrics.csv (one row per
     case), summary.json, runout_curves.png (Fig. 7 style) and snapshots/<case>.png (Figs. 6/8
-    style: DEM and GNS side by side at t/t* = 0, 1, 1.5, 2, 4). Returns the summary.
+    style: DEM and GNS side by side at t/t* = 0, 1, 1.5, 2, 4). runout: the runout method every L*
+    is read by (recorded in the summary). Returns the summary.
     """
+    runout = RunoutMethod.from_config(runout)
     out_dir = Path(out_dir)
     rows, curves = [], []
     for dem_path, gns_path in pairs:
@@ -80,16 +82,21 @@ def evaluate_rollouts(pairs, out_dir, n_input_frames: int | None = None) -> dict
                "dem_run_s": float(dem.attrs.get("wall_time_s", math.nan))}
         position = position_mse(dem, gns, c)
         row.update(position_mse_m2=position, position_mse_d2=position / diameter ** 2)
-        t_dem, runout_dem = runout_curve(dem)
-        t_gns, runout_gns = runout_curve(gns)
-        row.update(runout_mse=runout_mse(dem, gns) if valid else math.nan,
+        t_dem, runout_dem = runout_curve(dem, runout)
+        try:
+            t_gns, runout_gns = runout_curve(gns, runout)
+        except RunoutError as exc:     # a rollout spread too thin for the rule: failed, said why
+            valid = False
+            row.update(valid=0, problem=f"{row['problem']}; no runout: {exc}".lstrip("; "))
+            t_gns, runout_gns = t_dem[:1], np.full(1, math.nan)
+        row.update(runout_mse=rollout_runout_mse(dem, gns, runout) if valid else math.nan,
                    final_runout_dem=float(runout_dem[-1]), final_runout_gns=float(runout_gns[-1]) if valid else math.nan)
         rows.append(row)
         curves.append((name, dem.attrs, t_dem, runout_dem, t_gns, runout_gns))
         plot_side_by_side(dem, gns, out_dir / "snapshots" / f"{name}.png")
-    plot_runout_curves(curves, out_dir / "runout_curves.png")
+    plot_runout_curves(curves, out_dir / "runout_curves.png", runout.label)
     ok = [r for r in rows if r["valid"]]
-    summary = {"n_cases": len(rows), "n_failed": len(rows) - len(ok),
+    summary = {"runout": runout.to_config(), "n_cases": len(rows), "n_failed": len(rows) - len(ok),
                "runout_mse": float(np.mean([r["runout_mse"] for r in ok])) if ok else math.nan,
                "runout_mse_max": float(np.max([r["runout_mse"] for r in ok])) if ok else math.nan,
                "position_mse_m2": float(np.mean([r["position_mse_m2"] for r in rows])) if rows else math.nan,
@@ -146,7 +153,7 @@ def plot_side_by_side(dem: Trajectory, gns: Trajectory, path, snapshots=SNAPSHOT
     save_figure(fig, path)
 
 
-def plot_runout_curves(curves, path):
+def plot_runout_curves(curves, path, runout_label: str = ""):
     """L*(t/t*) of DEM (solid) and GNS (dashed) for every case (paper Fig. 7)."""
     import matplotlib
 
@@ -161,7 +168,8 @@ def plot_runout_curves(curves, path):
         label = f"{name} (mu {float(attrs['friction']):.2f}, a {float(attrs['aspect_ratio']):.2g})"
         ax.plot(t_dem, runout_dem, "-", color=colour, label=f"DEM {label}")
         ax.plot(t_gns, runout_gns, "--", color=colour, label="GNS")
-    ax.set(xlabel="t / t*", ylabel="L* = (L - L_i) / L_i", title="runout: DEM (solid) and GNS (dashed)")
+    ax.set(xlabel="t / t*", ylabel="L* = (L - L_i) / L_i", title="runout: DEM (solid) and GNS (dashed)"
+           + (f"\n{runout_label}" if runout_label else ""))
     ax.grid(alpha=0.3)
     ax.legend(fontsize=6, ncol=2)
     fig.tight_layout()
@@ -184,6 +192,8 @@ def report_section(datasets, summaries, loss_curves, training_metrics, fragment_
              "same packing with every grain moved by 0.001 diameters differs from its first run too, and no "
              "surrogate can score below that scatter (`python benchmarks/gns_floor.py` measures it for a "
              "dataset). Position MSE in mean grain diameters squared.",
+             "", f"Runout read as the {RunoutMethod.from_config(json.loads(Path(summaries[0]).read_text()).get('runout')).label}"
+             " (config key `runout`)." if summaries else "",
              "", "| dataset | steps | training (min) | best step | valid runout MSE | test cases | failed | "
              "test runout MSE | position MSE (d^2) | rollout (s/case) |", "|---|---|---|---|---|---|---|---|---|---|"]
     for name, summary_path, metrics_path in zip(datasets, summaries, training_metrics):

@@ -35,6 +35,7 @@ import numpy as np
 import torch
 
 from dem.atomic import atomic_path
+from dem.runout import RunoutError, RunoutMethod
 from dem.trajectory import read_trajectory
 from gns.data import Batch, TrajectoryWindows, read_metadata, split_paths
 from gns.graph import graph_summary, radius_graph
@@ -161,8 +162,9 @@ class Trainer:
     COLUMNS = ("step", "learning_rate", "train_loss", "train_pushforward_loss", "edges_per_node",
                "particles_per_graph", "steps_per_s", "valid_one_step_loss", "valid_position_mse", "valid_runout_mse", "valid_rollouts_failed")
 
-    def __init__(self, metadata_path, out_dir, settings: TrainSettings):
+    def __init__(self, metadata_path, out_dir, settings: TrainSettings, runout: RunoutMethod | None = None):
         self.metadata_path = str(metadata_path)
+        self.runout = RunoutMethod.from_config(runout)     # how the validation runout MSE reads L*
         self.metadata = read_metadata(metadata_path)
         self.out_dir = Path(out_dir)
         self.settings = settings
@@ -202,7 +204,7 @@ class Trainer:
         payload = {"format": TRAIN_FORMAT, "model": model_payload(self.simulator),
                    "averaged_model": model_payload(self.averaged),
                    "optimizer": self.optimizer.state_dict(), "step": self.step,
-                   "settings": dataclasses.asdict(self.settings), "dataset": self.metadata.get("name"),
+                   "settings": self.saved_settings(), "dataset": self.metadata.get("name"),
                    "sampler_state": self.sampler.bit_generator.state, "noise_state": self.noise.get_state(),
                    "best": self.best, "history": self.history, "accumulated": self.accumulated}
         with atomic_path(self.checkpoint_path) as tmp:
@@ -220,7 +222,7 @@ class Trainer:
         if not isinstance(payload, dict) or payload.get("format") != TRAIN_FORMAT:
             raise CheckpointError(f"{path}: not a GNS training checkpoint; delete it to start afresh")
         saved_settings = payload["settings"]     # a key the checkpoint lacks counts as changed
-        changed = {k: (saved_settings.get(k, "absent"), v) for k, v in dataclasses.asdict(self.settings).items()
+        changed = {k: (saved_settings.get(k, "absent"), v) for k, v in self.saved_settings().items()
                    if k not in RESUMABLE and saved_settings.get(k, "absent") != v}
         if changed:
             raise CheckpointError(f"{path}: was trained with other settings {changed} (checkpoint, now); "
@@ -241,6 +243,10 @@ class Trainer:
         self.resumed_from = self.step
         log.info("resumed %s at step %d", path, self.step)
         return True
+
+    def saved_settings(self) -> dict:
+        """What a checkpoint must match to be resumed: the settings and the validation's runout method."""
+        return dict(dataclasses.asdict(self.settings), runout=self.runout.to_config())
 
     # -- one step ---------------------------------------------------------------------------------
     def train_step(self) -> float:
@@ -283,7 +289,7 @@ class Trainer:
 
     # -- validation --------------------------------------------------------------------------------
     def validate(self) -> dict:
-        from gns.evaluate import runout_mse
+        from gns.evaluate import rollout_runout_mse
         from gns.rollout import rollout_trajectory
 
         model = self.averaged
@@ -305,7 +311,12 @@ class Trainer:
                 log.warning("validation rollout of %s failed: %s", path, gns.attrs["rollout_problem"])
                 runout_errors.append(math.inf)
             else:
-                runout_errors.append(runout_mse(dem, gns))
+                try:
+                    runout_errors.append(rollout_runout_mse(dem, gns, self.runout))
+                except RunoutError as exc:    # spread too thin for the runout rule: a failed rollout
+                    failed += 1
+                    log.warning("validation rollout of %s has no runout: %s", path, exc)
+                    runout_errors.append(math.inf)
         return {"valid_one_step_loss": float(np.mean(losses)), "valid_position_mse": float(np.mean(position_errors)),
                 "valid_runout_mse": float(np.mean(runout_errors)), "valid_rollouts_failed": failed}
 
@@ -432,13 +443,14 @@ def plot_loss_curve(history: list[dict], path, best: dict | None = None):
 
 
 def train(metadata_path, out_dir, settings: TrainSettings | dict | None = None, resume: bool = True,
-          restart_on_mismatch: bool = False) -> dict:
+          restart_on_mismatch: bool = False, runout: RunoutMethod | dict | None = None) -> dict:
     """Train (or resume training) a GNS on the dataset at `metadata_path`; outputs in `out_dir`.
 
     resume: continue from out_dir/checkpoint_last.pt when present. A checkpoint made with other
     settings or data raises CheckpointError, or with restart_on_mismatch is moved aside and
-    training starts afresh (the workflow's choice: changed inputs mean a new model).
+    training starts afresh (the workflow's choice: changed inputs mean a new model). runout: how the
+    validation runout MSE (which picks the saved model) reads L* (dem.runout; None: its default).
     """
     if not isinstance(settings, TrainSettings):
         settings = TrainSettings.from_config(settings)
-    return Trainer(metadata_path, out_dir, settings).run(resume=resume, restart_on_mismatch=restart_on_mismatch)
+    return Trainer(metadata_path, out_dir, settings, runout).run(resume=resume, restart_on_mismatch=restart_on_mismatch)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from dem.case import CaseError, CollapseCase, get_material
-from dem.runout import deposit_mask, deposit_profile, final_height, front_position, runout_at
+from dem.runout import RunoutMethod, deposit_mask, deposit_profile, final_height, runout_at
 from dem.trajectory import Trajectory, TrajectoryError, read_trajectory, write_trajectory
 
 
@@ -105,7 +105,7 @@ def test_runout_ignores_grains_rolling_alone_ahead():
     assert mask[:30].all() and not mask[30]
     # the 8 leading grains of the row: mean of their leading edges
     expected = np.mean(row[-8:, 0] + r)
-    assert front_position(positions, radius) == pytest.approx(expected)
+    assert RunoutMethod("connected_front").front_position(positions, radius) == pytest.approx(expected)
     x, height = deposit_profile(positions, radius)
     assert height.max() == pytest.approx(2 * r) and x.max() < 0.1
     assert final_height(positions, radius) == pytest.approx(2 * r)
@@ -114,7 +114,7 @@ def test_runout_ignores_grains_rolling_alone_ahead():
 def test_runout_at_refuses_times_outside_the_window():
     traj = _trajectory()
     with pytest.raises(ValueError, match="outside the simulated window"):
-        runout_at(traj, [0.5, 100.0])
+        runout_at(traj, [0.5, 100.0], "connected_front")
 
 
 def test_one_case_cli_writes_hdf5_and_figure(tmp_path):

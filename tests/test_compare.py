@@ -17,7 +17,11 @@ from calibration.recovery import recovery_summary, recovery_targets, synthetic_m
 from dem.case import CollapseCase
 from dem.collapse import simulate_collapse
 from dem.dataset import build_dataset
+from dem.runout import RunoutError, RunoutMethod
 from dem.trajectory import read_attrs, read_trajectory, write_trajectory
+
+
+RUNOUT = RunoutMethod()          # the config's default: every stage here reads L* by it
 
 
 def tiny_case(friction, restitution, seed=0, **changes):
@@ -36,7 +40,7 @@ def tiny(tmp_path_factory):
     build_dataset({"train": paths, "valid": paths[:1], "test": paths[1:]}, folder / "metadata.json", "tiny")
     truth = simulate_collapse(tiny_case(0.5, 0.6, seed=7))
     measured = synthetic_measured(truth, [0.5, 1.0, 1.5, 2.0, 2.5], 0.05, seed=0, name="tiny_target",
-                                  packing_std=0.0)        # one run, its packing taken as the truth
+                                  packing_std=0.0, runout=RUNOUT)   # one run, its packing taken as the truth
     csv_path = folder / "measured.csv"
     with open(csv_path, "w") as handle:
         handle.write("column,material,aspect_ratio,L_i,kind,x,value,std\n")
@@ -63,27 +67,30 @@ def test_case_fields_keep_the_dem_model_and_let_wall_values_follow(tiny):
 
 def test_dem_run_at_a_point_uses_the_measured_column_and_the_datasets_dem_model(tiny, tmp_path):
     summary = run_dem_point(tiny["measured"], tiny["metadata"], {"friction": 0.5, "restitution": 0.6},
-                            tmp_path / "run.h5", seed=7, name="check")
+                            tmp_path / "run.h5", runout=RUNOUT.to_config(), seed=7, name="check")
     trajectory = read_trajectory(tmp_path / "run.h5")
     assert trajectory.attrs["size_scale"] == 4 and trajectory.attrs["seed"] == 7
     assert (trajectory.attrs["friction"], trajectory.attrs["restitution"]) == (0.5, 0.6)
     # the measured curve is this very run plus noise of 0.05: the objective is near the noise variance
     assert summary["mse"] == pytest.approx(objective(trajectory, synthetic_measured(
-        trajectory, [0.5, 1.0, 1.5, 2.0, 2.5], 0.05, seed=0, name="tiny_target", packing_std=0.0)), rel=1e-9)
+        trajectory, [0.5, 1.0, 1.5, 2.0, 2.5], 0.05, seed=0, name="tiny_target", packing_std=0.0, runout=RUNOUT),
+        RUNOUT), rel=1e-9)
     assert summary["mse"] < 4 * 0.05 ** 2 and len(summary["runout"]) == 5
 
 
 def test_bayesian_optimisation_on_dem_runs_keeps_its_budget_and_its_best_run(tiny, tmp_path):
     out = tmp_path / "bo"
     data = run_bayesopt(tiny["measured"], tiny["metadata"], out / "bayesopt.json", out / "bayesopt.png",
-                        out / "best.h5", [(0.3, 0.9), (0.3, 0.9)], budget=3, n_initial=2, seed=1)
+                        out / "best.h5", [(0.3, 0.9), (0.3, 0.9)], runout=RUNOUT.to_config(), budget=3, n_initial=2,
+                        seed=1)
     assert data["dem_runs"] == 3 == len(data["values"]) and data["seconds"] > 0
     best = read_trajectory(out / "best.h5")
     assert [best.attrs["friction"], best.attrs["restitution"]] == pytest.approx(data["best_params"])
     assert data["best_value"] == pytest.approx(min(data["values"]))
+    assert data["runout"] == RUNOUT.to_config()                   # bayesopt.json states how it read L*
     assert (out / "bayesopt.png").stat().st_size > 1000
     with pytest.raises(ComparisonError, match=f"between 2 and {BO_MAX_RUNS} DEM runs"):
-        bayesopt_on_dem(None, {}, [(0.3, 0.9)] * 2, budget=21)
+        bayesopt_on_dem(None, {}, [(0.3, 0.9)] * 2, RUNOUT, budget=21)
 
 
 def _benchmark(path, seconds):
@@ -92,8 +99,9 @@ def _benchmark(path, seconds):
     return str(path)
 
 
-def _inverse_json(path, params, online_s=12.5):
-    """The parts of an inverse.json the comparison and the report read."""
+def _inverse_json(path, params, online_s=12.5, runout="default"):
+    """The parts of an inverse.json the comparison and the report read; runout: the runout method
+    it states ("default": RUNOUT's, None: none, as before the runout contract)."""
     parameters = [{"name": n, "value": v, "std": 0.05, "low": v - 0.1, "high": v + 0.1, "identifiable": True, "why": ""}
                   for n, v in zip(["friction", "restitution"], params)]
     parameters[1].update(identifiable=False, low=0.3, high=0.9, why="the measured runout hardly changes with it")
@@ -108,6 +116,8 @@ def _inverse_json(path, params, online_s=12.5):
             "starts": [{"start": [0.55, 0.73], "params": list(params), "value": 0.01, "n_iterations": 3,
                         "n_evaluations": 5, "message": "CONVERGENCE", "iterates": [{"params": [0.55, 0.73],
                                                                                     "value": 0.2}]}]}
+    if runout is not None:
+        data["runout"] = RUNOUT.to_config() if runout == "default" else runout
     path.write_text(json.dumps(data))
     return str(path)
 
@@ -127,12 +137,13 @@ def test_comparison_table_figures_and_report_section(tiny, tmp_path):
                   "bayesopt": [_benchmark(bench / "bo.tsv", 30.0)]}
     bayesopt = tmp_path / "bayesopt.json"
     bayesopt.write_text(json.dumps({"names": ["friction", "restitution"], "params": [[0.6, 0.6]], "values": [0.02],
-                                    "seconds": [1.0], "best_params": [0.6, 0.6], "best_value": 0.02, "dem_runs": 12}))
+                                    "seconds": [1.0], "best_params": [0.6, 0.6], "best_value": 0.02, "dem_runs": 12,
+                                    "runout": RUNOUT.to_config()}))
     inverse = _inverse_json(tmp_path / "inverse.json", [0.5, 0.6])
     out = tmp_path / "out"
     routes = run_comparison(tiny["measured"], inverse, runs["gns"], runs["start"], out / "comparison.csv",
                             out / "comparison.png", out / "runout.png", benchmarks, {"gns_dataset": 4, "doe": 9},
-                            bayesopt_path=str(bayesopt), bayesopt_best_path=runs["gns"],
+                            runout=RUNOUT.to_config(), bayesopt_path=str(bayesopt), bayesopt_best_path=runs["gns"],
                             doe_validation={"quadratic": runs["quadratic"]})
     by_method = {(r.method, r.stage): r for r in routes}
     offline = by_method[("GNS inverse design", "offline")]
@@ -144,7 +155,7 @@ def test_comparison_table_figures_and_report_section(tiny, tmp_path):
     assert by_method[("BO on DEM", "total")].dem_runs == 12
     start = by_method[("start point", "total")]
     assert start.validated_mse == pytest.approx(objective(read_trajectory(runs["start"]),
-                                                          _measured(tiny["measured"])))
+                                                          _measured(tiny["measured"]), RUNOUT))
     assert read_table(out / "comparison.csv") == routes
     for figure in ("comparison.png", "runout.png"):
         assert (out / figure).stat().st_size > 1000
@@ -164,11 +175,34 @@ def _measured(path):
     return load_column(path)
 
 
+def test_comparison_refuses_results_scored_with_another_runout_method(tiny, tmp_path):
+    """inverse.json and bayesopt.json must state the configured runout method: numbers read two
+    ways are never put in one table (checked before any trajectory is read)."""
+    def compare(inverse, bayesopt=None):
+        out = tmp_path / "out"
+        return run_comparison(tiny["measured"], inverse, tmp_path / "none.h5", tmp_path / "none.h5",
+                              out / "comparison.csv", out / "comparison.png", out / "runout.png", {},
+                              {"gns_dataset": 4, "doe": 9}, runout=RUNOUT.to_config(), bayesopt_path=bayesopt)
+
+    other = RunoutMethod("connected_front").to_config()
+    with pytest.raises(RunoutError, match=r"inverse design .*inverse_other\.json.*scored with runout"):
+        compare(_inverse_json(tmp_path / "inverse_other.json", [0.5, 0.6], runout=other))
+    with pytest.raises(RunoutError, match=r"inverse_none\.json: states no runout method"):
+        compare(_inverse_json(tmp_path / "inverse_none.json", [0.5, 0.6], runout=None))
+    bayesopt = tmp_path / "bayesopt.json"
+    bayesopt.write_text(json.dumps({"names": ["friction", "restitution"], "params": [[0.6, 0.6]], "values": [0.02],
+                                    "seconds": [1.0], "best_params": [0.6, 0.6], "best_value": 0.02, "dem_runs": 12,
+                                    "runout": dict(RUNOUT.to_config(), neighbour_radius=3.0)}))
+    with pytest.raises(RunoutError, match=r"Bayesian optimisation .*bayesopt\.json.*scored with runout"):
+        compare(_inverse_json(tmp_path / "inverse.json", [0.5, 0.6]), str(bayesopt))
+    assert not (tmp_path / "out").exists()                    # refused before anything was written
+
+
 def test_route_rows_without_doe_or_bo_and_missing_times_stay_honest(tiny, tmp_path):
     trajectory = read_trajectory(tiny["paths"][0])
     inverse = json.loads(open(_inverse_json(tmp_path / "inverse.json", [0.3, 0.3])).read())
     routes = comparison_routes(_measured(tiny["measured"]), inverse, trajectory, trajectory,
-                               {"gns_dataset": (0.0, 2), "gns_training": 0.0, "gns_validation": 0.0})
+                               {"gns_dataset": (0.0, 2), "gns_training": 0.0, "gns_validation": 0.0}, RUNOUT)
     assert [r.method for r in routes] == ["start point", "GNS inverse design", "GNS inverse design"]
     assert math.isnan(routes[0].wall_s)                  # no benchmark for the start run: n/a, not zero
     write_table(routes, tmp_path / "table.csv")

@@ -16,14 +16,14 @@ from calibration.diagnosis import (DecisionRule, DiagnosisError, DiagnosisSettin
                                    fit_emulated, held_out_folds, noise_model, residual_structure, run_diagnosis,
                                    runs_test)
 from calibration.emulator import (DesignRuns, GPEmulator, Library, Model, Observables, ParameterBox,
-                                  SimulationSettings, front_runout, latin_hypercube)
+                                  LibraryError, SimulationSettings, latin_hypercube)
 from calibration.measured import MeasuredColumn
 from calibration.mechanisms import (MechanismError, bond_from_cohesion_energy, cohesion_energy_from_bond,
                                     get_mechanisms)
 from calibration.synthetic import (draw_truth, evidence_margins, synthetic_columns, synthetic_measurement,
                                    write_measured_csv)
 from dem.case import CollapseCase
-from dem.runout import runout_curve
+from dem.runout import RunoutMethod, runout_curve
 from dem.trajectory import Trajectory
 
 MECHANISMS = {m.name: m for m in get_mechanisms()}
@@ -65,7 +65,8 @@ def test_parameter_box_log_scale():
 
 def test_runout_front_never_moves_back():
     """A block of leading grains that comes to rest more than 2 d ahead of the rest drops out of
-    dem.runout's connected deposit; the diagnosis' runout keeps the farthest front reached."""
+    dem.runout's connected deposit; the "_reached" runout (the diagnosis' before the runout
+    contract, still available to it) keeps the farthest front reached."""
     radius = np.full(20, 1e-3)
     row = np.column_stack([1e-3 + 2e-3 * np.arange(20), radius])          # 20 touching grains on the floor
     split = row.copy()
@@ -74,8 +75,8 @@ def test_runout_front_never_moves_back():
     grown[:, 0] *= 1.5                                                     # gaps of 1 mm (< 2 d): still one deposit
     positions = np.stack([row, grown, split, split]).astype(np.float32)
     trajectory = Trajectory(positions, radius, np.zeros(20, np.int32), {"L_i": 0.01, "dt_frame": 0.01, "t_star": 0.1})
-    t, raw = runout_curve(trajectory)
-    t_front, front = front_runout(trajectory)
+    t, raw = runout_curve(trajectory, "connected_front")
+    t_front, front = RunoutMethod("connected_front_reached").curve(trajectory)
     assert np.array_equal(t, t_front)
     assert raw[2] < raw[1] - 2.0                                           # the connected front jumps back
     assert front[:2] == pytest.approx(raw[:2]) and front[1] > front[0]    # a growing front is read as is
@@ -272,7 +273,7 @@ RUNOUT_NOISE, PROFILE_NOISE = 0.05, 5e-4
 def ci_library(tmp_path_factory):
     """Design runs for the CI columns (about 35 short DEM runs) and the hidden-truth generator."""
     columns = synthetic_columns()
-    library = CI_SETTINGS.library(Observables(columns))
+    library = CI_SETTINGS.library(Observables(columns, CI_SETTINGS.runout))
     path = tmp_path_factory.mktemp("diagnosis") / "library.npz"
     library.save(path)
     return columns, library, path
@@ -281,7 +282,7 @@ def ci_library(tmp_path_factory):
 def hidden_data(columns, truth, seed):
     rng = np.random.default_rng(seed)
     data, _ = synthetic_measurement(truth, columns, get_mechanisms(), CI_SETTINGS.simulation, RUNOUT_NOISE,
-                                    PROFILE_NOISE, rng)
+                                    PROFILE_NOISE, rng, runout=CI_SETTINGS.runout)
     return data
 
 
@@ -296,7 +297,8 @@ def test_hidden_mechanism_is_named_from_a_csv(ci_library, tmp_path):
     write_measured_csv(hidden_data(columns, truth, 8), csv, comment="synthetic, hidden mechanism")
     section = {"size_scale": 5.0, "n_base": 6, "n_per_mechanism": 5, "n_rounds": 1, "n_packings": 2,
                "profile_noise": PROFILE_NOISE, "enabled": True}
-    result = run_diagnosis(csv, library_path, tmp_path / "out", section, name="hidden")
+    result = run_diagnosis(csv, library_path, tmp_path / "out", section, runout=CI_SETTINGS.runout.to_config(),
+                           name="hidden")
     assert result["cause"] == truth.mechanism, (truth, result["verdict"], result["checks"])
     written = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
     assert written["cause"] == truth.mechanism

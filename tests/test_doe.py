@@ -144,8 +144,12 @@ def test_study_on_synthetic_trajectories(tmp_path):
     """Responses, analysis and report section from trajectories whose runout is known exactly:
     L*(t; mu, e) = g(mu, e) L*_measured(t), so the MSE is (g - 1)^2 mean(L*_measured^2)."""
     from dem.trajectory import write_trajectory
-    from doe.study import collect_responses, report_section, run_analysis, write_json, write_responses
+    from dem.runout import RunoutError, RunoutMethod
+    from doe.study import (collect_responses, read_responses, report_section, run_analysis, write_json,
+                           write_responses)
     from test_objective import front_trajectory
+
+    connected = RunoutMethod("connected_front")      # front_trajectory builds a connected-deposit front
 
     measured = load_column("data/measured/quartz_a6.csv")
     t_frames = np.arange(0, 4.01, 0.25)
@@ -162,7 +166,7 @@ def test_study_on_synthetic_trajectories(tmp_path):
 
     design = full_factorial(n_levels=3)
     paths = {r.run_id: write_run(tmp_path / f"{r.run_id}.h5", r.friction, r.restitution) for r in design.itertuples()}
-    responses = collect_responses(design, paths, measured)
+    responses = collect_responses(design, paths, measured, connected)
     g = gain(responses.friction, responses.restitution)
     np.testing.assert_allclose(responses["mse"], (g - 1) ** 2 * np.mean(measured.runout ** 2), rtol=1e-4, atol=1e-8)
     np.testing.assert_allclose(responses["L_star_t3.5"], 6.0 * g, rtol=1e-4)
@@ -171,6 +175,11 @@ def test_study_on_synthetic_trajectories(tmp_path):
     folder = tmp_path / "doe"
     write_json(folder / "analysis.json", summary)
     write_responses(folder / "responses.csv", responses)
+    # the responses state their runout method; read back by it, refused by another
+    assert set(responses["runout_method"]) == {json.dumps(connected.to_config(), sort_keys=True)}
+    assert read_responses(folder / "responses.csv", connected)["mse"].tolist() == pytest.approx(responses["mse"].tolist())
+    with pytest.raises(RunoutError, match="DoE responses .*responses.csv.*scored with runout"):
+        read_responses(folder / "responses.csv", RunoutMethod("connected_front_reached"))
     plot_response_surfaces(fits, responses, folder / "response_surface.png")
     # the MSE is exactly quadratic in (mu, e) here: the quadratic surface fits it and finds g = 1
     assert summary["models"]["quadratic"]["r_squared"] == pytest.approx(1.0, abs=1e-6)
@@ -180,6 +189,6 @@ def test_study_on_synthetic_trajectories(tmp_path):
                                                     best["natural"]["restitution"])}}
     section_path = tmp_path / "report" / "doe.md"
     text = report_section(["quartz"], [measured.source], [folder / "analysis.json"], [paths["run_4"]],
-                          validation, [folder / "runout.png"], {"quartz": []}, section_path)
+                          validation, [folder / "runout.png"], {"quartz": []}, section_path, runout=connected)
     assert "| friction(0.3,0.9) |" in text and "**MSE = 0.000**" in text
     assert "](../doe/response_surface.png)" in text and (folder / "runout.png").stat().st_size > 10_000

@@ -15,9 +15,10 @@ import pytest
 import torch
 
 from dem.dataset import DatasetError
+from dem.runout import RunoutMethod
 from dem.trajectory import read_trajectory
 from gns.data import TrajectoryWindows, read_metadata
-from gns.evaluate import evaluate_rollouts, rollout_case, runout_mse
+from gns.evaluate import evaluate_rollouts, rollout_case, rollout_runout_mse
 from gns.simulator import CheckpointError, load_simulator
 from gns.train import train
 from tests.gns_synthetic import synthetic_dataset
@@ -25,6 +26,8 @@ from tests.gns_synthetic import synthetic_dataset
 ROOT = Path(__file__).resolve().parents[1]
 TINY = dict(latent_size=16, n_message_passing=2, connectivity_radius=4.0, noise_std=0.01, batch_size=2, log_every=5,
             checkpoint_every=5, validate_every=30, learning_rate=3e-3, learning_rate_decay_steps=1000)
+# Twelve grains that never touch: no grain has 8 neighbours, so only the connected front reads them.
+CONNECTED = RunoutMethod("connected_front")
 
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")   # tests/conftest.py
@@ -38,7 +41,7 @@ def dataset(tmp_path_factory):
 @pytest.fixture(scope="module")
 def trained(dataset, tmp_path_factory):
     out = tmp_path_factory.mktemp("gns_run")
-    result = train(dataset, out, dict(TINY, steps=60))
+    result = train(dataset, out, dict(TINY, steps=60), runout=CONNECTED)
     return out, result
 
 
@@ -61,11 +64,11 @@ def test_training_lowers_the_loss_and_writes_its_outputs(trained, dataset):
 
 def test_training_resumes_after_a_kill_exactly_as_if_uninterrupted(dataset, tmp_path):
     settings = dict(TINY, steps=30)
-    reference = train(dataset, tmp_path / "reference", settings)
+    reference = train(dataset, tmp_path / "reference", settings, runout=CONNECTED)
 
     killed = tmp_path / "killed"
     script = ("import json, sys, torch; torch.set_num_threads(1); from gns.train import train; "
-              "train(sys.argv[1], sys.argv[2], json.loads(sys.argv[3]))")
+              "train(sys.argv[1], sys.argv[2], json.loads(sys.argv[3]), runout='connected_front')")
     process = subprocess.Popen([sys.executable, "-c", script, dataset, str(killed),
                                 json.dumps(dict(settings, steps=100_000))], cwd=ROOT,
                                env={**os.environ, "PYTHONPATH": str(ROOT)}, stderr=subprocess.PIPE)
@@ -79,7 +82,7 @@ def test_training_resumes_after_a_kill_exactly_as_if_uninterrupted(dataset, tmp_
     stopped_at = torch.load(killed / "checkpoint_last.pt", weights_only=False)["step"]
     assert 5 <= stopped_at < 30
 
-    resumed = train(dataset, killed, settings)
+    resumed = train(dataset, killed, settings, runout=CONNECTED)
     assert resumed["resumed_from"] == stopped_at and resumed["step"] == reference["step"] == 30
     assert resumed["last_train_loss"] == reference["last_train_loss"]
     assert resumed["best"] == reference["best"]
@@ -89,7 +92,10 @@ def test_training_resumes_after_a_kill_exactly_as_if_uninterrupted(dataset, tmp_
     assert [r["train_loss"] for r in a["history"]] == [r["train_loss"] for r in b["history"]]
 
     with pytest.raises(CheckpointError, match="other settings.*latent_size"):
-        train(dataset, killed, dict(settings, latent_size=32))
+        train(dataset, killed, dict(settings, latent_size=32), runout=CONNECTED)
+    # the validation's runout method picks the saved model: another one is another training
+    with pytest.raises(CheckpointError, match="other settings.*runout"):
+        train(dataset, killed, settings, runout=RunoutMethod("connected_front_reached"))
 
 
 def test_dataset_without_statistics_is_refused(dataset, tmp_path):
@@ -122,9 +128,11 @@ def test_evaluation_rolls_out_test_cases_and_scores_them(trained, dataset, tmp_p
     assert written.attrs["engine"] == "gns" and written.n_frames == 24
     assert np.array_equal(written.positions[:6], read_trajectory(dem_path).positions[:6])
     assert gns.attrs["rollout_valid"] == 1
-    summary = evaluate_rollouts([(dem_path, tmp_path / "rollout.h5")], tmp_path / "eval")
+    summary = evaluate_rollouts([(dem_path, tmp_path / "rollout.h5")], tmp_path / "eval", CONNECTED)
     assert summary["n_cases"] == 1 and np.isfinite(summary["runout_mse"]) and summary["position_mse_d2"] > 0
     assert (tmp_path / "eval" / "runout_curves.png").exists()
     assert (tmp_path / "eval" / "snapshots" / f"{Path(dem_path).stem}.png").exists()
     dem = read_trajectory(dem_path)
-    assert runout_mse(dem, dem) == 0.0
+    assert rollout_runout_mse(dem, dem, CONNECTED) == 0.0
+    assert summary["runout"] == CONNECTED.to_config()       # the summary states how it read L*
+    assert json.loads((tmp_path / "eval" / "summary.json").read_text())["runout"] == CONNECTED.to_config()

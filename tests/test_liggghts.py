@@ -145,8 +145,8 @@ def test_builtin_agrees_with_liggghts_on_a_collapse(tmp_path):
         case = CollapseCase("quartz", 0.02, 1.0, friction=0.5, restitution=0.6, size_scale=3.0, seed=seed,
                             name=f"crossval{seed}")
         packing = settle_column(case)
-        builtin_curves.append(runout_curve(simulate_collapse(case, packing))[1])
-        liggghts_curves.append(runout_curve(engine.simulate(case, packing, tmp_path / case.name))[1])
+        builtin_curves.append(runout_curve(simulate_collapse(case, packing), "connected_front")[1])
+        liggghts_curves.append(runout_curve(engine.simulate(case, packing, tmp_path / case.name), "connected_front")[1])
     agreement = runout_agreement(np.mean(builtin_curves, 0), np.mean(liggghts_curves, 0))
     assert abs(agreement["final_relative_difference"]) < 0.05, agreement
     assert agreement["rms_curve_difference_over_final"] < 0.05, agreement

@@ -6,9 +6,12 @@ import pytest
 
 from calibration.measured import load_column
 from calibration.objective import ObjectiveError, objective, objective_from_curve, runout_mse
+from dem.runout import RunoutMethod
 from dem.trajectory import Trajectory
 
 QUARTZ = "data/measured/quartz_a6.csv"
+# front_trajectory builds a connected-deposit front, the rule these tests were written for
+CONNECTED = RunoutMethod("connected_front")
 
 
 def front_trajectory(front, L_i=0.02, aspect_ratio=6.0, t_star=0.11, dt_frame=None, radius=5e-4, n_chain=200):
@@ -66,17 +69,17 @@ def test_objective_of_a_trajectory():
     runout = np.interp(t_over_tstar, measured.t_over_tstar, measured.runout, left=0.0) + 0.5
     traj = front_trajectory(measured.L_i * (1 + runout))
     np.testing.assert_allclose(traj.t_over_tstar, t_over_tstar)
-    assert objective(traj, measured) == pytest.approx(0.25, rel=1e-4)
+    assert objective(traj, measured, CONNECTED) == pytest.approx(0.25, rel=1e-4)
 
 
 def test_objective_refuses_another_column_or_a_short_window():
     measured = load_column(QUARTZ)
     fronts = 0.02 * (1 + np.linspace(0, 6, 17))
     with pytest.raises(ObjectiveError, match="aspect_ratio = 5 differs"):
-        objective(front_trajectory(fronts, aspect_ratio=5.0), measured)
+        objective(front_trajectory(fronts, aspect_ratio=5.0), measured, CONNECTED)
     with pytest.raises(ObjectiveError, match="L_i = 0.01 differs"):
-        objective(front_trajectory(fronts / 2, L_i=0.01), measured)
+        objective(front_trajectory(fronts / 2, L_i=0.01), measured, CONNECTED)
     short = front_trajectory(fronts[:13])  # t/t* up to 3.0
     with pytest.raises(ObjectiveError, match=r"\[3.5\] fall outside"):
-        objective(short, measured)
-    assert math.isfinite(objective(front_trajectory(fronts), measured))
+        objective(short, measured, CONNECTED)
+    assert math.isfinite(objective(front_trajectory(fronts), measured, CONNECTED))

@@ -96,7 +96,7 @@ def test_runout_grows_monotonically_to_plateau_and_friction_shortens_it(small_ca
     finals = {}
     for mu in (0.3, 0.9):
         case = small_case.replace(friction=mu, duration_over_tstar=6.0, size_scale=2.0)
-        t, runout = runout_curve(simulate_collapse(case))
+        t, runout = runout_curve(simulate_collapse(case), "connected_front")  # the instantaneous front
         finals[mu] = runout[-1]
         if mu == 0.9:
             # monotone up to the jitter of the 8 leading grains, then a plateau. (At mu = 0.3 the

@@ -14,6 +14,9 @@ config.update(dem.grid.validate_config(config, Path(workflow.basedir, "workflow/
 # A row holds every CollapseCase field of the case plus dataset, case_id and split.
 CASES = dem.grid.case_table(config)
 DATASETS = sorted(config["datasets"])
+# How every stage reads L* off a run (dem.runout.RunoutMethod), read once here and passed to every
+# rule that scores a runout as a param, so changing it reruns exactly those rules.
+RUNOUT = config["runout"]
 
 # Every stage appends the files `rule all` must build ...
 FINAL_TARGETS = []

@@ -36,6 +36,7 @@ rule dataset_summary:
         cases="results/datasets/{dataset}/cases.csv",
     params:
         rows=lambda w: dataset_cases(w.dataset),
+        runout=RUNOUT,
     log:
         "results/logs/dataset/dataset_summary/{dataset}.log",
     benchmark:

@@ -64,6 +64,8 @@ rule dem_figure:
         "results/dem/{dataset}/trajectories/{case_id}.h5",
     output:
         "results/dem/{dataset}/figures/{case_id}.png",
+    params:
+        runout=RUNOUT,
     log:
         "results/logs/dem/dem_figure/{dataset}/{case_id}.log",
     benchmark:

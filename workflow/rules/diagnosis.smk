@@ -18,6 +18,7 @@ rule diagnosis_library:
         "results/diagnosis/{name}/library.npz",
     params:
         settings=DIAGNOSIS_LIBRARY,
+        runout=RUNOUT,
     log:
         "results/logs/diagnosis/diagnosis_library/{name}.log",
     benchmark:
@@ -39,6 +40,7 @@ rule diagnosis:
         candidates="results/diagnosis/{name}/candidates.png",
     params:
         settings=DIAGNOSIS,
+        runout=RUNOUT,
     log:
         "results/logs/diagnosis/diagnosis/{name}.log",
     benchmark:

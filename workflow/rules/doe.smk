@@ -56,6 +56,7 @@ rule doe_analyse:
         surface="results/doe/{name}/response_surface.png",
     params:
         doe=DOE,
+        runout=RUNOUT,
     log:
         "results/logs/doe/doe_analyse/{name}.log",
     benchmark:
@@ -75,6 +76,7 @@ rule doe_validate:
         "results/doe/{name}/validation/{doe_model}.h5",
     params:
         case_fields=dict(DOE_CASE_FIELDS, seed=DOE["seed"]),
+        runout=RUNOUT,
     log:
         "results/logs/doe/doe_validate/{name}/{doe_model}.log",
     benchmark:
@@ -103,6 +105,7 @@ rule doe_section:
     params:
         names=DOE_NAMES,
         models=DOE["validate"],
+        runout=RUNOUT,
         benchmarks=lambda w: {n: [f"results/benchmarks/dem/{rule}/doe_{n}/{run}.tsv" for rule in ("dem_packing", "dem_run")
                                   for run in DOE_RUNS] + [f"results/benchmarks/doe/doe_validate/{n}/{m}.tsv"
                                                           for m in DOE["validate"]] for n in DOE_NAMES},

@@ -32,6 +32,7 @@ rule gns_train:
         figure="results/gns/{dataset}/train/loss_curve.png",
     params:
         settings=lambda w: gns_settings(w.dataset),
+        runout=RUNOUT,
     log:
         "results/logs/gns/gns_train/{dataset}.log",
     benchmark:
@@ -73,6 +74,8 @@ rule gns_evaluate:
         summary="results/gns/{dataset}/evaluation/summary.json",
         metrics="results/gns/{dataset}/evaluation/metrics.csv",
         figure="results/gns/{dataset}/evaluation/runout_curves.png",
+    params:
+        runout=RUNOUT,
     log:
         "results/logs/gns/gns_evaluate/{dataset}.log",
     benchmark:

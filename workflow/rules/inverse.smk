@@ -68,6 +68,7 @@ rule inverse_start:
     params:
         start=INVERSE["start"],
         seed=INVERSE["seed"],
+        runout=RUNOUT,
     log:
         "results/logs/inverse/inverse_start/{name}.log",
     benchmark:
@@ -93,6 +94,7 @@ rule inverse_design:
         deposits="results/inverse/{name}/deposits.png",
     params:
         settings=INVERSE,
+        runout=RUNOUT,
     log:
         "results/logs/inverse/inverse_design/{name}.log",
     benchmark:
@@ -114,6 +116,7 @@ rule inverse_validate:
         "results/inverse/{name}/validation.h5",
     params:
         seed=INVERSE["seed"],
+        runout=RUNOUT,
     log:
         "results/logs/inverse/inverse_validate/{name}.log",
     benchmark:
@@ -137,6 +140,7 @@ rule inverse_bayesopt:
         bounds=INVERSE_BO_BOUNDS,
         budget=INVERSE["bayesopt_budget"],
         seed=INVERSE["seed"],
+        runout=RUNOUT,
     log:
         "results/logs/inverse/inverse_bayesopt/{name}.log",
     benchmark:
@@ -165,6 +169,7 @@ rule inverse_compare:
     params:
         benchmarks=lambda w: inverse_benchmarks(w.name),
         dem_runs=lambda w: {"gns_dataset": len(dataset_cases(INVERSE_DATASET[w.name])), "doe": len(DOE_RUNS)},
+        runout=RUNOUT,
     log:
         "results/logs/inverse/inverse_compare/{name}.log",
     benchmark:
@@ -184,6 +189,7 @@ rule inverse_recovery:
         figure="results/inverse_recovery/{dataset}/recovery.png",
     params:
         settings=INVERSE,
+        runout=RUNOUT,
     log:
         "results/logs/inverse/inverse_recovery/{dataset}.log",
     benchmark:

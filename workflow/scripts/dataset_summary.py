@@ -6,7 +6,7 @@ from dem.grid import write_case_table
 
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")  # noqa: F821
 metadata = load_dataset_metadata(snakemake.input[0])  # noqa: F821
-final_runout = plot_dataset(metadata, snakemake.output.figure)  # noqa: F821
+final_runout = plot_dataset(metadata, snakemake.output.figure, snakemake.params.runout)  # noqa: F821
 rows = [dict(row) for row in snakemake.params.rows]  # noqa: F821
 for row in rows:  # final L* beside the parameters; same path as in dataset.smk
     path = f"results/dem/{row['dataset']}/trajectories/{row['case_id']}.h5"

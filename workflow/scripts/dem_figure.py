@@ -6,5 +6,5 @@ from dem.trajectory import read_trajectory
 
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")  # noqa: F821
 trajectory = read_trajectory(snakemake.input[0])  # noqa: F821
-plot_case(trajectory, snakemake.output[0])  # noqa: F821
+plot_case(trajectory, snakemake.output[0], snakemake.params.runout)  # noqa: F821
 logging.info("figure %s", snakemake.output[0])  # noqa: F821

@@ -4,6 +4,7 @@ import logging
 from pathlib import Path
 
 from calibration.measured import load_column
+from dem.runout import RunoutMethod
 from doe.design import factors_from_config, read_design
 from doe.plots import plot_response_surfaces
 from doe.study import collect_responses, run_analysis, write_json, write_responses
@@ -13,9 +14,11 @@ doe = snakemake.params.doe  # noqa: F821
 design = read_design(snakemake.input.design)  # noqa: F821
 measured = load_column(snakemake.input.measured)  # noqa: F821
 paths = {Path(p).stem: p for p in snakemake.input.trajectories}  # noqa: F821
-responses = collect_responses(design, paths, measured)
+runout = RunoutMethod.from_config(snakemake.params.runout)  # noqa: F821
+responses = collect_responses(design, paths, measured, runout)
 write_responses(snakemake.output.responses, responses)  # noqa: F821
 fits, summary = run_analysis(responses, factors_from_config(doe), doe["models"])
+summary["runout"] = runout.to_config()
 write_json(snakemake.output.analysis, summary)  # noqa: F821
 plot_response_surfaces(fits, responses, snakemake.output.surface, measured_name=measured.name)  # noqa: F821
 for model, fit in summary["models"].items():

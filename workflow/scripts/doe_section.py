@@ -12,6 +12,6 @@ for path in snakemake.input.validation:  # noqa: F821  results/doe/<name>/valida
     validation[Path(path).parent.parent.name][Path(path).stem] = path
 text = report_section(names, snakemake.input.measured, snakemake.input.analysis, snakemake.input.centre,  # noqa: F821
                       validation, snakemake.output.runout, snakemake.params.benchmarks,  # noqa: F821
-                      snakemake.output.section)  # noqa: F821
+                      snakemake.output.section, runout=snakemake.params.runout)  # noqa: F821
 write_text(snakemake.output.section, text)  # noqa: F821
 logging.info("wrote %s", snakemake.output.section)  # noqa: F821

@@ -6,6 +6,7 @@ from pathlib import Path
 from calibration.measured import load_column
 from calibration.objective import objective
 from dem.collapse import simulate_collapse
+from dem.runout import RunoutMethod
 from dem.trajectory import write_trajectory
 from doe.study import validation_case
 
@@ -26,4 +27,4 @@ def progress(done):
 
 trajectory = simulate_collapse(case, progress=progress)
 write_trajectory(snakemake.output[0], trajectory)  # noqa: F821
-logging.info("MSE against %s: %.4f", measured.name, objective(trajectory, measured))
+logging.info("MSE against %s: %.4f", measured.name, objective(trajectory, measured, RunoutMethod.from_config(snakemake.params.runout)))  # noqa: F821

@@ -11,5 +11,5 @@ torch.set_num_threads(snakemake.threads)  # noqa: F821
 settings = TrainSettings.from_config(snakemake.params.settings)  # noqa: F821
 logging.info("settings %s", settings)
 result = train(snakemake.input.metadata, Path(snakemake.output.model).parent, settings,  # noqa: F821
-               restart_on_mismatch=True)
+               restart_on_mismatch=True, runout=snakemake.params.runout)  # noqa: F821
 logging.info("done: %s", result)

@@ -8,7 +8,7 @@ logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asc
 i, o = snakemake.input, snakemake.output  # noqa: F821
 doe = {Path(path).stem: path for path in i.doe_validation}  # results/doe/<name>/validation/<model>.h5
 routes = run_comparison(i.measured, i.result, i.validation, i.start, o.table, o.figure, o.runout,
-                        snakemake.params.benchmarks, snakemake.params.dem_runs,  # noqa: F821
+                        snakemake.params.benchmarks, snakemake.params.dem_runs, runout=snakemake.params.runout,  # noqa: F821
                         bayesopt_path=i.bayesopt[0] if i.bayesopt else None,
                         bayesopt_best_path=i.bayesopt_best[0] if i.bayesopt_best else None, doe_validation=doe or None)
 logging.info("comparison:\n%s", markdown_table(routes))

@@ -9,7 +9,8 @@ logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asc
 torch.set_num_threads(snakemake.threads)  # noqa: F821
 i, o = snakemake.input, snakemake.output  # noqa: F821
 result = run_inverse_design(i.model, i.metadata, i.start, i.measured, o.result, o.paths, o.deposits,
-                            snakemake.params.settings, evaluation_path=i.evaluation,  # noqa: F821
+                            snakemake.params.settings, runout=snakemake.params.runout,  # noqa: F821
+                            evaluation_path=i.evaluation,
                             doe_responses_path=i.doe_responses[0] if i.doe_responses else None)
 logging.info("optimum %s, GNS objective %.4f, online %.1f s", result.best_params, result.best_value,
              result.seconds["online"])
