@@ -146,8 +146,10 @@ def _means(cases: dict, methods) -> dict:
                                      for p in PHASES}}
         floors = [r["floor"] for r in rows if "floor" in r]
         for key in ("rerun_mse", "ideal_mse", "gns_mse", "gns_mse_to_mean"):
-            if floors and all(key in f for f in floors):
-                mean[key] = float(np.mean([f[key] for f in floors]))
+            values = [f[key] for f in floors if key in f]      # the GNS's: the cases with a rollout
+            if values:
+                mean[key] = float(np.mean(values))
+        mean["gns_cases"] = sum("gns_mse" in f for f in floors)
         means[method.method] = mean
     return means
 
@@ -160,7 +162,8 @@ def markdown_table(study: dict) -> str:
     for name, m in study["mean"].items():
         phases = " / ".join(f"{m['scatter_by_phase'][p]:.3f}" for p in PHASES)
         floor = f"{m['rerun_mse']:.3f} / {m['ideal_mse']:.3f}" if "rerun_mse" in m else "-"
-        gns = f"{m['gns_mse']:.3f} / {m['gns_mse_to_mean']:.3f}" if "gns_mse" in m else "-"
+        gns = (f"{m['gns_mse']:.3f} / {m['gns_mse_to_mean']:.3f} ({m['gns_cases']} cases)" if "gns_mse" in m
+               else "-")
         lines.append(f"| {name} | {phases} | {m['flicker']:.3f} | {floor} | {gns} |")
     return "\n".join(lines)
 

@@ -191,6 +191,7 @@ class Trainer:
         self.noise = torch.Generator().manual_seed(settings.seed)
         self.step = 0
         self.best = {"step": None, "valid_runout_mse": math.inf}
+        self.best_payload = None          # model_best.pt's content, kept in the checkpoint too
         self.history: list[dict] = []
         self.accumulated = self.empty_accumulator()
         self.resumed_from = None
@@ -206,7 +207,8 @@ class Trainer:
                    "optimizer": self.optimizer.state_dict(), "step": self.step,
                    "settings": self.saved_settings(), "dataset": self.metadata.get("name"),
                    "sampler_state": self.sampler.bit_generator.state, "noise_state": self.noise.get_state(),
-                   "best": self.best, "history": self.history, "accumulated": self.accumulated}
+                   "best": self.best, "best_model": self.best_payload, "history": self.history,
+                   "accumulated": self.accumulated}
         with atomic_path(self.checkpoint_path) as tmp:
             torch.save(payload, tmp)
 
@@ -239,6 +241,11 @@ class Trainer:
         self.sampler.bit_generator.state = payload["sampler_state"]
         self.noise.set_state(payload["noise_state"])
         self.step, self.best, self.history = payload["step"], payload["best"], payload["history"]
+        self.best_payload = payload.get("best_model")
+        if self.best_payload is None and self.best["step"] is not None:
+            # a checkpoint older than best_model: its model_best.pt cannot be rewritten if lost
+            raise CheckpointError(f"{path}: holds no copy of the best model (an older checkpoint); delete it "
+                                  "to start afresh")
         self.accumulated = payload["accumulated"]
         self.resumed_from = self.step
         log.info("resumed %s at step %d", path, self.step)
@@ -365,6 +372,9 @@ class Trainer:
         if self.best["step"] is None:     # every validation rollout failed: keep the last model, say so
             log.warning("no validation rollout succeeded; model_best.pt holds the last model")
             self.save_best()
+        # a finished run resumed (e.g. Snakemake reran the job and removed its outputs) writes them again
+        self.write_best()
+        self.write_metrics()
         return {"step": self.step, "resumed_from": self.resumed_from, "best": self.best,
                 "last_train_loss": self.history[-1]["train_loss"] if self.history else None,
                 "out_dir": str(self.out_dir)}
@@ -393,11 +403,18 @@ class Trainer:
 
     # -- outputs -----------------------------------------------------------------------------------
     def save_best(self):
-        payload = model_payload(self.averaged)
-        payload.update(step=self.step, valid_runout_mse=self.best["valid_runout_mse"],
-                       dataset=self.metadata.get("name"), settings=dataclasses.asdict(self.settings))
+        """The current averaged model becomes the best one: model_best.pt, and kept for the checkpoint."""
+        self.best_payload = model_payload(self.averaged)
+        # cloned: on the CPU the payload's tensors share memory with the model the EMA keeps updating
+        self.best_payload["state_dict"] = {k: v.clone() for k, v in self.best_payload["state_dict"].items()}
+        self.best_payload.update(step=self.step, valid_runout_mse=self.best["valid_runout_mse"],
+                                 dataset=self.metadata.get("name"), settings=dataclasses.asdict(self.settings))
+        self.write_best()
+
+    def write_best(self):
+        self.out_dir.mkdir(parents=True, exist_ok=True)
         with atomic_path(self.out_dir / "model_best.pt") as tmp:
-            torch.save(payload, tmp)
+            torch.save(self.best_payload, tmp)
 
     def write_metrics(self, figure: bool = True):
         with atomic_path(self.out_dir / "metrics.csv") as tmp:

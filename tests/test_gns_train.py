@@ -20,7 +20,7 @@ from dem.trajectory import read_trajectory
 from gns.data import TrajectoryWindows, read_metadata
 from gns.evaluate import evaluate_rollouts, rollout_case, rollout_runout_mse
 from gns.simulator import CheckpointError, load_simulator
-from gns.train import train
+from gns.train import Trainer, TrainSettings, train
 from tests.gns_synthetic import synthetic_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -96,6 +96,31 @@ def test_training_resumes_after_a_kill_exactly_as_if_uninterrupted(dataset, tmp_
     # the validation's runout method picks the saved model: another one is another training
     with pytest.raises(CheckpointError, match="other settings.*runout"):
         train(dataset, killed, settings, runout=RunoutMethod("connected_front_reached"))
+
+
+def test_a_finished_training_rerun_writes_its_outputs_again_without_training(dataset, tmp_path):
+    """Snakemake removes a job's outputs before it reruns it (e.g. --forcerun, or a param that only
+    the model choice reads); the finished checkpoint must give back the same best model, not a
+    missing file and not the last weights."""
+    out = tmp_path / "run"
+    first = train(dataset, out, dict(TINY, steps=60, validate_every=30), runout=CONNECTED)
+    best_bytes = torch.load(out / "model_best.pt", weights_only=False)
+    for name in ("model_best.pt", "metrics.csv", "loss_curve.png"):
+        (out / name).unlink()
+    again = train(dataset, out, dict(TINY, steps=60, validate_every=30), runout=CONNECTED)
+    assert again["resumed_from"] == 60 and again["best"] == first["best"]
+    restored = torch.load(out / "model_best.pt", weights_only=False)
+    assert restored["step"] == first["best"]["step"]
+    assert all(torch.equal(restored["state_dict"][k], best_bytes["state_dict"][k]) for k in best_bytes["state_dict"])
+    assert (out / "metrics.csv").exists() and (out / "loss_curve.png").exists()
+    # the kept copy is a copy: the EMA updates the model's weights in place after the best step
+    trainer = Trainer(dataset, tmp_path / "copy", TrainSettings.from_config(dict(TINY, steps=60)), runout=CONNECTED)
+    trainer.save_best()
+    kept = {k: v.clone() for k, v in trainer.best_payload["state_dict"].items()}
+    with torch.no_grad():
+        for parameter in trainer.averaged.parameters():
+            parameter.add_(1.0)
+    assert all(torch.equal(trainer.best_payload["state_dict"][k], kept[k]) for k in kept)
 
 
 def test_dataset_without_statistics_is_refused(dataset, tmp_path):

@@ -3,6 +3,7 @@
 from pathlib import Path
 
 import dem.grid
+import dem.runout
 from snakemake.utils import min_version
 
 min_version("9.0")
@@ -15,8 +16,9 @@ config.update(dem.grid.validate_config(config, Path(workflow.basedir, "workflow/
 CASES = dem.grid.case_table(config)
 DATASETS = sorted(config["datasets"])
 # How every stage reads L* off a run (dem.runout.RunoutMethod), read once here and passed to every
-# rule that scores a runout as a param, so changing it reruns exactly those rules.
-RUNOUT = config["runout"]
+# rule that scores a runout as a param, so changing it reruns exactly those rules. In the class's
+# key order: Snakemake compares params as written, so keys reordered in a config would rerun them.
+RUNOUT = dem.runout.RunoutMethod.from_config(config["runout"]).to_config()
 
 # Every stage appends the files `rule all` must build ...
 FINAL_TARGETS = []
