@@ -235,17 +235,18 @@ class Trainer:
             diff = {k: v for k, v in saved.to_dict().items() if self.config.to_dict().get(k) != v}
             raise CheckpointError(f"{path}: model config differs from this dataset's ({sorted(diff)}); "
                                   "delete the output folder to start afresh")
+        if payload.get("best_model") is None and payload["best"]["step"] is not None:
+            # older than the kept best model: a lost model_best.pt could not be written again
+            raise CheckpointError(f"{path}: holds no copy of the best model (an older checkpoint); delete it "
+                                  "to start afresh")
+        # every check above comes before any state is loaded: a refused checkpoint leaves a fresh trainer
         self.simulator.load_state_dict(payload["model"]["state_dict"])
         self.averaged.load_state_dict(payload["averaged_model"]["state_dict"])
         self.optimizer.load_state_dict(payload["optimizer"])
         self.sampler.bit_generator.state = payload["sampler_state"]
         self.noise.set_state(payload["noise_state"])
         self.step, self.best, self.history = payload["step"], payload["best"], payload["history"]
-        self.best_payload = payload.get("best_model")
-        if self.best_payload is None and self.best["step"] is not None:
-            # a checkpoint older than best_model: its model_best.pt cannot be rewritten if lost
-            raise CheckpointError(f"{path}: holds no copy of the best model (an older checkpoint); delete it "
-                                  "to start afresh")
+        self.best_payload = payload["best_model"]
         self.accumulated = payload["accumulated"]
         self.resumed_from = self.step
         log.info("resumed %s at step %d", path, self.step)
@@ -412,6 +413,8 @@ class Trainer:
         self.write_best()
 
     def write_best(self):
+        if self.best_payload is None:
+            raise CheckpointError(f"{self.out_dir}: no best model to write (no validation has run)")
         self.out_dir.mkdir(parents=True, exist_ok=True)
         with atomic_path(self.out_dir / "model_best.pt") as tmp:
             torch.save(self.best_payload, tmp)

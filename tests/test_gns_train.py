@@ -113,6 +113,16 @@ def test_a_finished_training_rerun_writes_its_outputs_again_without_training(dat
     assert restored["step"] == first["best"]["step"]
     assert all(torch.equal(restored["state_dict"][k], best_bytes["state_dict"][k]) for k in best_bytes["state_dict"])
     assert (out / "metrics.csv").exists() and (out / "loss_curve.png").exists()
+    # a checkpoint from before the kept best model: refused, and the restart really trains afresh
+    payload = torch.load(out / "checkpoint_last.pt", weights_only=False)
+    payload["best_model"] = None
+    torch.save(payload, out / "checkpoint_last.pt")
+    with pytest.raises(CheckpointError, match="no copy of the best model"):
+        train(dataset, out, dict(TINY, steps=60, validate_every=30), runout=CONNECTED)
+    fresh = train(dataset, out, dict(TINY, steps=60, validate_every=30), runout=CONNECTED, restart_on_mismatch=True)
+    assert fresh["resumed_from"] is None and fresh["best"] == first["best"]      # retrained, same seed
+    again = torch.load(out / "model_best.pt", weights_only=False)
+    assert all(torch.equal(again["state_dict"][k], best_bytes["state_dict"][k]) for k in best_bytes["state_dict"])
     # the kept copy is a copy: the EMA updates the model's weights in place after the best step
     trainer = Trainer(dataset, tmp_path / "copy", TrainSettings.from_config(dict(TINY, steps=60)), runout=CONNECTED)
     trainer.save_best()
