@@ -29,7 +29,8 @@ from calibration.objective import objective
 from dem.atomic import atomic_path, write_text
 from dem.case import CollapseCase
 from dem.runout import RunoutMethod, check_same_method, runout_at, runout_curve
-from dem.trajectory import Trajectory, read_attrs, read_trajectory
+from dem.trajectory import Trajectory, read_trajectory
+from gns.data import read_training_attrs
 
 log = logging.getLogger(__name__)
 BO_MAX_RUNS = 20
@@ -71,11 +72,6 @@ def case_like(attrs: dict, friction: float, restitution: float, seed: int, name:
                         **model_case_fields(attrs))
 
 
-def read_training_attrs(metadata: dict) -> list[dict]:
-    """Attributes of a dataset's training trajectories (metadata from gns.data.read_metadata)."""
-    return [read_attrs(path) for path in metadata["splits"]["train"]]
-
-
 def measured_case_fields(metadata: dict, seed: int = 0) -> dict:
     """CollapseCase fields for DEM runs of a measured column with the GNS dataset's DEM model
     (grain size, frame interval, contact constants, simulated time), packing `seed`."""
@@ -84,17 +80,19 @@ def measured_case_fields(metadata: dict, seed: int = 0) -> dict:
                 duration_over_tstar=float(first.get("duration_over_tstar", 4.0)))
 
 
-def dem_run(measured: MeasuredColumn, params: dict, case_fields: dict, name: str = "", progress=None) -> Trajectory:
-    """Builtin-DEM collapse of the measured column (its material, a, L_i) at params {name: value}.
+def dem_run(measured: MeasuredColumn, params: dict, case_fields: dict, name: str = "", progress=None,
+            dem_config: dict | None = None) -> Trajectory:
+    """DEM collapse of the measured column (its material, a, L_i) at params {name: value}, with the
+    engine of dem_config (the workflow's `dem` section; None: builtin).
 
     case_fields: other CollapseCase fields (size_scale, duration_over_tstar, seed, output_interval).
     """
-    from dem.collapse import simulate_collapse
+    from dem.engines import simulate_case
 
     case = measured.collapse_case(**{k: float(v) for k, v in params.items()}, name=name, **case_fields)
     log.info("DEM run %s: %s, %d grains", name, ", ".join(f"{k}={float(v):.4f}" for k, v in params.items()),
              case.n_particles)
-    return simulate_collapse(case, progress=progress)
+    return simulate_case(case, dem_config, progress=progress)
 
 
 def validation_summary(trajectory: Trajectory, measured: MeasuredColumn, runout: RunoutMethod) -> dict:
@@ -108,7 +106,8 @@ def validation_summary(trajectory: Trajectory, measured: MeasuredColumn, runout:
 
 # -- Bayesian optimisation directly on the DEM ----------------------------------------------------------
 def bayesopt_on_dem(measured: MeasuredColumn, case_fields: dict, bounds, runout: RunoutMethod,
-                    budget: int = BO_MAX_RUNS, n_initial: int = 6, seed: int = 0, names=("friction", "restitution")):
+                    budget: int = BO_MAX_RUNS, n_initial: int = 6, seed: int = 0, names=("friction", "restitution"),
+                    dem_config: dict | None = None):
     """GP expected-improvement BO where every objective call is a DEM run of the measured column.
 
     Returns (OptimisationHistory, best trajectory, seconds spent). The best run's objective is a
@@ -119,7 +118,7 @@ def bayesopt_on_dem(measured: MeasuredColumn, case_fields: dict, bounds, runout:
     best = {"value": math.inf, "trajectory": None}
 
     def dem_objective(params):
-        trajectory = dem_run(measured, dict(zip(names, params)), case_fields, name=f"bayesopt")
+        trajectory = dem_run(measured, dict(zip(names, params)), case_fields, name="bayesopt", dem_config=dem_config)
         value = objective(trajectory, measured, runout)
         if value < best["value"]:
             best.update(value=value, trajectory=trajectory)
@@ -357,30 +356,20 @@ def section(name: str, measured: MeasuredColumn, routes: list[Route], inverse: d
 
 
 # -- workflow stages (one call per Snakemake script) ----------------------------------------------------
-def _progress_logger(label: str):
-    """progress(fraction) that logs every 10%: long DEM runs show they are alive."""
-    last = [-1]
-
-    def progress(done):
-        if int(10 * done) > last[0]:
-            last[0] = int(10 * done)
-            log.info("%s: %3.0f%%", label, 100 * done)
-
-    return progress
-
-
 def run_dem_point(measured_path, metadata_path, params: dict, out_path, *, runout, seed: int = 0,
-                  name: str = "") -> dict:
-    """DEM run of a measured column at params with the GNS dataset's DEM model; writes the
-    trajectory (atomically) and returns its validation summary (L* read by `runout`, the config's
-    runout section)."""
+                  name: str = "", dem: dict | None = None) -> dict:
+    """DEM run of a measured column at params with the GNS dataset's DEM model and the engine of
+    `dem` (the config's dem section); writes the trajectory (atomically) and returns its validation
+    summary (L* read by `runout`, the config's runout section)."""
+    from dem.progress import progress_logger
     from calibration.measured import load_column
     from dem.trajectory import write_trajectory
     from gns.data import read_metadata
 
     measured = load_column(measured_path)
     fields = measured_case_fields(read_metadata(metadata_path), seed)
-    trajectory = dem_run(measured, params, fields, name=name, progress=_progress_logger(f"DEM run {name}"))
+    trajectory = dem_run(measured, params, fields, name=name, progress=progress_logger(f"DEM run {name}", log),
+                         dem_config=dem)
     write_trajectory(out_path, trajectory)
     summary = validation_summary(trajectory, measured, RunoutMethod.from_config(runout))
     log.info("%s: objective %.4g against %s", name, summary["mse"], measured.name)
@@ -388,9 +377,10 @@ def run_dem_point(measured_path, metadata_path, params: dict, out_path, *, runou
 
 
 def run_bayesopt(measured_path, metadata_path, out_json, out_figure, out_best, bounds, *, runout,
-                 budget: int = BO_MAX_RUNS, n_initial: int = 6, seed: int = 0) -> dict:
+                 budget: int = BO_MAX_RUNS, n_initial: int = 6, seed: int = 0, dem: dict | None = None) -> dict:
     """The BO arm: bayesopt.json (every run), its figure and the best run's trajectory; every
-    objective reads L* by `runout` (the config's runout section)."""
+    objective reads L* by `runout` (the config's runout section), every run uses the engine of
+    `dem` (the config's dem section)."""
     from calibration.measured import load_column
     from dem.trajectory import write_trajectory
     from gns.data import read_metadata
@@ -398,7 +388,8 @@ def run_bayesopt(measured_path, metadata_path, out_json, out_figure, out_best, b
     measured = load_column(measured_path)
     fields = measured_case_fields(read_metadata(metadata_path), seed)
     runout = RunoutMethod.from_config(runout)
-    history, best, seconds = bayesopt_on_dem(measured, fields, bounds, runout, budget, n_initial, seed)
+    history, best, seconds = bayesopt_on_dem(measured, fields, bounds, runout, budget, n_initial, seed,
+                                             dem_config=dem)
     write_trajectory(out_best, best)
     write_bayesopt(history, seconds, out_json, runout)
     data = json.loads(Path(out_json).read_text())

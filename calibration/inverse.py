@@ -878,10 +878,9 @@ def run_inverse_design(model_path, metadata_path, start_path, measured_path, out
     (its runout error joins the noise model); doe_responses_path: the DoE's DEM objective values,
     drawn under the paths.
     """
-    from calibration.compare import read_training_attrs
     from calibration.measured import load_column
     from dem.trajectory import read_trajectory
-    from gns.data import read_metadata
+    from gns.data import read_metadata, read_training_attrs
     from gns.simulator import load_simulator
 
     metadata = read_metadata(metadata_path)

@@ -25,11 +25,12 @@ import time
 
 import numpy as np
 
-from calibration.compare import case_like, read_training_attrs
+from calibration.compare import case_like
 from calibration.inverse import BOUNDS, DESIGN_NAMES, inverse_design
 from calibration.measured import MeasuredColumn
 from dem.runout import RunoutMethod, runout_at
 from dem.trajectory import Trajectory
+from gns.data import read_training_attrs
 
 log = logging.getLogger(__name__)
 def recovery_targets(training_attrs: list[dict], n_cases: int, bounds=BOUNDS, seed: int = 0,
@@ -190,13 +191,14 @@ def observation_times(duration_over_tstar: float, times=PAPER_TIMES) -> np.ndarr
 def recovery_study(simulator, metadata, n_cases: int = 5, noise_std: float = 0.05, model_error_std=None,
                    seed: int = 0, mu_tolerance: float = 0.03, start=None, bounds=None,
                    packings: int = PACKINGS_PER_TARGET, runout: RunoutMethod | None = None,
-                   **inverse_kwargs) -> dict:
+                   dem_config: dict | None = None, **inverse_kwargs) -> dict:
     """Recover n_cases synthetic DEM targets of the GNS dataset's own column, each the mean of
     `packings` DEM runs; returns the summary (recovery_summary plus dataset, t/t* points, noise,
     packing scatter and model error). bounds: as calibration.inverse.design_bounds (None: the
-    paper's, narrowed to the trained range). runout: how every L* is read (None: dem.runout's default)."""
+    paper's, narrowed to the trained range). runout: how every L* is read (None: dem.runout's default);
+    dem_config: the engine of the DEM runs (the workflow's `dem` section; None: builtin)."""
     from calibration.inverse import PAPER_START, design_bounds
-    from dem.collapse import simulate_collapse
+    from dem.engines import simulate_case
 
     if packings < 2:
         raise ValueError(f"packings = {packings}: the packing scatter needs at least two packings per target")
@@ -207,13 +209,14 @@ def recovery_study(simulator, metadata, n_cases: int = 5, noise_std: float = 0.0
     bounds = design_bounds(bounds, list(DESIGN_NAMES), metadata["parameter_ranges"])
     log.info("recovery on %s: %d targets of %d packings, t/t* %s, noise %.3g, GNS runout error %s", metadata["name"],
              n_cases, packings, t_points.tolist(), noise_std, model_error_std)
-    start_run = simulate_collapse(case_like(reference, *start, seed=TRUTH_SEED_OFFSET - 1, name="recovery_start"))
+    start_run = simulate_case(case_like(reference, *start, seed=TRUTH_SEED_OFFSET - 1, name="recovery_start"),
+                              dem_config)
     targets = recovery_targets(trained, n_cases, bounds, seed)
     truths = []
     for k, (mu, e) in enumerate(targets):
-        truths.append([simulate_collapse(case_like(reference, float(mu), float(e),
-                                                   seed=TRUTH_SEED_OFFSET + PACKING_SEED_STRIDE * k + j,
-                                                   name=f"target_{k}_packing_{j}")) for j in range(packings)])
+        truths.append([simulate_case(case_like(reference, float(mu), float(e),
+                                               seed=TRUTH_SEED_OFFSET + PACKING_SEED_STRIDE * k + j,
+                                               name=f"target_{k}_packing_{j}"), dem_config) for j in range(packings)])
         log.info("target %d/%d: %d DEM packings run", k + 1, n_cases, packings)
     runout = RunoutMethod.from_config(runout)
     packing_std, packing_dof = packing_scatter([[runout_at(t, t_points, runout) for t in group] for group in truths])
@@ -232,9 +235,10 @@ def recovery_study(simulator, metadata, n_cases: int = 5, noise_std: float = 0.0
 
 
 def run_recovery(model_path, metadata_path, out_json, out_figure, *, runout, evaluation_path=None,
-                 **study_kwargs) -> dict:
+                 dem: dict | None = None, **study_kwargs) -> dict:
     """The recovery stage: recovery_study with the GNS at model_path, L* read by `runout` (the
-    config's runout section); writes JSON and figure."""
+    config's runout section), DEM runs by the engine of `dem` (the config's dem section); writes
+    JSON and figure."""
     from calibration.inverse import model_error_from_evaluation
     from dem.atomic import write_text
     from gns.data import read_metadata
@@ -244,7 +248,7 @@ def run_recovery(model_path, metadata_path, out_json, out_figure, *, runout, eva
     runout = RunoutMethod.from_config(runout)
     summary = recovery_study(load_simulator(model_path, metadata), metadata,
                              model_error_std=model_error_from_evaluation(evaluation_path, runout), runout=runout,
-                             **study_kwargs)
+                             dem_config=dem, **study_kwargs)
     write_text(out_json, json.dumps(summary, indent=1) + "\n")
     plot_recovery(summary, out_figure, title=f"{metadata['name']} (targets: mean of {summary['packings']} packings): mu "
                   f"within {summary['mu_tolerance']:g} in {summary['mu_within']} of {summary['n_cases']}, truth inside "

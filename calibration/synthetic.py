@@ -13,11 +13,11 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from calibration.emulator import Model, Observables, SimulationSettings
+from calibration.emulator import BUILTIN, Model, Observables, SimulationSettings
 from calibration.measured import MeasuredColumn
 from calibration.mechanisms import Mechanism
 from dem.atomic import atomic_path
-from dem.collapse import simulate_collapse
+from dem.engines import simulate_case
 
 # The test columns of the diagnosis: small quartz columns of two aspect ratios, runout every 0.5 t*
 # up to 5 t* (the paper stops at 3.5; by 5 the base model's front still creeps on while rolling
@@ -80,7 +80,7 @@ def synthetic_measurement(truth: HiddenTruth, columns, mechanisms, settings: Sim
     theta = [truth.friction, truth.restitution] + ([] if truth.mechanism is None else [truth.magnitude])
     observables = Observables(columns, runout)
     # the truth settles its own packing with its own contact law, as a real column would
-    trajectories = [simulate_collapse(model.case(c, theta, settings, truth.seed)) for c in observables.columns]
+    trajectories = [simulate_case(model.case(c, theta, settings, truth.seed), BUILTIN) for c in observables.columns]
     clean = observables.from_trajectories(trajectories)
     noisy = clean + rng.normal(0.0, 1.0, clean.shape) * np.where(observables.kind == "runout", runout_noise,
                                                                   profile_noise)

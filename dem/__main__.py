@@ -11,21 +11,11 @@ from pathlib import Path
 from dem.case import CaseError, CollapseCase
 from dem.collapse import simulate_collapse
 from dem.plots import plot_case
+from dem.progress import progress_logger
 from dem.runout import METHODS, RunoutMethod
 from dem.trajectory import write_trajectory
 
 log = logging.getLogger("dem")
-
-
-def progress_logger(label: str, every: float = 0.1):
-    """A progress callable that logs a line every `every` of the run."""
-    state = {"next": every}
-
-    def report(fraction):
-        if fraction >= state["next"] - 1e-9:
-            log.info("%s: %3.0f%%", label, 100 * fraction)
-            state["next"] = (int(fraction / every) + 1) * every
-    return report
 
 
 def main(argv=None):
@@ -48,7 +38,7 @@ def main(argv=None):
     except CaseError as exc:
         parser.error(str(exc))
     log.info("case %s: %d grains, dt = %.3g s, t* = %.3g s", case.name, case.n_particles, case.time_step, case.t_star)
-    traj = simulate_collapse(case, progress=progress_logger(f"case {case.name}"))
+    traj = simulate_collapse(case, progress=progress_logger(f"case {case.name}", log))
     write_trajectory(args.out, traj)
     runout_method = RunoutMethod(args.runout)
     plot_case(traj, args.out.with_suffix(".png"), runout_method)

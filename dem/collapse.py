@@ -4,11 +4,9 @@ from __future__ import annotations
 import numpy as np
 
 from dem.case import CollapseCase
-from dem.integrate import ContactLaw, State, record
-from dem.packing import blowup_box, engine_attrs, settle_column, walls_open
-from dem.trajectory import GRAIN, Trajectory, TrajectoryError
-
-ENGINE_VERSION = "builtin-1"
+from dem.integrate import ENGINE_VERSION, ContactLaw, State, record
+from dem.packing import blowup_box, settle_column, walls_open
+from dem.trajectory import GRAIN, Trajectory, TrajectoryError, engine_attrs
 
 
 def state_from_packing(case: CollapseCase, packing: Trajectory) -> State:

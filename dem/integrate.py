@@ -22,6 +22,8 @@ from dem.contact import (FAST_MATH, cohesion_force, normal_damping, normal_force
                          rolling_torque, tangential_force)
 from dem.neighbours import build_pairs, default_skin, empty_pairs
 
+ENGINE_VERSION = "builtin-1"     # the builtin engine's version, recorded in every trajectory it writes
+
 # status codes from `advance`
 OK, NON_FINITE, OVERLAP, LEFT_BOX = 0, 1, 2, 3
 MAX_OVERLAP_RATIO = 0.25  # overlap / smaller diameter beyond which the run has blown up

@@ -15,8 +15,8 @@ import math
 import numpy as np
 
 from dem.case import FILL_HEIGHT_FACTOR, CaseError, CollapseCase
-from dem.integrate import ContactLaw, SimulationError, State, run
-from dem.trajectory import GRAIN, Trajectory
+from dem.integrate import ENGINE_VERSION, ContactLaw, SimulationError, State, run
+from dem.trajectory import GRAIN, Trajectory, engine_attrs
 
 LATTICE_CLEARANCE = 1.02     # lattice pitch / largest diameter
 REST_SPEED = 1e-3            # settled when the RMS grain speed is below this fraction of sqrt(g H_i)
@@ -101,18 +101,8 @@ def settle_state(case: CollapseCase, progress=None) -> State:
     return state
 
 
-def engine_attrs(case: CollapseCase, engine: str, engine_version: str) -> dict:
-    """Trajectory attributes every engine writes (ARCHITECTURE.md contract)."""
-    attrs = case.physical_parameters()
-    attrs.update(engine=engine, engine_version=engine_version, dt_frame=case.frame_interval,
-                 x_min=0.0, x_max=case.box_width, y_min=0.0, y_max=case.box_height)
-    return attrs
-
-
 def settle_column(case: CollapseCase, progress=None) -> Trajectory:
     """The settled column as a one-frame Trajectory (engine "builtin", stage "settled")."""
-    from dem.collapse import ENGINE_VERSION
-
     state = settle_state(case, progress)
     attrs = engine_attrs(case, "builtin", ENGINE_VERSION)
     attrs.update(stage="settled", settled_height=float(np.max(state.x[:, 1] + state.radius)),

@@ -26,6 +26,8 @@ PHASES = {"free_fall": (0.0, 1.0), "spreading": (1.0, 2.5), "stopping": (2.5, np
 PACKINGS = 8          # packings per case for the scatter (the issue asks for at least 8)
 RERUNS = 8            # perturbed reruns per case for the chaos floor
 PERTURBATION = 1e-3   # mean grain diameters (the chaos floor's perturbation)
+# The study reruns builtin trajectories from their own packings, moved by 0.001 d: the builtin engine.
+BUILTIN = {"engine": "builtin"}
 
 
 def case_of(trajectory):
@@ -46,11 +48,11 @@ def phase_means(t, values) -> dict:
 
 def packing_runs(case, n_packings: int = PACKINGS, progress=None) -> list:
     """n_packings builtin runs of `case`, packing seeds case.seed + 1000 + j (each settles its own)."""
-    from dem.collapse import simulate_collapse
+    from dem.engines import simulate_case
 
     runs = []
     for j in range(n_packings):
-        runs.append(simulate_collapse(case.replace(seed=case.seed + 1000 + j, name=f"{case.name}_packing_{j}")))
+        runs.append(simulate_case(case.replace(seed=case.seed + 1000 + j, name=f"{case.name}_packing_{j}"), BUILTIN))
         if progress:
             progress(f"{case.name}: packing {j + 1}/{n_packings}")
     return runs
@@ -60,7 +62,7 @@ def perturbed_reruns(trajectory, n_reruns: int = RERUNS, perturbation: float = P
                      progress=None) -> list:
     """n_reruns builtin reruns of a builtin trajectory from its own first frame, every grain moved
     by a normal of std `perturbation` mean diameters (seeded)."""
-    from dem.collapse import simulate_collapse
+    from dem.engines import simulate_case
     from dem.trajectory import Trajectory
 
     case = case_of(trajectory)
@@ -71,7 +73,7 @@ def perturbed_reruns(trajectory, n_reruns: int = RERUNS, perturbation: float = P
         moved = trajectory.positions[:1] + rng.normal(0.0, perturbation * diameter, trajectory.positions[:1].shape)
         packing = Trajectory(moved.astype(np.float32), trajectory.radius, trajectory.particle_type,
                              dict(trajectory.attrs))
-        runs.append(simulate_collapse(case, packing=packing))
+        runs.append(simulate_case(case, BUILTIN, packing=packing))
         if progress:
             progress(f"{case.name}: rerun {j + 1}/{n_reruns}")
     return runs

@@ -69,6 +69,14 @@ class Trajectory:
         return self
 
 
+def engine_attrs(case, engine: str, engine_version: str) -> dict:
+    """Trajectory attributes every engine writes for a dem.case.CollapseCase (the contract above)."""
+    attrs = case.physical_parameters()
+    attrs.update(engine=engine, engine_version=engine_version, dt_frame=case.frame_interval,
+                 x_min=0.0, x_max=case.box_width, y_min=0.0, y_max=case.box_height)
+    return attrs
+
+
 def write_trajectory(path, trajectory: Trajectory) -> Path:
     """Write `trajectory` to `path` atomically (temp file, then rename)."""
     path = Path(path)

@@ -45,6 +45,12 @@ def split_paths(metadata: dict, split: str) -> list[str]:
     return list(paths)
 
 
+def read_training_attrs(metadata: dict) -> list[dict]:
+    """Attributes of a dataset's training trajectories (metadata from read_metadata), without
+    loading their positions."""
+    return [read_attrs(path) for path in split_paths(metadata, "train")]
+
+
 @dataclass
 class Batch:
     """G windows as one graph batch: position_sequence [N, C, 2] (m), next_position [N, 2] (m)."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import shutil
 
 import numpy as np
 import pytest
@@ -76,6 +77,21 @@ def test_dem_run_at_a_point_uses_the_measured_column_and_the_datasets_dem_model(
         trajectory, [0.5, 1.0, 1.5, 2.0, 2.5], 0.05, seed=0, name="tiny_target", packing_std=0.0, runout=RUNOUT),
         RUNOUT), rel=1e-9)
     assert summary["mse"] < 4 * 0.05 ** 2 and len(summary["runout"]) == 5
+
+
+@pytest.mark.skipif(shutil.which("liggghts") is None, reason="LIGGGHTS not installed (apt-get install liggghts)")
+def test_a_validation_run_honours_the_configured_engine(tiny, tmp_path):
+    """With dem.engine liggghts a validation runs in LIGGGHTS, as the DoE's and the dataset's runs do:
+    the engine is recorded in the HDF5, and the run is not the builtin one."""
+    summary = run_dem_point(tiny["measured"], tiny["metadata"], {"friction": 0.5, "restitution": 0.6},
+                            tmp_path / "liggghts.h5", runout=RUNOUT.to_config(), seed=7, name="check",
+                            dem={"engine": "liggghts", "solvers": {}})
+    trajectory = read_trajectory(tmp_path / "liggghts.h5")
+    assert trajectory.attrs["engine"] == "liggghts" and "LIGGGHTS" in str(trajectory.attrs["engine_version"])
+    builtin = run_dem_point(tiny["measured"], tiny["metadata"], {"friction": 0.5, "restitution": 0.6},
+                            tmp_path / "builtin.h5", runout=RUNOUT.to_config(), seed=7, name="check")
+    assert read_trajectory(tmp_path / "builtin.h5").attrs["engine"] == "builtin"
+    assert summary["runout"] != builtin["runout"] and np.isfinite(summary["mse"])
 
 
 def test_bayesian_optimisation_on_dem_runs_keeps_its_budget_and_its_best_run(tiny, tmp_path):

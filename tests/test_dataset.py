@@ -6,7 +6,7 @@ import pytest
 
 from dem.case import CollapseCase
 from dem.dataset import DatasetError, build_dataset, load_dataset_metadata, plot_dataset
-from dem.packing import engine_attrs
+from dem.trajectory import engine_attrs
 from dem.trajectory import GRAIN, Trajectory, write_trajectory
 
 

@@ -13,7 +13,7 @@ from scipy.optimize import minimize
 from calibration.inverse import (FD_STEP, FTOL, GTOL, MAX_LINE_SEARCH, ROUGHNESS_PROBES, STALL_EVALUATIONS, design_bounds, inverse_design, SCIPY_DEFAULT_STEP, GeometryWarning, GNSObjective,
                                  InverseDesignError, check_bounds, check_geometry, check_step, multistart_lbfgsb,
                                  posterior_at, step_vanishes)
-from calibration.compare import case_like, read_training_attrs
+from calibration.compare import case_like
 from calibration.measured import MeasuredColumn
 from calibration.recovery import observation_times, packing_scatter, recover_case
 from dem.case import CollapseCase
@@ -21,7 +21,7 @@ from dem.collapse import simulate_collapse
 from dem.dataset import build_dataset
 from dem.runout import METHODS, RunoutMethod, runout_at, runout_curve
 from dem.trajectory import read_attrs, write_trajectory
-from gns.data import read_metadata
+from gns.data import read_metadata, read_training_attrs
 from gns.runout import SOFT_TEMPERATURE, soft_runout_at, soft_top_k_mean
 from gns.simulator import LearnedSimulator, load_simulator
 from gns.train import TrainSettings, simulator_config, train

@@ -3,6 +3,9 @@
     engine = get_engine(config["dem"]["engine"], config["dem"])   # "auto" | "builtin" | "liggghts" | "mfix"
     trajectory = engine.simulate(case, packing, work_dir, output="case.h5")
 
+`simulate_case(case, config)` runs one case with the configured engine in a scratch folder: every
+DEM run of the pipeline goes through here or through the DEM stage's own rules.
+
 `config` is the `dem` section of the workflow config; solver paths are configurable under
 `solvers`, e.g. {"solvers": {"liggghts": "/usr/bin/liggghts", "mfix": "/opt/mfix/mfixsolver"}};
 a solver not configured is looked up on PATH. `auto` picks MFIX where its solver is found, else
@@ -11,6 +14,7 @@ LIGGGHTS, else the builtin engine, and logs which and why.
 from __future__ import annotations
 
 import logging
+import tempfile
 
 from dem.engines.base import Engine, EngineError, EngineNotInstalled
 from dem.engines.builtin import BuiltinEngine
@@ -22,7 +26,7 @@ log = logging.getLogger(__name__)
 ENGINES = {"builtin": BuiltinEngine, "liggghts": LiggghtsEngine, "mfix": MfixEngine}
 AUTO_ORDER = ("mfix", "liggghts", "builtin")
 
-__all__ = ["ENGINES", "Engine", "EngineError", "EngineNotInstalled", "get_engine", "solver_paths"]
+__all__ = ["ENGINES", "Engine", "EngineError", "EngineNotInstalled", "get_engine", "simulate_case", "solver_paths"]
 
 
 def solver_paths(config) -> dict:
@@ -59,3 +63,13 @@ def get_engine(name: str = "auto", config=None) -> Engine:
     engine.require_solver()
     log.info("dem.engine %s: %s", name, engine.availability()[1])
     return engine
+
+
+def simulate_case(case, config=None, packing=None, progress=None):
+    """One collapse of `case` with the engine config["engine"] (the workflow's `dem` section; None or
+    no "engine": builtin), from `packing` (None: settled by the builtin settling step), in a scratch
+    folder removed afterwards. The trajectory records the engine that ran it."""
+    config = dict(config or {})
+    engine = get_engine(config.get("engine", "builtin"), config)
+    with tempfile.TemporaryDirectory(prefix=f"dem_{engine.name}_") as work_dir:
+        return engine.simulate(case, packing, work_dir, progress=progress)

@@ -32,7 +32,7 @@ class BuiltinEngine(Engine):
         return "dem.collapse.simulate_collapse"
 
     def version(self) -> str:
-        from dem.collapse import ENGINE_VERSION
+        from dem.integrate import ENGINE_VERSION
         return ENGINE_VERSION
 
     def render(self, case: CollapseCase, packing: Trajectory, work_dir) -> Path:

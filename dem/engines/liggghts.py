@@ -35,7 +35,7 @@ from dem.case import GRAVITY, CollapseCase
 from dem.engines.base import (Engine, check_frames_written, damping_ratio, read_error, refuse_unsupported,
                               run_solver, size_classes)
 from dem.integrate import frame_steps
-from dem.packing import engine_attrs
+from dem.trajectory import engine_attrs
 from dem.trajectory import GRAIN, Trajectory
 
 RESTITUTION_TOLERANCE = 0.005   # worst relative error of e from size-class damping

@@ -24,7 +24,7 @@ import numpy as np
 from dem.case import GRAVITY, CollapseCase
 from dem.engines.base import (Engine, EngineError, check_frames_written, read_error, refuse_unsupported,
                               run_solver, size_classes)
-from dem.packing import engine_attrs
+from dem.trajectory import engine_attrs
 from dem.trajectory import GRAIN, Trajectory
 
 TEMPLATE = Path(__file__).resolve().parents[2] / "mfix_templates" / "collapse_2d.mfx"

@@ -19,6 +19,9 @@ DATASETS = sorted(config["datasets"])
 # rule that scores a runout as a param, so changing it reruns exactly those rules. In the class's
 # key order: Snakemake compares params as written, so keys reordered in a config would rerun them.
 RUNOUT = dem.runout.RunoutMethod.from_config(config["runout"]).to_config()
+# The engine of every DEM run outside the DEM stage's own rules (validations, Bayesian optimisation,
+# recovery targets): the same engine and solver paths as the case table's runs.
+DEM_ENGINE = {"engine": config["dem"]["engine"], "solvers": config["dem"]["solvers"]}
 
 # Every stage appends the files `rule all` must build ...
 FINAL_TARGETS = []

@@ -77,6 +77,7 @@ rule doe_validate:
     params:
         case_fields=dict(DOE_CASE_FIELDS, seed=DOE["seed"]),
         runout=RUNOUT,
+        dem=DEM_ENGINE,
     log:
         "results/logs/doe/doe_validate/{name}/{doe_model}.log",
     benchmark:

@@ -69,6 +69,7 @@ rule inverse_start:
         start=INVERSE["start"],
         seed=INVERSE["seed"],
         runout=RUNOUT,
+        dem=DEM_ENGINE,
     log:
         "results/logs/inverse/inverse_start/{name}.log",
     benchmark:
@@ -117,6 +118,7 @@ rule inverse_validate:
     params:
         seed=INVERSE["seed"],
         runout=RUNOUT,
+        dem=DEM_ENGINE,
     log:
         "results/logs/inverse/inverse_validate/{name}.log",
     benchmark:
@@ -141,6 +143,7 @@ rule inverse_bayesopt:
         budget=INVERSE["bayesopt_budget"],
         seed=INVERSE["seed"],
         runout=RUNOUT,
+        dem=DEM_ENGINE,
     log:
         "results/logs/inverse/inverse_bayesopt/{name}.log",
     benchmark:
@@ -190,6 +193,7 @@ rule inverse_recovery:
     params:
         settings=INVERSE,
         runout=RUNOUT,
+        dem=DEM_ENGINE,
     log:
         "results/logs/inverse/inverse_recovery/{dataset}.log",
     benchmark:

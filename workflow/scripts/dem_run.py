@@ -4,6 +4,7 @@ import shutil
 
 from dem.engines import get_engine
 from dem.grid import read_deck
+from dem.progress import progress_logger
 from dem.trajectory import read_trajectory
 
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")  # noqa: F821
@@ -14,19 +15,10 @@ engine = get_engine(params.engine, {"solvers": dict(params.solvers)})
 logging.info("collapse %s with the %s engine (%s): %d grains, %d frames", case.name, engine.name,
              engine.version(), case.n_particles, case.n_frames)
 
-last = [-1]
-
-
-def progress(done):
-    """Log every 10% so a long run shows it is alive."""
-    if int(10 * done) > last[0]:
-        last[0] = int(10 * done)
-        logging.info("collapse %s: %3.0f%%", case.name, 100 * done)
-
-
 shutil.rmtree(params.work_dir, ignore_errors=True)  # a killed run's leftovers
 # writes the output atomically, only once the engine's output reads whole
-trajectory = engine.simulate(case, packing, params.work_dir, progress=progress, output=snakemake.output[0])  # noqa: F821
+trajectory = engine.simulate(case, packing, params.work_dir, progress=progress_logger(f"collapse {case.name}", logging.getLogger()),  # noqa: E501
+                             output=snakemake.output[0])  # noqa: F821
 if not params.keep_work:
     shutil.rmtree(params.work_dir)
 logging.info("done: %d frames of %d grains (engine %s)", trajectory.n_frames, trajectory.n_particles,

@@ -5,7 +5,8 @@ from pathlib import Path
 
 from calibration.measured import load_column
 from calibration.objective import objective
-from dem.collapse import simulate_collapse
+from dem.engines import simulate_case
+from dem.progress import progress_logger
 from dem.runout import RunoutMethod
 from dem.trajectory import write_trajectory
 from doe.study import validation_case
@@ -15,16 +16,7 @@ summary = json.loads(Path(snakemake.input.analysis).read_text())  # noqa: F821
 measured = load_column(snakemake.input.measured)  # noqa: F821
 case = validation_case(summary, snakemake.wildcards.doe_model, measured, **snakemake.params.case_fields)  # noqa: F821
 logging.info("validation %s: mu %.4f, e %.4f, %d grains", case.name, case.friction, case.restitution, case.n_particles)
-last = [-1]
-
-
-def progress(done):
-    """Log every 10% so a long run shows it is alive."""
-    if int(10 * done) > last[0]:
-        last[0] = int(10 * done)
-        logging.info("collapse %s: %3.0f%%", case.name, 100 * done)
-
-
-trajectory = simulate_collapse(case, progress=progress)
+trajectory = simulate_case(case, snakemake.params.dem,  # noqa: F821
+                           progress=progress_logger(f"collapse {case.name}", logging.getLogger()))
 write_trajectory(snakemake.output[0], trajectory)  # noqa: F821
 logging.info("MSE against %s: %.4f", measured.name, objective(trajectory, measured, RunoutMethod.from_config(snakemake.params.runout)))  # noqa: F821

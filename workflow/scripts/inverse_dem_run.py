@@ -12,5 +12,6 @@ if "result" in snakemake.input.keys():  # noqa: F821
 else:
     params, name = dict(zip(("friction", "restitution"), snakemake.params.start)), "start"  # noqa: F821
 summary = run_dem_point(snakemake.input.measured, snakemake.input.metadata, params, snakemake.output[0],  # noqa: F821
-                        runout=snakemake.params.runout, seed=snakemake.params.seed, name=name)  # noqa: F821
+                        runout=snakemake.params.runout, seed=snakemake.params.seed, name=name,  # noqa: F821
+                        dem=snakemake.params.dem)  # noqa: F821
 logging.info("%s: %s -> objective %.4f", name, params, summary["mse"])
