@@ -3,7 +3,7 @@
 Runs the DEM and dataset stages of config/test.yaml (8 tiny cases in two datasets) with the
 default profile, once for the module; the rerun test works on a copy of that finished run (mtimes
 and .snakemake kept). The targets stop at this stage's outputs, so later stages (GNS, DoE, ...)
-are not trained here; the report rule is checked by dry run and dem.report on these outputs.
+are not trained here; the report rule is checked by dry run and pipeline.report on these outputs.
 """
 import contextlib
 import os
@@ -20,7 +20,7 @@ import yaml
 
 from dem.dataset import load_dataset_metadata
 from dem.grid import read_deck
-from dem.report import assemble_report
+from pipeline.report import assemble_report
 from dem.trajectory import read_attrs, read_trajectory
 
 ROOT = Path(__file__).resolve().parents[1]

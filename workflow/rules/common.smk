@@ -34,7 +34,7 @@ wildcard_constraints:
     case_id=r"[A-Za-z0-9_\-]+",
 
 
-# Conventions for every stage (dem/report.py reads them):
+# Conventions for every stage (pipeline/report.py and pipeline/benchmarks.py read them):
 #   log:       results/logs/<stage>/<rule>[/<wildcards>].log
 #   benchmark: results/benchmarks/<stage>/<rule>[/<wildcards>].tsv  -> the report's time table
 #   report:    results/report/<stage>.md, links relative to that file; register it with

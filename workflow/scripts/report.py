@@ -1,7 +1,7 @@
 """Stitch the stage fragments and the time-per-stage table into results/report.md."""
 import logging
 
-from dem.report import assemble_report
+from pipeline.report import assemble_report
 
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")  # noqa: F821
 sections = list(zip(snakemake.params.titles, snakemake.input.sections))  # noqa: F821

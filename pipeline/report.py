@@ -8,56 +8,14 @@ The report rebases the fragments' relative links onto the report's own folder.
 """
 from __future__ import annotations
 
-import csv
 import os
 import re
-from dataclasses import dataclass
 from pathlib import Path
 
 from dem.atomic import write_text
+from pipeline.benchmarks import StageTime, read_benchmarks
 
 LINK = re.compile(r"(!?\[[^\]]*\]\()([^)\s]+)(\))")
-
-
-@dataclass
-class StageTime:
-    """Wall time of one rule's jobs: count, total/mean/max seconds, peak resident memory (MB)."""
-
-    stage: str
-    rule: str
-    jobs: int
-    total_s: float
-    max_s: float
-    max_rss_mb: float | None
-
-    @property
-    def mean_s(self) -> float:
-        return self.total_s / self.jobs
-
-
-def read_benchmarks(benchmark_dir) -> list[StageTime]:
-    """One StageTime per <stage>/<rule> under `benchmark_dir` (a missing folder gives [])."""
-    groups: dict[tuple[str, str], list[tuple[float, float | None]]] = {}
-    root = Path(benchmark_dir)
-    for path in sorted(root.rglob("*.tsv")):
-        parts = path.relative_to(root).parts
-        if len(parts) < 2:
-            raise ValueError(f"{path}: benchmark files go in <stage>/<rule>[/...].tsv under {root}")
-        rule = parts[1].removesuffix(".tsv")
-        with open(path, newline="") as f:
-            rows = list(csv.DictReader(f, delimiter="\t"))
-        if not rows or "s" not in rows[0]:
-            raise ValueError(f"{path}: not a Snakemake benchmark file (no 's' column)")
-        for row in rows:  # one row per repeat of a `repeat()` benchmark
-            rss = row.get("max_rss", "NA")
-            groups.setdefault((parts[0], rule), []).append(
-                (float(row["s"]), None if rss in ("NA", "-", "") else float(rss)))
-    out = []
-    for (stage, rule), values in sorted(groups.items()):
-        seconds = [s for s, _ in values]
-        rss = [r for _, r in values if r is not None]
-        out.append(StageTime(stage, rule, len(values), sum(seconds), max(seconds), max(rss) if rss else None))
-    return out
 
 
 def time_table(times: list[StageTime]) -> str:
