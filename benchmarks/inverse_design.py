@@ -32,14 +32,14 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from calibration.compare import case_like  # noqa: E402
-from calibration.inverse import (FD_STEP, PAPER_START, SCIPY_DEFAULT_STEP, GNSObjective, inverse_design,  # noqa: E402
-                                 model_error_from_evaluation)
+from calibration.inverse import FD_STEP, PAPER_START, SCIPY_DEFAULT_STEP, GNSObjective, inverse_design  # noqa: E402
 from calibration.recovery import (PACKINGS_PER_TARGET, TRUTH_SEED_OFFSET, observation_times,  # noqa: E402
                                   recovery_study, recovery_targets, synthetic_measured)
 from dem.collapse import simulate_collapse  # noqa: E402
 from dem.runout import RunoutMethod  # noqa: E402
 from gns.data import read_metadata, read_training_attrs  # noqa: E402
 from gns.simulator import load_simulator  # noqa: E402
+from pipeline.inverse import model_error_from_evaluation  # noqa: E402
 
 TARGET_ONLINE_S = 120.0
 

@@ -35,9 +35,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from dem.collapse import simulate_collapse  # noqa: E402
-from dem.grid import case_from_row, sample_dataset, validate_config  # noqa: E402
+from dem.grid import case_from_row, sample_dataset  # noqa: E402
 from dem.runout import RunoutMethod, runout_at  # noqa: E402
 from dem.trajectory import write_trajectory  # noqa: E402
+from pipeline.config import validate_config  # noqa: E402
 
 T_POINTS = np.array([0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5])   # the measured curve's t/t*
 FRICTION_LEVELS = (0.3, 0.45, 0.6, 0.75, 0.9)

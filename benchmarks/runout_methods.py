@@ -39,9 +39,10 @@ def main():
 
     from calibration.measured import load_column
     from dem.collapse import simulate_collapse
-    from dem.grid import case_from_row, case_table, validate_config
+    from dem.grid import case_from_row, case_table
     from dem.runout_study import compare_methods, markdown_table, plot_methods
     from doe.design import centre_run_id, design_from_config, design_cases
+    from pipeline.config import validate_config
 
     config = validate_config(yaml.safe_load(Path(args.config).read_text()), ROOT / "workflow/schemas/config.schema.yaml")
     started = time.perf_counter()

@@ -37,13 +37,11 @@ looks like metres or lies above everything the simulator can produce: a Diagnosi
 """
 from __future__ import annotations
 
-import json
 import logging
 import math
 import time
 import warnings
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
 
 import numpy as np
 from scipy.optimize import minimize
@@ -53,11 +51,10 @@ from threadpoolctl import threadpool_limits
 
 from calibration.emulator import (DEMRunner, GPEmulator, Library, Model, Observables, SimulationSettings,
                                   build_library)
-from calibration.measured import MeasuredColumn, MeasuredDataWarning, read_measured
+from calibration.measured import MeasuredColumn
 from calibration.mechanisms import get_mechanisms
 from calibration.objective import runout_mse
 from calibration.uncertainty import laplace_posterior
-from dem.atomic import write_text
 from dem.runout import RunoutMethod
 
 log = logging.getLogger(__name__)
@@ -746,52 +743,6 @@ def diagnose(columns, settings: DiagnosisSettings, library: Library | None = Non
     }
 
 
-# Settings that change the design runs (the library); the others only change the analysis.
+# Settings that change the design runs (the library); the others only change the analysis. Read by
+# workflow/rules/diagnosis.smk (the library rule's params) and pipeline/diagnosis.py.
 LIBRARY_SETTINGS = ("size_scale", "packing_seeds", "candidates", "channel_width", "n_base", "n_per_mechanism", "seed")
-
-
-def run_library(measured_path, library_path, section: dict, *, runout) -> Library:
-    """Design runs for the columns of a measured-data CSV (workflow rule diagnosis_library); their
-    runouts read by `runout` (the config's runout section), which the library records."""
-    columns, _ = read_columns(measured_path)
-    settings = DiagnosisSettings.from_config({k: v for k, v in section.items() if k in LIBRARY_SETTINGS}, runout)
-    library = settings.library(Observables(columns, settings.runout))
-    library.save(library_path)
-    return library
-
-
-def run_diagnosis(measured_path, library_path, out_dir, section: dict, *, runout, name: str = "") -> dict:
-    """Diagnose a measured-data CSV with its design runs; write diagnosis.json, residuals.png and
-    candidates.png to out_dir (workflow rule diagnosis). runout: the config's runout section; a
-    library read by another method is refused (LibraryError)."""
-    from calibration.diagnosis_report import plot_candidates, plot_residuals
-    columns, data_warnings = read_columns(measured_path)
-    settings = DiagnosisSettings.from_config({k: v for k, v in section.items() if k != "enabled"}, runout)
-    result = diagnose(columns, settings, Library.load(library_path), data_warnings=data_warnings, name=name)
-    result["measured"] = str(measured_path)
-    out_dir = Path(out_dir)
-    write_diagnosis(result, out_dir / "diagnosis.json")
-    plot_residuals(result, out_dir / "residuals.png")
-    plot_candidates(result, out_dir / "candidates.png")
-    return result
-
-
-def read_columns(path) -> tuple[list[MeasuredColumn], list[str]]:
-    """Columns of a measured-data CSV and the warnings its reader raised (as strings)."""
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", MeasuredDataWarning)
-        columns = list(read_measured(path).values())
-    return columns, [str(w.message) for w in caught if issubclass(w.category, MeasuredDataWarning)]
-
-
-def write_diagnosis(result: dict, path) -> None:
-    """diagnosis.json, atomically."""
-    write_text(path, json.dumps(result, indent=1, default=_json_default) + "\n")
-
-
-def _json_default(value):
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")

@@ -1,8 +1,6 @@
-"""Figures and the report section of the discrepancy diagnosis (reads only the diagnosis dict/JSON)."""
+"""Figures of the discrepancy diagnosis (read only the diagnosis dict/JSON); the report section is
+pipeline/diagnosis.py's."""
 from __future__ import annotations
-
-import math
-import os
 
 import matplotlib
 import matplotlib.ticker
@@ -11,7 +9,6 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from dem.atomic import write_text  # noqa: E402
 from dem.plots import save_figure  # noqa: E402
 
 PHASE_EDGES = (1.0, 2.5)   # t/t*: the paper's free-fall | spreading | stopping phases
@@ -109,55 +106,3 @@ def plot_candidates(result: dict, path) -> None:
                  f"beyond {rule.get('heldout_tie_sd', 0):g} sd)", fontsize=9)
     fig.tight_layout()
     save_figure(fig, path)
-
-
-def _parameters(evidence: dict) -> str:
-    posterior = {p["name"]: p for p in evidence["emulator"]["posterior"]["parameters"]}
-    values = (evidence["dem"] or evidence["emulator"])["parameters"]
-    parts = []
-    for name, value in values.items():
-        std = posterior.get(name, {}).get("std", math.nan)
-        parts.append(f"{name} = {value:.3g} &plusmn; {std:.2g}")
-    return ", ".join(parts)
-
-
-def section_markdown(results: dict, section_path) -> str:
-    """The report section for {name: (diagnosis dict, folder with its figures)}."""
-    lines = ["What the calibrated DEM still gets wrong, and whether a missing mechanism explains it. "
-             "Each measured data set is fitted by the base model (friction, restitution) and by the base "
-             "model plus one candidate mechanism at a time; a cause is named only when the evidence is decisive "
-             "(rule below each table). Simulator: the builtin DEM, coarse-grained, through a Gaussian-process "
-             "emulator of its design runs, scored by DEM runs at the optima (the GNS is not trained on the "
-             "extension parameters).", ""]
-    for name, (result, folder) in results.items():
-        rel = os.path.relpath(folder, os.path.dirname(section_path))
-        errors = result["errors"]
-        lines += [f"### {name}", "",
-                  f"**Cause: {result['cause']}.** {result['verdict']}", "",
-                  f"What the calibrated base model gets wrong: {result['residuals']['summary']}", "",
-                  f"Simulator: builtin DEM at size_scale {result['simulator']['size_scale']:g}; design runs "
-                  f"{sum(result['simulator']['design_runs'].values())}, refinement runs "
-                  f"{result['simulator']['refinement_runs']}; noise: {result['observables']['noise_source']}.", "",
-                  "| model | parameters (&plusmn; std) | chi^2 | BIC | BIC gain | held-out chi^2 | fit MSE | held-out MSE | scored in |",
-                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
-        rows = [("base", result["base"])] + list(result["candidates"].items())
-        for model, evidence in rows:
-            score = evidence["dem"] or evidence["emulator"]
-            where = "DEM" if evidence["dem"] else "emulator"
-            gain = "" if model == "base" else f"{evidence['delta_bic_vs_base']:+.1f}"
-            fit_mse = score.get("objective", score.get("fit_mse"))
-            label = f"**{model}**" if model == result["cause"] else model
-            lines.append(f"| {label} | {_parameters(evidence)} | {score['chi2']:.1f} | {score['bic']:.1f} | {gain} | "
-                         f"{score['heldout_chi2']:.1f} | {fit_mse:.4f} | {score['heldout_mse']:.4f} | {where} |")
-        lines += ["", f"Gain ({errors['compared_model']} vs base, DEM runs): runout MSE "
-                      f"{errors['fit_mse']['before']:.4f} &rarr; {errors['fit_mse']['after']:.4f} (fit), "
-                      f"{errors['heldout_mse']['before']:.4f} &rarr; {errors['heldout_mse']['after']:.4f} (held out).", "",
-                  "Checks: " + ", ".join(f"{k} {'yes' if v else 'NO'}" for k, v in result["checks"].items()) + ".", ""]
-        if result["warnings"]:
-            lines += ["Warnings:", ""] + [f"- {w}" for w in result["warnings"]] + [""]
-        lines += [f"![residuals]({rel}/residuals.png)", "", f"![candidates]({rel}/candidates.png)", ""]
-    return "\n".join(lines) + "\n"
-
-
-def write_section(results: dict, section_path) -> None:
-    write_text(section_path, section_markdown(results, section_path))

@@ -19,7 +19,6 @@ cannot fail by being too narrow, and is reported as such).
 """
 from __future__ import annotations
 
-import json
 import logging
 import time
 
@@ -231,26 +230,4 @@ def recovery_study(simulator, metadata, n_cases: int = 5, noise_std: float = 0.0
     summary.update(dataset=metadata["name"], t_over_tstar=t_points.tolist(), noise_std=noise_std, packings=packings,
                    packing_std=packing_std.tolist(), packing_dof=packing_dof,
                    model_error_std=model_error_std, bounds=[list(b) for b in bounds], runout=runout.to_config())
-    return summary
-
-
-def run_recovery(model_path, metadata_path, out_json, out_figure, *, runout, evaluation_path=None,
-                 dem: dict | None = None, **study_kwargs) -> dict:
-    """The recovery stage: recovery_study with the GNS at model_path, L* read by `runout` (the
-    config's runout section), DEM runs by the engine of `dem` (the config's dem section); writes
-    JSON and figure."""
-    from calibration.inverse import model_error_from_evaluation
-    from dem.atomic import write_text
-    from gns.data import read_metadata
-    from gns.simulator import load_simulator
-
-    metadata = read_metadata(metadata_path)
-    runout = RunoutMethod.from_config(runout)
-    summary = recovery_study(load_simulator(model_path, metadata), metadata,
-                             model_error_std=model_error_from_evaluation(evaluation_path, runout), runout=runout,
-                             dem_config=dem, **study_kwargs)
-    write_text(out_json, json.dumps(summary, indent=1) + "\n")
-    plot_recovery(summary, out_figure, title=f"{metadata['name']} (targets: mean of {summary['packings']} packings): mu "
-                  f"within {summary['mu_tolerance']:g} in {summary['mu_within']} of {summary['n_cases']}, truth inside "
-                  f"95% in {summary['truth_inside_95']}")
     return summary

@@ -1,7 +1,8 @@
 """The case table: the config's datasets expanded into one row per DEM case.
 
-A dataset in the config (see workflow/schemas/config.schema.yaml) gives each case parameter as a
-fixed number, `{values: [...]}` (levels) or `{range: [min, max]}` (continuous). Expansion:
+A dataset in the config (see workflow/schemas/config.schema.yaml; validated by
+pipeline.config.validate_config before it gets here) gives each case parameter as a fixed number,
+`{values: [...]}` (levels) or `{range: [min, max]}` (continuous). Expansion:
 
 1. Level combinations (full factorial of every `values` parameter) share the cases as evenly as
    possible; which combinations get one case more is drawn with the dataset seed.
@@ -19,19 +20,15 @@ field the dataset sets. `case_from_row` turns it into a `dem.case.CollapseCase`.
 """
 from __future__ import annotations
 
-import copy
 import itertools
 import json
 import math
 from pathlib import Path
 
-import jsonschema
 import numpy as np
-import yaml
 
 from dem.atomic import write_text
 from dem.case import CaseError, CollapseCase
-from dem.runout import RunoutError, RunoutMethod
 
 # Parameters that may vary over a dataset, in the order cases are sorted for the splits.
 VARIED = ("aspect_ratio", "L_i", "friction", "restitution", "friction_wall", "restitution_wall")
@@ -44,124 +41,9 @@ SIGNIFICANT_DIGITS = 8  # sampled parameters are rounded so the table reads clea
 
 
 class ConfigError(ValueError):
-    """The config breaks the schema or a physical bound; the message names every bad key."""
-
-
-# --- config validation ----------------------------------------------------------------------
-def validate_config(config: dict, schema_path) -> dict:
-    """Check `config` against the JSON schema at `schema_path` and fill its defaults.
-
-    Returns a new dict. Raises ConfigError listing every problem as `key.path: message`, with the
-    allowed values (enum, bounds, known keys) in the message.
-    """
-    schema = yaml.safe_load(Path(schema_path).read_text())
-    config = copy.deepcopy(dict(config))
-    validator = jsonschema.Draft202012Validator(schema)
-    problems = [_describe(error, schema) for error in validator.iter_errors(config)]
-    problems += _check_gns_per_dataset(config.get("gns", {}), schema)
-    if problems:
-        raise ConfigError("invalid config:\n  " + "\n  ".join(sorted(set(problems))))
-    _fill_defaults(config, schema, schema)
-    for name, spec in config.get("datasets", {}).items():
-        problems += _check_dataset(name, spec)
-    try:     # the schema checks each key; the class is the one definition every stage builds from it
-        RunoutMethod.from_config(config.get("runout"))
-    except RunoutError as exc:
-        problems.append(str(exc))
-    if problems:
-        raise ConfigError("invalid config:\n  " + "\n  ".join(problems))
-    return config
-
-
-def _check_gns_per_dataset(gns: dict, schema: dict) -> list[str]:
-    """Each gns.per_dataset entry checked as the gns section it makes for its dataset."""
-    problems = []
-    for name, override in (gns.get("per_dataset") or {}).items():
-        where = f"gns.per_dataset.{name}"
-        fixed = sorted(set(override) & {"datasets", "threads", "per_dataset"})
-        if fixed:
-            problems.append(f"{where}: {fixed} apply to the whole gns section, not to one dataset")
-            continue
-        section = {**{k: v for k, v in gns.items() if k != "per_dataset"}, **override}
-        validator = jsonschema.Draft202012Validator(schema["properties"]["gns"])
-        problems += [f"{where}: {_describe(error, schema)}" for error in validator.iter_errors(section)]
-    return problems
-
-
-def _describe(error, schema) -> str:
-    key = ".".join(str(p) for p in error.absolute_path) or "(top level)"
-    if error.validator == "additionalProperties":
-        known = sorted(error.schema.get("properties", {}))
-        extra = sorted(set(error.instance) - set(known)) if isinstance(error.instance, dict) else []
-        where = f"{key}." if error.absolute_path else ""
-        return f"{where}{', '.join(map(str, extra))}: unknown key; allowed keys here: {known}"
-    if error.validator == "enum":
-        return f"{key}: {error.instance!r} is not allowed; allowed values: {error.validator_value}"
-    if error.validator in ("minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum"):
-        bounds = {k: error.schema[k] for k in ("minimum", "exclusiveMinimum", "maximum", "exclusiveMaximum")
-                  if k in error.schema}
-        return f"{key}: {error.instance!r} is out of range; allowed: {_bounds_text(bounds)}"
-    if error.validator == "type":
-        return f"{key}: {error.instance!r} has the wrong type; expected {error.validator_value}"
-    if error.validator == "required":
-        return f"{key}: {error.message}"
-    return f"{key}: {error.message}"
-
-
-def _bounds_text(bounds: dict) -> str:
-    low = (f"> {bounds['exclusiveMinimum']}" if "exclusiveMinimum" in bounds
-           else f">= {bounds['minimum']}" if "minimum" in bounds else "")
-    high = (f"< {bounds['exclusiveMaximum']}" if "exclusiveMaximum" in bounds
-            else f"<= {bounds['maximum']}" if "maximum" in bounds else "")
-    return " and ".join(b for b in (low, high) if b)
-
-
-def _resolve(schema: dict, root: dict) -> dict:
-    ref = schema.get("$ref")
-    if ref:
-        node = root
-        for part in ref.lstrip("#/").split("/"):
-            node = node[part]
-        return node
-    return schema
-
-
-def _fill_defaults(instance, schema: dict, root: dict) -> None:
-    """Fill `default` values of object properties in place (recursing into objects)."""
-    schema = _resolve(schema, root)
-    if not isinstance(instance, dict):
-        return
-    for key, sub in schema.get("properties", {}).items():
-        sub = _resolve(sub, root)
-        if key not in instance and "default" in sub:
-            instance[key] = copy.deepcopy(sub["default"])
-        if key in instance:
-            _fill_defaults(instance[key], sub, root)
-    extra = schema.get("additionalProperties")
-    if isinstance(extra, dict):
-        for key, value in instance.items():
-            if key not in schema.get("properties", {}):
-                _fill_defaults(value, extra, root)
-
-
-def _check_dataset(name: str, spec: dict) -> list[str]:
-    """Checks the schema cannot express: range order, split fractions, overrides' case ids."""
-    problems = []
-    for key in VARIED:
-        value = spec.get(key)
-        if isinstance(value, dict) and "range" in value and value["range"][0] > value["range"][1]:
-            problems.append(f"datasets.{name}.{key}.range: {value['range']} must be [min, max] with min <= max")
-    total = sum(spec["splits"].values())
-    if not math.isclose(total, 1.0, abs_tol=1e-9):
-        problems.append(f"datasets.{name}.splits: fractions {spec['splits']} must sum to 1 (got {total:g})")
-    needed = sum(1 for s in SPLITS if spec["splits"][s] > 0)
-    if spec["n_cases"] < needed:
-        problems.append(f"datasets.{name}.n_cases: {spec['n_cases']} cases cannot fill {needed} non-empty splits")
-    for case_id in spec.get("overrides", {}):
-        if int(case_id.split("_")[1]) >= spec["n_cases"]:
-            problems.append(f"datasets.{name}.overrides.{case_id}: no such case; ids run "
-                            f"{case_id_of(0, spec['n_cases'])}..{case_id_of(spec['n_cases'] - 1, spec['n_cases'])}")
-    return problems
+    """The config breaks the schema, a physical bound or a cross-key rule; the message names every
+    bad key. Raised here for a case that cannot be simulated, and by pipeline.config (the config
+    validation) for everything else."""
 
 
 # --- expansion into cases --------------------------------------------------------------------

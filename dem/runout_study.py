@@ -10,7 +10,8 @@ A runout method is judged by what it does with the chaos of a collapse, not by i
   moved by `perturbation` mean diameters. rerun_mse: a second run against the first (what an
   exact copy of the DEM would score); ideal_mse: the variance across runs (what the best
   deterministic surrogate, the mean curve, would score).
-Used by the DAG's `runout_methods` rule (report table) and benchmarks/runout_methods.py (JSON).
+Used by the DAG's `runout_methods` rule (pipeline/runout.py: report table) and
+benchmarks/runout_methods.py (JSON).
 """
 from __future__ import annotations
 
@@ -190,48 +191,3 @@ def plot_methods(runs: dict, study: dict, path) -> None:
     fig.suptitle("runout of every packing, read by each method", fontsize=10)
     fig.tight_layout()
     save_figure(fig, path)
-
-
-# -- workflow stage (rule runout_methods) -----------------------------------------------------------
-def run_runout_methods(labels, trajectory_paths, rollout_paths: dict, out_json, out_figure, out_section, runout,
-                       n_packings: int = PACKINGS, n_reruns: int = RERUNS) -> dict:
-    """The runout-method study on the DAG's own runs: methods.json, the figure and the report section.
-
-    labels [k] / trajectory_paths [k]: the cases (GNS test cases, DoE centres); rollout_paths
-    {label: GNS rollout}; runout: the configured method (the section says which one it is).
-    """
-    import json
-    import os
-    from pathlib import Path
-
-    from dem.atomic import write_text
-    from dem.trajectory import read_trajectory
-
-    runout = RunoutMethod.from_config(runout)
-    cases = {label: read_trajectory(path) for label, path in zip(labels, trajectory_paths)}
-    rollouts = {label: read_trajectory(path) for label, path in rollout_paths.items()}
-    done = [0]
-    total = len(cases) * (n_packings + n_reruns)
-
-    def progress(what):
-        done[0] += 1
-        log.info("%s (%d/%d DEM runs, %.0f%%)", what, done[0], total, 100 * done[0] / total)
-
-    study, runs = compare_methods(cases, n_packings=n_packings, n_reruns=n_reruns, rollouts=rollouts,
-                                  progress=progress)
-    study["configured"] = runout.to_config()
-    write_text(out_json, json.dumps(study, indent=1) + "\n")
-    plot_methods(runs, study, out_figure)
-    figure = Path(os.path.relpath(out_figure, Path(out_section).parent)).as_posix()
-    text = "\n".join([
-        f"Every stage reads L* as the **{runout.label}** (config key `runout`, method `{runout.method}`). "
-        "A lab reads the runout off images of the dense front, and a front it has read never moves back; "
-        "the table shows what each method does with the same DEM runs: the scatter of L* between "
-        f"{n_packings} packings of each case, per phase, the largest backward jump of L* between frames, "
-        f"and the chaos floor ({n_reruns} reruns from the case's own packing, every grain moved by "
-        f"{PERTURBATION:g} diameters): a rerun scored against the run (rerun MSE) and the best any "
-        "deterministic surrogate can do (ideal MSE). GNS columns: its test rollouts, where the case has one. "
-        f"Means over {len(cases)} cases ({', '.join(cases)}); per case in `{Path(out_json).as_posix()}`.",
-        "", markdown_table(study), "", f"![runout of every packing read by each method]({figure})", ""])
-    write_text(out_section, text)
-    return study

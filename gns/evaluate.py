@@ -8,18 +8,15 @@ diameters^2 (comparable across coarse-graining).
 from __future__ import annotations
 
 import json
-import logging
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 
 from dem.atomic import atomic_path, write_text
 from dem.runout import RunoutError, RunoutMethod, runout_curve
-from dem.trajectory import Trajectory, read_trajectory, write_trajectory
+from dem.trajectory import Trajectory, read_trajectory
 
-log = logging.getLogger(__name__)
 SNAPSHOT_TSTAR = (0.0, 1.0, 1.5, 2.0, 4.0)
 
 
@@ -36,25 +33,6 @@ def position_mse(dem: Trajectory, gns: Trajectory, n_input_frames: int) -> float
     frames = slice(n_input_frames, gns.n_frames)
     difference = gns.positions[frames].astype(np.float64) - dem.positions[frames].astype(np.float64)
     return float(np.mean(np.sum(difference ** 2, axis=-1)))
-
-
-def rollout_case(model_path, dem_path, out_path, metadata_path=None) -> Trajectory:
-    """Roll out the case of the DEM trajectory `dem_path` with the model at `model_path` from its
-    first C frames to its last frame; write it (engine "gns") to `out_path`. A rollout that fails
-    is written up to the failing step, with rollout_valid = 0 and the reason in rollout_problem."""
-    from gns.data import read_metadata
-    from gns.rollout import rollout_trajectory
-    from gns.simulator import load_simulator
-
-    metadata = read_metadata(metadata_path) if metadata_path else None
-    simulator = load_simulator(model_path, metadata)
-    dem = read_trajectory(dem_path)
-    gns = rollout_trajectory(simulator, dem, on_invalid="flag", model_name=Path(model_path).name)
-    if not gns.attrs["rollout_valid"]:
-        log.warning("rollout of %s failed: %s", dem_path, gns.attrs["rollout_problem"])
-    log.info("rolled out %s: %d steps in %.2f s", dem_path, gns.attrs["rollout_steps"], gns.attrs["wall_time_s"])
-    write_trajectory(out_path, gns)
-    return gns
 
 
 def evaluate_rollouts(pairs, out_dir, runout: RunoutMethod | dict | str, n_input_frames: int | None = None) -> dict:
@@ -174,53 +152,3 @@ def plot_runout_curves(curves, path, runout_label: str = ""):
     ax.legend(fontsize=6, ncol=2)
     fig.tight_layout()
     save_figure(fig, path)
-
-
-def report_section(datasets, summaries, loss_curves, training_metrics, fragment_path) -> str:
-    """Markdown for results/report/gns.md, one block per dataset; links relative to `fragment_path`.
-
-    summaries: evaluation summary.json paths; loss_curves / training_metrics: the training's
-    loss_curve.png / metrics.csv paths, all in `datasets` order.
-    """
-    import pandas as pd
-
-    where = Path(fragment_path).parent
-    rel = lambda p: os.path.relpath(p, where)  # noqa: E731
-    lines = ["GNS rollouts of each test case from its first C frames to its last frame, against the DEM. "
-             "Runout MSE: mean over frames of (L*_GNS - L*_DEM)^2 (the paper reports 0.172 for quartz and "
-             "0.167 for copper; the target here is at most 0.05). A collapse is chaotic: the DEM rerun from the "
-             "same packing with every grain moved by 0.001 diameters differs from its first run too, and no "
-             "surrogate can score below that scatter (`python benchmarks/gns_floor.py` measures it for a "
-             "dataset). Position MSE in mean grain diameters squared.",
-             "", f"Runout read as the {RunoutMethod.from_config(json.loads(Path(summaries[0]).read_text()).get('runout')).label}"
-             " (config key `runout`)." if summaries else "",
-             "", "| dataset | steps | training (min) | best step | valid runout MSE | test cases | failed | "
-             "test runout MSE | position MSE (d^2) | rollout (s/case) |", "|---|---|---|---|---|---|---|---|---|---|"]
-    for name, summary_path, metrics_path in zip(datasets, summaries, training_metrics):
-        summary = json.loads(Path(summary_path).read_text())
-        metrics = pd.read_csv(metrics_path)
-        validated = metrics[np.isfinite(metrics["valid_runout_mse"])]
-        best = validated.loc[validated["valid_runout_mse"].idxmin()] if len(validated) else None
-        steps = np.diff(np.concatenate([[0], metrics["step"].to_numpy()]))
-        minutes = float(np.nansum(steps / metrics["steps_per_s"].to_numpy())) / 60
-        lines.append(f"| {name} | {int(metrics['step'].max())} | {minutes:.3g} | "
-                     f"{int(best['step']) if best is not None else '-'} | "
-                     f"{best['valid_runout_mse'] if best is not None else float('nan'):.4g} | {summary['n_cases']} | "
-                     f"{summary['n_failed']} | **{summary['runout_mse']:.4g}** | {summary['position_mse_d2']:.3g} | "
-                     f"{summary['gns_rollout_s_mean']:.3g} |")
-    for name, summary_path, curve in zip(datasets, summaries, loss_curves):
-        summary = json.loads(Path(summary_path).read_text())
-        eval_dir = Path(summary_path).parent
-        lines += ["", f"### {name}", "", "| case | mu | e | a | L_i (mm) | grains | runout MSE | final L* DEM | "
-                  "final L* GNS | position MSE (d^2) | GNS rollout (s) | DEM run (s) |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-        for r in summary["cases"]:
-            problem = " (rollout failed, see metrics.csv)" if not r["valid"] else ""
-            lines.append(f"| {r['case']}{problem} | {r['friction']:.3g} | {r['restitution']:.3g} | {r['aspect_ratio']:.3g} | "
-                         f"{r['L_i'] * 1e3:.3g} | {r['n_particles']} | {r['runout_mse']:.4g} | {r['final_runout_dem']:.3g} | "
-                         f"{r['final_runout_gns']:.3g} | {r['position_mse_d2']:.3g} | {r['gns_rollout_s']:.3g} | "
-                         f"{r['dem_run_s']:.3g} |")
-        lines += ["", f"![{name}: training loss and validation runout MSE]({rel(curve)})", "",
-                  f"![{name}: runout curves, DEM solid, GNS dashed]({rel(eval_dir / 'runout_curves.png')})", ""]
-        for r in summary["cases"]:
-            lines += [f"![{name} {r['case']}: DEM (left) and GNS (right)]({rel(eval_dir / 'snapshots' / (r['case'] + '.png'))})", ""]
-    return "\n".join(lines)

@@ -12,7 +12,7 @@ import pytest
 
 from calibration.compare import (BO_MAX_RUNS, ComparisonError, bayesopt_on_dem, case_like,
                                  comparison_routes, measured_case_fields, model_case_fields, read_table,
-                                 report_section, run_bayesopt, run_comparison, run_dem_point, write_table)
+                                 write_table)
 from calibration.objective import objective
 from calibration.recovery import recovery_summary, recovery_targets, synthetic_measured
 from dem.case import CollapseCase
@@ -20,6 +20,8 @@ from dem.collapse import simulate_collapse
 from dem.dataset import build_dataset
 from dem.runout import RunoutError, RunoutMethod
 from dem.trajectory import read_attrs, read_trajectory, write_trajectory
+from pipeline.inverse import (report_section, run_bayesopt, run_comparison, run_dem_at, run_dem_point,
+                              write_section)
 
 
 RUNOUT = RunoutMethod()          # the config's default: every stage here reads L* by it
@@ -77,6 +79,18 @@ def test_dem_run_at_a_point_uses_the_measured_column_and_the_datasets_dem_model(
         trajectory, [0.5, 1.0, 1.5, 2.0, 2.5], 0.05, seed=0, name="tiny_target", packing_std=0.0, runout=RUNOUT),
         RUNOUT), rel=1e-9)
     assert summary["mse"] < 4 * 0.05 ** 2 and len(summary["runout"]) == 5
+
+
+def test_the_start_and_validation_jobs_run_at_the_start_point_or_at_the_gns_optimum(tiny, tmp_path):
+    inverse = _inverse_json(tmp_path / "inverse.json", [0.45, 0.65])
+    name, params, summary = run_dem_at(tiny["measured"], tiny["metadata"], tmp_path / "validation.h5",
+                                       runout=RUNOUT.to_config(), seed=1, result_path=inverse)
+    assert (name, params) == ("gns_optimum", {"friction": 0.45, "restitution": 0.65})
+    assert (summary["friction"], summary["restitution"]) == (0.45, 0.65)
+    name, params, _ = run_dem_at(tiny["measured"], tiny["metadata"], tmp_path / "start.h5",
+                                 runout=RUNOUT.to_config(), seed=1, start=[0.55, 0.73])
+    assert (name, params) == ("start", {"friction": 0.55, "restitution": 0.73})
+    assert read_trajectory(tmp_path / "start.h5").attrs["restitution"] == 0.73
 
 
 @pytest.mark.skipif(shutil.which("liggghts") is None, reason="LIGGGHTS not installed (apt-get install liggghts)")
@@ -183,6 +197,12 @@ def test_comparison_table_figures_and_report_section(tiny, tmp_path):
     assert "![validated objective against DEM runs and wall time (Table 5)](../out/comparison.png)" in text
     assert "| 0.550, 0.730 | 0.500, 0.600 | 0.2 -> 0.01 | 3 | 5 | CONVERGENCE |" in text
     assert "within 0.002 of the optimum it spans 0.003" in text
+    # the section job: every column's figures lie beside its inverse.json, the BO's when it ran
+    written = write_section(["tiny_target"], [tiny["measured"]], [inverse], [out / "comparison.csv"],
+                            tmp_path / "report" / "inverse.md", bayesopt=True)
+    assert (tmp_path / "report" / "inverse.md").read_text() == written
+    assert "![validated objective against DEM runs and wall time (Table 5)](../comparison.png)" in written
+    assert "![Bayesian optimisation on DEM runs](../bayesopt.png)" in written
 
 
 def _measured(path):

@@ -114,3 +114,33 @@ def test_summary_figure_reports_final_runout_per_case(tmp_path, three_splits):
     assert set(final) == {p for paths in splits.values() for p in paths}
     # the valid grains travel ~0.1 m in x: their runout must far exceed the slow training cases'
     assert final[splits["valid"][0]] > 5 * max(final[p] for p in splits["train"])
+
+
+def test_dataset_stage_summary_table_and_report_section(tmp_path, monkeypatch):
+    """pipeline.dataset: metadata, the case table CSV with each case's final L* (read from the
+    trajectories where the DEM stage writes them), the report section with relative links."""
+    from pipeline.dataset import build, summarise, write_section
+
+    monkeypatch.chdir(tmp_path)
+    rng = np.random.default_rng(2)
+    rows, splits = [], {"train": [], "valid": [], "test": []}
+    for k, split in enumerate(["train", "train", "valid", "test"]):
+        path = f"results/dem/syn/trajectories/case_{k:03d}.h5"
+        write_motion(tmp_path / path, friction=0.3 + 0.1 * k, speed=1e-3 * (k + 1), rng=rng)
+        splits[split].append(path)
+        rows.append({"dataset": "syn", "case_id": f"case_{k:03d}", "split": split, "friction": 0.3 + 0.1 * k})
+    meta_path = "results/datasets/syn/metadata.json"
+    meta = build(splits, meta_path, "syn")
+    assert meta["n_cases"] == {"train": 2, "valid": 1, "test": 1}
+    out = summarise(meta_path, "results/datasets/syn/summary.png", "results/datasets/syn/cases.csv", rows,
+                    "connected_front")
+    final = plot_dataset(meta, tmp_path / "again.png", "connected_front")
+    assert [r["final_L_star"] for r in out] == [round(final[p], 4) for p in sum(splits.values(), [])]
+    assert "final_L_star" not in rows[0]  # the caller's rows are left alone
+    lines = (tmp_path / "results/datasets/syn/cases.csv").read_text().splitlines()
+    assert lines[0] == "dataset,case_id,split,friction,final_L_star" and len(lines) == 5
+    assert lines[1].endswith(f",{out[0]['final_L_star']}")
+    text = write_section([meta_path], ["results/datasets/syn/summary.png"], "results/report/dataset.md")
+    assert (tmp_path / "results/report/dataset.md").read_text() == text
+    assert "| syn | 2/1/1 | 5-5 | 12-12 | 2 | 0.3-0.6 | 0.65 | 10 | 2 |" in text
+    assert "](../datasets/syn/summary.png)" in text

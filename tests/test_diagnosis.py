@@ -13,8 +13,7 @@ import numpy as np
 import pytest
 
 from calibration.diagnosis import (DecisionRule, DiagnosisError, DiagnosisSettings, check_data, decide, diagnose,
-                                   fit_emulated, held_out_folds, noise_model, residual_structure, run_diagnosis,
-                                   runs_test)
+                                   fit_emulated, held_out_folds, noise_model, residual_structure, runs_test)
 from calibration.emulator import (DesignRuns, GPEmulator, Library, Model, Observables, ParameterBox,
                                   LibraryError, SimulationSettings, latin_hypercube)
 from calibration.measured import MeasuredColumn
@@ -25,6 +24,7 @@ from calibration.synthetic import (draw_truth, evidence_margins, synthetic_colum
 from dem.case import CollapseCase
 from dem.runout import RunoutMethod, runout_curve
 from dem.trajectory import Trajectory
+from pipeline.diagnosis import run_diagnosis, run_section
 
 MECHANISMS = {m.name: m for m in get_mechanisms()}
 
@@ -316,6 +316,12 @@ def test_hidden_mechanism_is_named_from_a_csv(ci_library, tmp_path):
     assert errors["heldout_mse"]["after"] < errors["heldout_mse"]["before"]
     assert written["simulator"]["engine"] == "builtin" and written["simulator"]["gns_used"] is False
     assert "residuals" in written and written["residuals"]["summary"]
+    # the report section, its figure links relative to the section's own folder
+    section_path = tmp_path / "report" / "diagnosis.md"
+    run_section(["hidden"], [tmp_path / "out" / "diagnosis.json"], section_path)
+    text = section_path.read_text()
+    assert f"**Cause: {truth.mechanism}.**" in text and f"| **{truth.mechanism}** |" in text
+    assert "![residuals](../out/residuals.png)" in text and "![candidates](../out/candidates.png)" in text
 
 
 def test_null_case_names_no_cause(ci_library):

@@ -1,4 +1,5 @@
-"""DoE: the factorial design, response-surface regression, ANOVA effect table, pure error, optimum."""
+"""DoE: the factorial design, response-surface regression, ANOVA effect table, pure error, optimum;
+the stage's jobs (pipeline/doe.py) on synthetic trajectories."""
 import json
 
 import numpy as np
@@ -145,8 +146,8 @@ def test_study_on_synthetic_trajectories(tmp_path):
     L*(t; mu, e) = g(mu, e) L*_measured(t), so the MSE is (g - 1)^2 mean(L*_measured^2)."""
     from dem.trajectory import write_trajectory
     from dem.runout import RunoutError, RunoutMethod
-    from doe.study import (collect_responses, read_responses, report_section, run_analysis, write_json,
-                           write_responses)
+    from doe.study import collect_responses, read_responses, run_analysis, write_responses
+    from pipeline.doe import report_section, write_json
     from test_objective import front_trajectory
 
     connected = RunoutMethod("connected_front")      # front_trajectory builds a connected-deposit front
@@ -192,3 +193,64 @@ def test_study_on_synthetic_trajectories(tmp_path):
                           validation, [folder / "runout.png"], {"quartz": []}, section_path, runout=connected)
     assert "| friction(0.3,0.9) |" in text and "**MSE = 0.000**" in text
     assert "](../doe/response_surface.png)" in text and (folder / "runout.png").stat().st_size > 10_000
+
+
+def test_stage_jobs_on_synthetic_trajectories(tmp_path, monkeypatch):
+    """pipeline.doe's entry functions, one per Snakemake job, on the files the rules name: design
+    table, responses + analysis (runout recorded) + surface, validation run (DEM stubbed: the
+    case, the engine config and the progress reporter reach it), section from the files alone."""
+    import pipeline.doe
+    from dem.runout import RunoutMethod
+    from dem.trajectory import read_trajectory, write_trajectory
+    from doe.design import read_design
+    from test_objective import front_trajectory
+
+    connected = RunoutMethod("connected_front")
+    measured_path = "data/measured/quartz_a6.csv"
+    measured = load_column(measured_path)
+    doe = {"levels": 3, "models": ["eq9", "quadratic"], "size_scale": 4.0, "duration_over_tstar": 4.0}
+    t_frames = np.arange(0, 4.01, 0.25)
+    base = np.interp(t_frames, measured.t_over_tstar, measured.runout, left=0.0, right=measured.runout[-1])
+
+    def run(mu, e):
+        traj = front_trajectory(measured.L_i * (1 + (1 + 0.8 * (0.6 - mu) + 0.3 * (e - 0.5)) * base))
+        traj.attrs.update(friction=mu, restitution=e, wall_time_s=1.5)
+        return traj
+
+    folder = tmp_path / "results/doe/quartz"
+    table = pipeline.doe.design(measured_path, doe, folder / "design.csv")
+    assert read_design(folder / "design.csv")["run_id"].tolist() == table["run_id"].tolist()
+    runs = tmp_path / "results/dem/doe_quartz/trajectories"
+    for r in table.itertuples():
+        write_trajectory(runs / f"{r.run_id}.h5", run(r.friction, r.restitution))
+    summary = pipeline.doe.analyse(folder / "design.csv", measured_path, sorted(runs.glob("*.h5")), doe,
+                                   connected.to_config(), folder / "responses.csv", folder / "analysis.json",
+                                   folder / "response_surface.png")
+    written = json.loads((folder / "analysis.json").read_text())
+    assert written["runout"] == connected.to_config() == summary["runout"]
+    assert written["n_runs"] == len(table) and (folder / "response_surface.png").stat().st_size > 10_000
+
+    calls = []
+
+    def fake_simulate(case, config, progress=None):
+        calls.append((case, config))
+        progress(1.0)
+        return run(case.friction, case.restitution)
+
+    monkeypatch.setattr(pipeline.doe, "simulate_case", fake_simulate)
+    fields = {"size_scale": 4.0, "duration_over_tstar": 4.0, "seed": 0}
+    mse = pipeline.doe.validate(folder / "analysis.json", measured_path, "quadratic", fields, {"engine": "builtin"},
+                                connected.to_config(), folder / "validation/quadratic.h5")
+    case, config = calls[0]
+    assert config == {"engine": "builtin"} and case.name == "doe_validation_quadratic"
+    optimum = written["models"]["quadratic"]["optimum"]["natural"]
+    assert (case.friction, case.restitution) == pytest.approx((optimum["friction"], optimum["restitution"]))
+    assert read_trajectory(folder / "validation/quadratic.h5").attrs["friction"] == pytest.approx(case.friction)
+    assert mse == pytest.approx(0.0, abs=1e-3)
+
+    section = tmp_path / "results/report/doe.md"
+    text = pipeline.doe.write_section(["quartz"], [measured_path], [folder / "analysis.json"], [runs / "run_4.h5"],
+                                      [folder / "validation/quadratic.h5"], [folder / "runout.png"], {"quartz": []},
+                                      section, runout=connected.to_config())
+    assert section.read_text() == text and "**MSE = 0.000**" in text
+    assert "](../doe/quartz/response_surface.png)" in text and (folder / "runout.png").stat().st_size > 10_000

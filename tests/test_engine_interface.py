@@ -113,3 +113,52 @@ def test_size_classes_keep_restitution_within_tolerance():
     # one class is enough for equal grains; too few classes allowed reports the larger error
     assert len(size_classes(np.full(5, 1e-6), (0.5,), tolerance, 10)[1]) == 1
     assert size_classes(mass, (0.3,), tolerance, max_classes=2)[2] > tolerance
+
+
+def test_dem_stage_row_to_deck_packing_run_and_figure(tiny, tmp_path, caplog):
+    """pipeline.dem, the DEM stage's jobs: a case-table row -> deck -> settled packing -> run with
+    the configured engine (stale scratch files cleared, the scratch folder removed) -> figure."""
+    from pipeline.dem import draw_case, run_case, settle, write_deck
+
+    case, packing = tiny
+    caplog.set_level(logging.INFO)
+    row = {"dataset": "tiny_set", "case_id": "case_000", "split": "train", "material": "quartz", "L_i": 0.006,
+           "aspect_ratio": 1.0, "friction": 0.5, "restitution": 0.6, "size_scale": 3.0, "duration_over_tstar": 0.5}
+    assert write_deck(row, tmp_path / "deck.json") == case
+    settled = settle(tmp_path / "deck.json", tmp_path / "packing.h5")
+    np.testing.assert_array_equal(read_trajectory(tmp_path / "packing.h5").positions, packing.positions)
+    assert settled.attrs["settled_height"] > 0
+    work = tmp_path / "work"
+    work.mkdir()
+    (work / "stale.txt").write_text("a killed run's leftovers")
+    trajectory = run_case(tmp_path / "deck.json", tmp_path / "packing.h5", tmp_path / "out.h5", "builtin", {},
+                          keep_work=False, work_dir=work)
+    np.testing.assert_array_equal(read_trajectory(tmp_path / "out.h5").positions, trajectory.positions)
+    np.testing.assert_array_equal(trajectory.positions, simulate_collapse(case, packing).positions)
+    assert not work.exists()
+    run_case(tmp_path / "deck.json", tmp_path / "packing.h5", tmp_path / "out.h5", "builtin", {}, keep_work=True,
+             work_dir=work)
+    assert (work / "case.json").exists()
+    assert "collapse tiny_set/case_000: 100%" in caplog.text and "settled height" in caplog.text
+    draw_case(tmp_path / "out.h5", tmp_path / "case.png", "connected_front")
+    assert (tmp_path / "case.png").stat().st_size > 10_000
+
+
+@pytest.mark.filterwarnings("ignore:Mean of empty slice", "ignore:invalid value encountered")  # 0.5 t*: no stopping
+def test_runout_methods_stage_writes_study_figure_and_section(tiny, tmp_path):
+    """pipeline.runout on one tiny builtin run (2 packings, 2 reruns; its own rollout as the GNS)."""
+    import json
+
+    from dem.trajectory import write_trajectory
+    from pipeline.runout import run_runout_methods
+
+    case, packing = tiny
+    write_trajectory(tmp_path / "run.h5", simulate_collapse(case, packing))
+    run = tmp_path / "run.h5"
+    study = run_runout_methods(["tiny"], [run], {"tiny": run}, tmp_path / "methods.json", tmp_path / "methods.png",
+                               tmp_path / "report" / "runout.md", "connected_front", n_packings=2, n_reruns=2)
+    assert json.loads((tmp_path / "methods.json").read_text())["configured"]["method"] == "connected_front"
+    assert study["mean"]["connected_front"]["gns_mse"] == 0.0 and study["mean"]["connected_front"]["gns_cases"] == 1
+    text = (tmp_path / "report" / "runout.md").read_text()
+    assert "method `connected_front`" in text and "](../methods.png)" in text and "| dense_front |" in text
+    assert (tmp_path / "methods.png").stat().st_size > 10_000

@@ -1,8 +1,10 @@
-"""GNS training, resume after a kill, streaming windows, evaluation outputs."""
+"""GNS training, resume after a kill, streaming windows, evaluation outputs, the stage's jobs
+(pipeline.gns) and report section."""
 from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -18,9 +20,10 @@ from dem.dataset import DatasetError
 from dem.runout import RunoutMethod
 from dem.trajectory import read_trajectory
 from gns.data import TrajectoryWindows, read_metadata
-from gns.evaluate import evaluate_rollouts, rollout_case, rollout_runout_mse
+from gns.evaluate import evaluate_rollouts, rollout_runout_mse
 from gns.simulator import CheckpointError, load_simulator
 from gns.train import Trainer, TrainSettings, train
+from pipeline import gns as gns_stage
 from tests.gns_synthetic import synthetic_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -119,7 +122,8 @@ def test_a_finished_training_rerun_writes_its_outputs_again_without_training(dat
     torch.save(payload, out / "checkpoint_last.pt")
     with pytest.raises(CheckpointError, match="no copy of the best model"):
         train(dataset, out, dict(TINY, steps=60, validate_every=30), runout=CONNECTED)
-    fresh = train(dataset, out, dict(TINY, steps=60, validate_every=30), runout=CONNECTED, restart_on_mismatch=True)
+    # the workflow's job restarts on a mismatch (pipeline.gns.train)
+    fresh = gns_stage.train(dataset, out, dict(TINY, steps=60, validate_every=30), CONNECTED)
     assert fresh["resumed_from"] is None and fresh["best"] == first["best"]      # retrained, same seed
     again = torch.load(out / "model_best.pt", weights_only=False)
     assert all(torch.equal(again["state_dict"][k], best_bytes["state_dict"][k]) for k in best_bytes["state_dict"])
@@ -158,7 +162,7 @@ def test_evaluation_rolls_out_test_cases_and_scores_them(trained, dataset, tmp_p
     out, _ = trained
     metadata = read_metadata(dataset)
     dem_path = metadata["splits"]["test"][0]
-    gns = rollout_case(out / "model_best.pt", dem_path, tmp_path / "rollout.h5", dataset)
+    gns = gns_stage.rollout(out / "model_best.pt", dem_path, tmp_path / "rollout.h5", dataset)
     written = read_trajectory(tmp_path / "rollout.h5")
     assert written.attrs["engine"] == "gns" and written.n_frames == 24
     assert np.array_equal(written.positions[:6], read_trajectory(dem_path).positions[:6])
@@ -171,3 +175,13 @@ def test_evaluation_rolls_out_test_cases_and_scores_them(trained, dataset, tmp_p
     assert rollout_runout_mse(dem, dem, CONNECTED) == 0.0
     assert summary["runout"] == CONNECTED.to_config()       # the summary states how it read L*
     assert json.loads((tmp_path / "eval" / "summary.json").read_text())["runout"] == CONNECTED.to_config()
+    # the stage's jobs: the same scores from the path lists, and the report section linking its figures
+    gns_stage.evaluate([dem_path], [tmp_path / "rollout.h5"], tmp_path / "stage", CONNECTED)
+    assert (tmp_path / "stage" / "summary.json").read_text() == (tmp_path / "eval" / "summary.json").read_text()
+    fragment = tmp_path / "report" / "gns.md"
+    text = gns_stage.section(["synthetic"], [tmp_path / "stage" / "summary.json"], [out / "loss_curve.png"],
+                             [out / "metrics.csv"], fragment)
+    assert fragment.read_text() == text
+    assert "| synthetic | 60 |" in text and "### synthetic" in text and "connected" in text
+    links = re.findall(r"\]\(([^)]+)\)", text)
+    assert len(links) == 3 and all((fragment.parent / link).exists() for link in links)

@@ -9,7 +9,8 @@ import yaml
 
 from dem.case import CollapseCase
 from dem.grid import (ConfigError, assign_splits, case_from_row, case_table, read_deck, sample_dataset,
-                      split_counts, validate_config, write_case_table, write_deck)
+                      split_counts, write_case_table, write_deck)
+from pipeline.config import validate_config
 
 ROOT = Path(__file__).resolve().parents[1]
 SCHEMA = ROOT / "workflow" / "schemas" / "config.schema.yaml"

@@ -20,15 +20,15 @@ import yaml
 
 from calibration.diagnosis import DiagnosisError, DiagnosisSettings
 from calibration.emulator import Library, LibraryError, Observables
-from calibration.inverse import model_error_from_evaluation
+from pipeline.inverse import model_error_from_evaluation
 from calibration.measured import MeasuredColumn
 from dem.case import CollapseCase
-from dem.grid import ConfigError, validate_config
 from dem.runout import (METHODS, RunoutError, RunoutMethod, check_same_method, dense_mask, deposit_mask, runout_at,
                         runout_curve)
 from dem.trajectory import Trajectory, read_trajectory, write_trajectory
 from doe.study import read_responses
 from gns.runout import soft_front_position
+from pipeline.config import ConfigError, validate_config
 
 ROOT = Path(__file__).resolve().parents[1]
 SCHEMA = ROOT / "workflow" / "schemas" / "config.schema.yaml"

@@ -188,7 +188,9 @@ def test_killed_run_resumes_recomputing_only_incomplete_jobs(tmp_path):
     (lambda c: c["dem"].update(threads="two"), "dem.threads: 'two' has the wrong type; expected integer"),
     (lambda c: c["datasets"]["tiny_multiple"].update(restitution={"range": [0.3, 1.2]}),
      "datasets.tiny_multiple.restitution.range.1: 1.2 is out of range; allowed: > 0 and <= 1"),
-], ids=["unknown-key", "wrong-type", "out-of-range"])
+    (lambda c: c["gns"].update(datasets=["tiny_frction"]),
+     "config key gns.datasets: 'tiny_frction' is not a dataset (datasets: ['tiny_friction', 'tiny_multiple'])"),
+], ids=["unknown-key", "wrong-type", "out-of-range", "cross-key"])
 def test_bad_config_fails_before_any_job_runs(tmp_path, edit, message):
     workdir = copy_workflow(tmp_path / "bad")
     config = yaml.safe_load((workdir / "config" / "test.yaml").read_text())

@@ -1,20 +1,26 @@
 # Shared by every stage: the validated config, the case table, and the two lists each stage
-# appends to. Logic lives in the dem package (dem/grid.py); this file only calls it.
+# appends to. Logic lives in pipeline/config.py (validation) and dem/grid.py (the case table);
+# this file only calls them.
 from pathlib import Path
 
 import dem.grid
 import dem.runout
+import pipeline.config
 from snakemake.utils import min_version
 
 min_version("9.0")
 
 # Fails before any job runs, naming the key and what it allows; fills schema defaults.
-config.update(dem.grid.validate_config(config, Path(workflow.basedir, "workflow/schemas/config.schema.yaml")))
+config.update(pipeline.config.validate_config(config, Path(workflow.basedir, "workflow/schemas/config.schema.yaml")))
 
 # The case table, built once: {case_key: row}, case_key = "<dataset>/<case_id>".
 # A row holds every CollapseCase field of the case plus dataset, case_id and split.
 CASES = dem.grid.case_table(config)
 DATASETS = sorted(config["datasets"])
+# Keys that name another key's entries (gns.datasets, doe.measured, inverse.*: a dataset, a
+# `measured` entry, a GNS) checked once, before any job runs. On the way it resolves the dataset
+# whose GNS calibrates each inverse.measured column: {name: dataset} (inverse.smk).
+INVERSE_DATASET = pipeline.config.check_cross_keys(config, CASES)
 # How every stage reads L* off a run (dem.runout.RunoutMethod), read once here and passed to every
 # rule that scores a runout as a param, so changing it reruns exactly those rules. In the class's
 # key order: Snakemake compares params as written, so keys reordered in a config would rerun them.

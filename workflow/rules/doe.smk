@@ -13,12 +13,8 @@ DOE_DESIGN = doe.design.design_from_config(DOE)
 DOE_RUNS = list(DOE_DESIGN["run_id"])
 DOE_CASE_FIELDS = {"size_scale": DOE["size_scale"], "duration_over_tstar": DOE["duration_over_tstar"]}
 
+# doe.measured is checked in common.smk (each a `measured` entry; no dataset named doe_<name>)
 for _name in DOE_NAMES:
-    if _name not in config["measured"]:
-        raise WorkflowError(f"config key doe.measured: {_name!r} is not an entry of `measured` "
-                            f"(entries: {sorted(config['measured'])})")
-    if f"doe_{_name}" in config["datasets"]:
-        raise WorkflowError(f"config key datasets.doe_{_name}: the name is taken by the DoE of measured {_name!r}")
     # the design runs join the case table, so dem_deck/dem_packing/dem_run build them like any case
     for _row in doe.study.case_rows(DOE_DESIGN, load_column(config["measured"][_name]), f"doe_{_name}",
                                     **DOE_CASE_FIELDS):

@@ -7,11 +7,7 @@
 GNS = config["gns"]
 GNS_THREADS = GNS["threads"]
 GNS_SETTINGS = {k: v for k, v in GNS.items() if k not in ("datasets", "threads", "per_dataset")}
-GNS_DATASETS = GNS.get("datasets", DATASETS)
-for _key in ("datasets", "per_dataset"):
-    for _name in GNS.get(_key, []):
-        if _name not in config["datasets"]:
-            raise WorkflowError(f"config key gns.{_key}: {_name!r} is not a dataset (datasets: {DATASETS})")
+GNS_DATASETS = pipeline.config.gns_datasets(config)  # gns.datasets, checked in common.smk
 
 
 def gns_settings(dataset):

@@ -1,36 +1,17 @@
-# Inverse-design stage (calibration/inverse.py, compare.py, recovery.py; issue 7). For every measured
+# Inverse-design stage (pipeline/inverse.py; methods in calibration/inverse.py, compare.py, recovery.py; issue 7). For every measured
 # column named in inverse.measured: a DEM run at the start point (its first frames start every GNS
 # rollout; its objective is the uncalibrated value), the GNS inverse design (L-BFGS-B, multi-start,
 # posterior), a DEM validation run at the GNS optimum, Bayesian optimisation directly on DEM runs,
 # and the comparison with the DoE (when the DoE calibrates the same column). For every dataset in
 # inverse.recovery_datasets: recovery of synthetic DEM targets. Report: results/report/inverse.md.
-import calibration.inverse
-from calibration.measured import load_column
-
 INVERSE = config["inverse"]
 INVERSE_NAMES = INVERSE["measured"]
 INVERSE_RECOVERY = INVERSE["recovery_datasets"]
 # BO on DEM is not bound to a GNS's trained range: it searches the paper's box unless told otherwise
 INVERSE_BO_BOUNDS = [INVERSE["friction"] or [0.3, 0.9], INVERSE["restitution"] or [0.3, 0.9]]
-INVERSE_DATASET = {}
-for _name in INVERSE_NAMES:
-    if _name not in config["measured"]:
-        raise WorkflowError(f"config key inverse.measured: {_name!r} is not an entry of `measured` "
-                            f"(entries: {sorted(config['measured'])})")
-    _dataset = INVERSE["dataset"].get(_name) or calibration.inverse.nearest_dataset(
-        load_column(config["measured"][_name]), list(CASES.values()), GNS_DATASETS)
-    if _dataset not in GNS_DATASETS:
-        raise WorkflowError(f"config key inverse.dataset.{_name}: {_dataset!r} has no GNS (gns datasets: {GNS_DATASETS})")
-    INVERSE_DATASET[_name] = _dataset
-    try:  # fail before any job runs when the GNS cannot take this column; warns when it is far from it
-        calibration.inverse.check_geometry_of_dataset(load_column(config["measured"][_name]), list(CASES.values()),
-                                                      _dataset)
-    except calibration.inverse.InverseDesignError as exc:
-        raise WorkflowError(f"config key inverse.measured: {_name!r} cannot be calibrated with the GNS of "
-                            f"dataset {_dataset!r}: {exc}")
-for _dataset in INVERSE_RECOVERY:
-    if _dataset not in GNS_DATASETS:
-        raise WorkflowError(f"config key inverse.recovery_datasets: {_dataset!r} has no GNS (gns datasets: {GNS_DATASETS})")
+# INVERSE_DATASET (common.smk): {name: the dataset whose GNS calibrates it}; inverse.measured,
+# inverse.dataset (the column lies in that GNS's trained geometry) and inverse.recovery_datasets
+# are checked there, before any job runs (pipeline.config.check_cross_keys).
 
 
 def inverse_gns(name, what):

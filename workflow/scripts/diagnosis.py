@@ -2,7 +2,7 @@
 import logging
 from pathlib import Path
 
-from calibration.diagnosis import run_diagnosis
+from pipeline.diagnosis import run_diagnosis
 
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")  # noqa: F821
 name = snakemake.wildcards.name  # noqa: F821

@@ -1,7 +1,7 @@
 """DEM design runs of the base model and of every candidate extension for one measured data set."""
 import logging
 
-from calibration.diagnosis import run_library
+from pipeline.diagnosis import run_library
 
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")  # noqa: F821
 library = run_library(snakemake.input.measured, snakemake.output[0], snakemake.params.settings,  # noqa: F821

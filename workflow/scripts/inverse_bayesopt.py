@@ -1,7 +1,7 @@
 """Bayesian optimisation directly on DEM runs of one measured column (the third calibration route)."""
 import logging
 
-from calibration.compare import run_bayesopt
+from pipeline.inverse import run_bayesopt
 
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")  # noqa: F821
 p, o = snakemake.params, snakemake.output  # noqa: F821

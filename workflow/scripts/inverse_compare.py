@@ -2,7 +2,7 @@
 import logging
 from pathlib import Path
 
-from calibration.compare import markdown_table, run_comparison
+from pipeline.inverse import run_comparison
 
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")  # noqa: F821
 i, o = snakemake.input, snakemake.output  # noqa: F821
@@ -11,4 +11,4 @@ routes = run_comparison(i.measured, i.result, i.validation, i.start, o.table, o.
                         snakemake.params.benchmarks, snakemake.params.dem_runs, runout=snakemake.params.runout,  # noqa: F821
                         bayesopt_path=i.bayesopt[0] if i.bayesopt else None,
                         bayesopt_best_path=i.bayesopt_best[0] if i.bayesopt_best else None, doe_validation=doe or None)
-logging.info("comparison:\n%s", markdown_table(routes))
+logging.info("wrote %s: %d rows", o.table, len(routes))

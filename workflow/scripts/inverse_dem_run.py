@@ -2,16 +2,12 @@
 (rule inverse_start) or at the GNS optimum read from inverse.json (rule inverse_validate)."""
 import logging
 
-from calibration.compare import run_dem_point
-from calibration.inverse import read_result
+from pipeline.inverse import run_dem_at
 
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")  # noqa: F821
-if "result" in snakemake.input.keys():  # noqa: F821
-    result = read_result(snakemake.input.result)  # noqa: F821
-    params, name = dict(zip(result["names"], result["best_params"])), "gns_optimum"
-else:
-    params, name = dict(zip(("friction", "restitution"), snakemake.params.start)), "start"  # noqa: F821
-summary = run_dem_point(snakemake.input.measured, snakemake.input.metadata, params, snakemake.output[0],  # noqa: F821
-                        runout=snakemake.params.runout, seed=snakemake.params.seed, name=name,  # noqa: F821
-                        dem=snakemake.params.dem)  # noqa: F821
+i, p = snakemake.input, snakemake.params  # noqa: F821
+name, params, summary = run_dem_at(i.measured, i.metadata, snakemake.output[0],  # noqa: F821
+                                   runout=p.runout, seed=p.seed, dem=p.dem,
+                                   result_path=i.result if "result" in i.keys() else None,
+                                   start=p.start if "start" in p.keys() else None)
 logging.info("%s: %s -> objective %.4f", name, params, summary["mse"])

@@ -1,15 +1,12 @@
 """Parameter recovery of synthetic DEM targets with one dataset's GNS."""
 import logging
 
-import torch
-
-from calibration.recovery import run_recovery
+from pipeline.inverse import run_recovery
 
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")  # noqa: F821
-torch.set_num_threads(snakemake.threads)  # noqa: F821
 s, i, o = snakemake.params.settings, snakemake.input, snakemake.output  # noqa: F821
 summary = run_recovery(i.model, i.metadata, o.result, o.figure, runout=snakemake.params.runout,  # noqa: F821
-                       dem=snakemake.params.dem,  # noqa: F821
+                       dem=snakemake.params.dem, threads=snakemake.threads,  # noqa: F821
                        n_cases=s["recovery_cases"],
                        noise_std=s["recovery_noise_std"], packings=s["recovery_packings"],
                        evaluation_path=i.evaluation, seed=s["seed"],

@@ -1,0 +1,221 @@
+"""Config validation, in one place: the schema check and the checks across keys.
+
+`validate_config` checks a config against workflow/schemas/config.schema.yaml, adds the checks the
+schema cannot express (range order, split fractions, overrides' case ids, each gns.per_dataset
+entry as the gns section it makes, the runout method) and fills the defaults. `check_cross_keys`
+then checks the keys that name another key's entries (a dataset, a `measured` entry, a GNS) against
+the validated config and its case table (dem.grid.case_table). workflow/rules/common.smk runs both
+once, so a bad config fails before any job runs; every problem is a ConfigError naming the key.
+"""
+from __future__ import annotations
+
+import copy
+import math
+from pathlib import Path
+
+import jsonschema
+import yaml
+
+from calibration.inverse import InverseDesignError, check_geometry_of_dataset, nearest_dataset
+from calibration.measured import load_column
+from dem.grid import SPLITS, VARIED, ConfigError, case_id_of
+from dem.runout import RunoutError, RunoutMethod
+
+__all__ = ["ConfigError", "validate_config", "check_cross_keys", "check_gns", "check_doe", "check_inverse",
+           "gns_datasets", "inverse_datasets"]
+
+
+# --- the schema ----------------------------------------------------------------------------------
+def validate_config(config: dict, schema_path) -> dict:
+    """Check `config` against the JSON schema at `schema_path` and fill its defaults.
+
+    Returns a new dict. Raises ConfigError listing every problem as `key.path: message`, with the
+    allowed values (enum, bounds, known keys) in the message.
+    """
+    schema = yaml.safe_load(Path(schema_path).read_text())
+    config = copy.deepcopy(dict(config))
+    validator = jsonschema.Draft202012Validator(schema)
+    problems = [_describe(error, schema) for error in validator.iter_errors(config)]
+    problems += _check_gns_per_dataset(config.get("gns", {}), schema)
+    if problems:
+        raise ConfigError("invalid config:\n  " + "\n  ".join(sorted(set(problems))))
+    _fill_defaults(config, schema, schema)
+    for name, spec in config.get("datasets", {}).items():
+        problems += _check_dataset(name, spec)
+    try:     # the schema checks each key; the class is the one definition every stage builds from it
+        RunoutMethod.from_config(config.get("runout"))
+    except RunoutError as exc:
+        problems.append(str(exc))
+    if problems:
+        raise ConfigError("invalid config:\n  " + "\n  ".join(problems))
+    return config
+
+
+def _check_gns_per_dataset(gns: dict, schema: dict) -> list[str]:
+    """Each gns.per_dataset entry checked as the gns section it makes for its dataset."""
+    problems = []
+    for name, override in (gns.get("per_dataset") or {}).items():
+        where = f"gns.per_dataset.{name}"
+        fixed = sorted(set(override) & {"datasets", "threads", "per_dataset"})
+        if fixed:
+            problems.append(f"{where}: {fixed} apply to the whole gns section, not to one dataset")
+            continue
+        section = {**{k: v for k, v in gns.items() if k != "per_dataset"}, **override}
+        validator = jsonschema.Draft202012Validator(schema["properties"]["gns"])
+        problems += [f"{where}: {_describe(error, schema)}" for error in validator.iter_errors(section)]
+    return problems
+
+
+def _describe(error, schema) -> str:
+    key = ".".join(str(p) for p in error.absolute_path) or "(top level)"
+    if error.validator == "additionalProperties":
+        known = sorted(error.schema.get("properties", {}))
+        extra = sorted(set(error.instance) - set(known)) if isinstance(error.instance, dict) else []
+        where = f"{key}." if error.absolute_path else ""
+        return f"{where}{', '.join(map(str, extra))}: unknown key; allowed keys here: {known}"
+    if error.validator == "enum":
+        return f"{key}: {error.instance!r} is not allowed; allowed values: {error.validator_value}"
+    if error.validator in ("minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum"):
+        bounds = {k: error.schema[k] for k in ("minimum", "exclusiveMinimum", "maximum", "exclusiveMaximum")
+                  if k in error.schema}
+        return f"{key}: {error.instance!r} is out of range; allowed: {_bounds_text(bounds)}"
+    if error.validator == "type":
+        return f"{key}: {error.instance!r} has the wrong type; expected {error.validator_value}"
+    return f"{key}: {error.message}"
+
+
+def _bounds_text(bounds: dict) -> str:
+    low = (f"> {bounds['exclusiveMinimum']}" if "exclusiveMinimum" in bounds
+           else f">= {bounds['minimum']}" if "minimum" in bounds else "")
+    high = (f"< {bounds['exclusiveMaximum']}" if "exclusiveMaximum" in bounds
+            else f"<= {bounds['maximum']}" if "maximum" in bounds else "")
+    return " and ".join(b for b in (low, high) if b)
+
+
+def _resolve(schema: dict, root: dict) -> dict:
+    ref = schema.get("$ref")
+    if ref:
+        node = root
+        for part in ref.lstrip("#/").split("/"):
+            node = node[part]
+        return node
+    return schema
+
+
+def _fill_defaults(instance, schema: dict, root: dict) -> None:
+    """Fill `default` values of object properties in place (recursing into objects)."""
+    schema = _resolve(schema, root)
+    if not isinstance(instance, dict):
+        return
+    for key, sub in schema.get("properties", {}).items():
+        sub = _resolve(sub, root)
+        if key not in instance and "default" in sub:
+            instance[key] = copy.deepcopy(sub["default"])
+        if key in instance:
+            _fill_defaults(instance[key], sub, root)
+    extra = schema.get("additionalProperties")
+    if isinstance(extra, dict):
+        for key, value in instance.items():
+            if key not in schema.get("properties", {}):
+                _fill_defaults(value, extra, root)
+
+
+def _check_dataset(name: str, spec: dict) -> list[str]:
+    """Checks the schema cannot express: range order, split fractions, overrides' case ids."""
+    problems = []
+    for key in VARIED:
+        value = spec.get(key)
+        if isinstance(value, dict) and "range" in value and value["range"][0] > value["range"][1]:
+            problems.append(f"datasets.{name}.{key}.range: {value['range']} must be [min, max] with min <= max")
+    total = sum(spec["splits"].values())
+    if not math.isclose(total, 1.0, abs_tol=1e-9):
+        problems.append(f"datasets.{name}.splits: fractions {spec['splits']} must sum to 1 (got {total:g})")
+    needed = sum(1 for s in SPLITS if spec["splits"][s] > 0)
+    if spec["n_cases"] < needed:
+        problems.append(f"datasets.{name}.n_cases: {spec['n_cases']} cases cannot fill {needed} non-empty splits")
+    for case_id in spec.get("overrides", {}):
+        if int(case_id.split("_")[1]) >= spec["n_cases"]:
+            problems.append(f"datasets.{name}.overrides.{case_id}: no such case; ids run "
+                            f"{case_id_of(0, spec['n_cases'])}..{case_id_of(spec['n_cases'] - 1, spec['n_cases'])}")
+    return problems
+
+
+# --- keys that name another key's entries ------------------------------------------------------
+def check_cross_keys(config: dict, cases: dict[str, dict]) -> dict[str, str]:
+    """Every check across keys of the validated `config`, in stage order (GNS, DoE, inverse design).
+
+    cases: the case table of `config` ({"<dataset>/<case_id>": row}, dem.grid.case_table). Returns
+    what the inverse-design checks resolve on the way, {inverse.measured name: the dataset whose
+    GNS calibrates it} (inverse_datasets). Raises ConfigError naming the key.
+    """
+    check_gns(config)
+    check_doe(config)
+    return check_inverse(config, cases)
+
+
+def gns_datasets(config: dict) -> list[str]:
+    """The datasets a GNS is trained on: gns.datasets, by default every dataset."""
+    return config["gns"].get("datasets", sorted(config["datasets"]))
+
+
+def check_gns(config: dict) -> None:
+    """gns.datasets and gns.per_dataset name datasets."""
+    datasets = sorted(config["datasets"])
+    for key in ("datasets", "per_dataset"):
+        for name in config["gns"].get(key, []):
+            if name not in config["datasets"]:
+                raise ConfigError(f"config key gns.{key}: {name!r} is not a dataset (datasets: {datasets})")
+
+
+def check_doe(config: dict) -> None:
+    """doe.measured names `measured` entries, and no dataset takes the name of one's DoE runs."""
+    for name in config["doe"]["measured"]:
+        if name not in config["measured"]:
+            raise ConfigError(f"config key doe.measured: {name!r} is not an entry of `measured` "
+                              f"(entries: {sorted(config['measured'])})")
+        if f"doe_{name}" in config["datasets"]:
+            raise ConfigError(f"config key datasets.doe_{name}: the name is taken by the DoE of measured {name!r}")
+
+
+def check_inverse(config: dict, cases: dict[str, dict]) -> dict[str, str]:
+    """inverse_datasets, then inverse.recovery_datasets name datasets with a GNS."""
+    resolved = inverse_datasets(config, cases)
+    with_gns = gns_datasets(config)
+    for dataset in config["inverse"]["recovery_datasets"]:
+        if dataset not in with_gns:
+            raise ConfigError(f"config key inverse.recovery_datasets: {dataset!r} has no GNS "
+                              f"(gns datasets: {with_gns})")
+    return resolved
+
+
+def inverse_datasets(config: dict, cases: dict[str, dict]) -> dict[str, str]:
+    """{inverse.measured name: the dataset whose GNS calibrates it}, checked.
+
+    The dataset is inverse.dataset[name], by default the GNS dataset of the column's material with
+    the nearest training column. Each name must be a `measured` entry, its dataset must have a GNS,
+    and the column must lie in the geometry that GNS is trained on (a GeometryWarning when it is
+    far from every training column). Reads each named measured CSV (paths relative to the cwd).
+    """
+    inverse, with_gns, rows = config["inverse"], gns_datasets(config), list(cases.values())
+    resolved = {}
+    for name in inverse["measured"]:
+        if name not in config["measured"]:
+            raise ConfigError(f"config key inverse.measured: {name!r} is not an entry of `measured` "
+                              f"(entries: {sorted(config['measured'])})")
+        column = load_column(config["measured"][name])
+        dataset = inverse["dataset"].get(name)
+        if not dataset:
+            try:
+                dataset = nearest_dataset(column, rows, with_gns)
+            except InverseDesignError as exc:
+                raise ConfigError(f"config key inverse.measured: {name!r} has no GNS dataset to calibrate it: "
+                                  f"{exc}") from exc
+        if dataset not in with_gns:
+            raise ConfigError(f"config key inverse.dataset.{name}: {dataset!r} has no GNS (gns datasets: {with_gns})")
+        try:
+            check_geometry_of_dataset(column, rows, dataset)
+        except InverseDesignError as exc:
+            raise ConfigError(f"config key inverse.measured: {name!r} cannot be calibrated with the GNS of "
+                              f"dataset {dataset!r}: {exc}") from exc
+        resolved[name] = dataset
+    return resolved

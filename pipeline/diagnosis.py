@@ -1,0 +1,141 @@
+"""The diagnosis stage (workflow/rules/diagnosis.smk): what its three jobs do, and its report section.
+
+  - `run_library` (rule diagnosis_library): DEM design runs of the base model and of every
+    candidate extension for one measured data set -> results/diagnosis/<name>/library.npz;
+  - `run_diagnosis` (rule diagnosis): the diagnosis of that data set with those runs ->
+    diagnosis.json, residuals.png, candidates.png in results/diagnosis/<name>/;
+  - `run_section` (rule diagnosis_section): results/report/diagnosis.md from every diagnosis.json.
+
+The method is calibration/diagnosis.py (`diagnose`, `DiagnosisSettings`); the figures are
+calibration/diagnosis_report.py's.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from calibration.diagnosis import LIBRARY_SETTINGS, DiagnosisSettings, diagnose
+from calibration.emulator import Library, Observables
+from calibration.measured import MeasuredColumn, MeasuredDataWarning, read_measured
+from dem.atomic import write_text
+
+PathLike = str | os.PathLike
+
+
+# -- the jobs --------------------------------------------------------------------------------------------
+def run_library(measured_path: PathLike, library_path: PathLike, section: dict, *, runout: dict | None) -> Library:
+    """Design runs for the columns of a measured-data CSV (workflow rule diagnosis_library); their
+    runouts read by `runout` (the config's runout section), which the library records."""
+    columns, _ = read_columns(measured_path)
+    settings = DiagnosisSettings.from_config({k: v for k, v in section.items() if k in LIBRARY_SETTINGS}, runout)
+    library = settings.library(Observables(columns, settings.runout))
+    library.save(library_path)
+    return library
+
+
+def run_diagnosis(measured_path: PathLike, library_path: PathLike, out_dir: PathLike, section: dict, *,
+                  runout: dict | None, name: str = "") -> dict:
+    """Diagnose a measured-data CSV with its design runs; write diagnosis.json, residuals.png and
+    candidates.png to out_dir (workflow rule diagnosis). runout: the config's runout section; a
+    library read by another method is refused (LibraryError)."""
+    from calibration.diagnosis_report import plot_candidates, plot_residuals
+    columns, data_warnings = read_columns(measured_path)
+    settings = DiagnosisSettings.from_config({k: v for k, v in section.items() if k != "enabled"}, runout)
+    result = diagnose(columns, settings, Library.load(library_path), data_warnings=data_warnings, name=name)
+    result["measured"] = str(measured_path)
+    out_dir = Path(out_dir)
+    write_diagnosis(result, out_dir / "diagnosis.json")
+    plot_residuals(result, out_dir / "residuals.png")
+    plot_candidates(result, out_dir / "candidates.png")
+    return result
+
+
+def run_section(names: list[str], diagnosis_paths: list[PathLike], section_path: PathLike) -> dict:
+    """The report section (workflow rule diagnosis_section) from the diagnosis.json of each data set
+    in `names` (same order as `diagnosis_paths`); the figures lie beside each JSON file. Returns
+    {name: (diagnosis dict, folder)}."""
+    results = {name: (json.loads(Path(path).read_text()), Path(path).parent)
+               for name, path in zip(names, diagnosis_paths)}
+    write_section(results, section_path)
+    return results
+
+
+# -- the files ---------------------------------------------------------------------------------------------
+def read_columns(path: PathLike) -> tuple[list[MeasuredColumn], list[str]]:
+    """Columns of a measured-data CSV and the warnings its reader raised (as strings)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", MeasuredDataWarning)
+        columns = list(read_measured(path).values())
+    return columns, [str(w.message) for w in caught if issubclass(w.category, MeasuredDataWarning)]
+
+
+def write_diagnosis(result: dict, path: PathLike) -> None:
+    """diagnosis.json, atomically."""
+    write_text(path, json.dumps(result, indent=1, default=_json_default) + "\n")
+
+
+def _json_default(value):
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
+
+
+# -- the report section --------------------------------------------------------------------------------------
+def _parameters(evidence: dict) -> str:
+    posterior = {p["name"]: p for p in evidence["emulator"]["posterior"]["parameters"]}
+    values = (evidence["dem"] or evidence["emulator"])["parameters"]
+    parts = []
+    for name, value in values.items():
+        std = posterior.get(name, {}).get("std", math.nan)
+        parts.append(f"{name} = {value:.3g} &plusmn; {std:.2g}")
+    return ", ".join(parts)
+
+
+def section_markdown(results: dict, section_path: PathLike) -> str:
+    """The report section for {name: (diagnosis dict, folder with its figures)}."""
+    lines = ["What the calibrated DEM still gets wrong, and whether a missing mechanism explains it. "
+             "Each measured data set is fitted by the base model (friction, restitution) and by the base "
+             "model plus one candidate mechanism at a time; a cause is named only when the evidence is decisive "
+             "(rule below each table). Simulator: the builtin DEM, coarse-grained, through a Gaussian-process "
+             "emulator of its design runs, scored by DEM runs at the optima (the GNS is not trained on the "
+             "extension parameters).", ""]
+    for name, (result, folder) in results.items():
+        rel = os.path.relpath(folder, os.path.dirname(section_path))
+        errors = result["errors"]
+        lines += [f"### {name}", "",
+                  f"**Cause: {result['cause']}.** {result['verdict']}", "",
+                  f"What the calibrated base model gets wrong: {result['residuals']['summary']}", "",
+                  f"Simulator: builtin DEM at size_scale {result['simulator']['size_scale']:g}; design runs "
+                  f"{sum(result['simulator']['design_runs'].values())}, refinement runs "
+                  f"{result['simulator']['refinement_runs']}; noise: {result['observables']['noise_source']}.", "",
+                  "| model | parameters (&plusmn; std) | chi^2 | BIC | BIC gain | held-out chi^2 | fit MSE | held-out MSE | scored in |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+        rows = [("base", result["base"])] + list(result["candidates"].items())
+        for model, evidence in rows:
+            score = evidence["dem"] or evidence["emulator"]
+            where = "DEM" if evidence["dem"] else "emulator"
+            gain = "" if model == "base" else f"{evidence['delta_bic_vs_base']:+.1f}"
+            fit_mse = score.get("objective", score.get("fit_mse"))
+            label = f"**{model}**" if model == result["cause"] else model
+            lines.append(f"| {label} | {_parameters(evidence)} | {score['chi2']:.1f} | {score['bic']:.1f} | {gain} | "
+                         f"{score['heldout_chi2']:.1f} | {fit_mse:.4f} | {score['heldout_mse']:.4f} | {where} |")
+        lines += ["", f"Gain ({errors['compared_model']} vs base, DEM runs): runout MSE "
+                      f"{errors['fit_mse']['before']:.4f} &rarr; {errors['fit_mse']['after']:.4f} (fit), "
+                      f"{errors['heldout_mse']['before']:.4f} &rarr; {errors['heldout_mse']['after']:.4f} (held out).", "",
+                  "Checks: " + ", ".join(f"{k} {'yes' if v else 'NO'}" for k, v in result["checks"].items()) + ".", ""]
+        if result["warnings"]:
+            lines += ["Warnings:", ""] + [f"- {w}" for w in result["warnings"]] + [""]
+        lines += [f"![residuals]({rel}/residuals.png)", "", f"![candidates]({rel}/candidates.png)", ""]
+    return "\n".join(lines) + "\n"
+
+
+def write_section(results: dict, section_path: PathLike) -> None:
+    """Write section_markdown(results) to `section_path`, atomically."""
+    write_text(section_path, section_markdown(results, section_path))
