@@ -27,8 +27,8 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+from calibration.design_runs import SimulationSettings  # noqa: E402
 from calibration.diagnosis import DiagnosisSettings  # noqa: E402
-from calibration.emulator import SimulationSettings  # noqa: E402
 from calibration.synthetic import diagnose_hidden_cases, draw_truth  # noqa: E402
 
 

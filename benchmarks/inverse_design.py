@@ -32,7 +32,9 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from calibration.compare import case_like  # noqa: E402
-from calibration.inverse import FD_STEP, PAPER_START, SCIPY_DEFAULT_STEP, GNSObjective, inverse_design  # noqa: E402
+from calibration.gns_objective import GNSObjective  # noqa: E402
+from calibration.inverse import inverse_design  # noqa: E402
+from calibration.lbfgsb import FD_STEP, PAPER_START, SCIPY_DEFAULT_STEP  # noqa: E402
 from calibration.recovery import (PACKINGS_PER_TARGET, TRUTH_SEED_OFFSET, observation_times,  # noqa: E402
                                   recovery_study, recovery_targets, synthetic_measured)
 from dem.collapse import simulate_collapse  # noqa: E402

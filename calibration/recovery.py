@@ -25,7 +25,8 @@ import time
 import numpy as np
 
 from calibration.compare import case_like
-from calibration.inverse import BOUNDS, DESIGN_NAMES, inverse_design
+from calibration.gns_objective import DESIGN_NAMES
+from calibration.inverse import BOUNDS, inverse_design
 from calibration.measured import MeasuredColumn
 from dem.runout import RunoutMethod, runout_at
 from dem.trajectory import Trajectory
@@ -196,7 +197,8 @@ def recovery_study(simulator, metadata, n_cases: int = 5, noise_std: float = 0.0
     packing scatter and model error). bounds: as calibration.inverse.design_bounds (None: the
     paper's, narrowed to the trained range). runout: how every L* is read (None: dem.runout's default);
     dem_config: the engine of the DEM runs (the workflow's `dem` section; None: builtin)."""
-    from calibration.inverse import PAPER_START, design_bounds
+    from calibration.inverse import design_bounds
+    from calibration.lbfgsb import PAPER_START
     from dem.engines import simulate_case
 
     if packings < 2:

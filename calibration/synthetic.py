@@ -13,11 +13,12 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from calibration.emulator import BUILTIN, Model, Observables, SimulationSettings
+from calibration.design_runs import Model, SimulationSettings
 from calibration.measured import MeasuredColumn
 from calibration.mechanisms import Mechanism
+from calibration.observables import Observables
 from dem.atomic import atomic_path
-from dem.engines import simulate_case
+from dem.engines import BUILTIN, simulate_case
 
 # The test columns of the diagnosis: small quartz columns of two aspect ratios, runout every 0.5 t*
 # up to 5 t* (the paper stops at 3.5; by 5 the base model's front still creeps on while rolling
@@ -148,7 +149,7 @@ def diagnose_hidden_cases(truths, settings, columns=None, runout_noise: float = 
     when None). Returns {"cases": [...], "hit_rate", "null_correct", "library_seconds"}.
     """
     from calibration.diagnosis import diagnose  # here: diagnosis does not depend on this module
-    from calibration.emulator import DEMRunner
+    from calibration.design_runs import DEMRunner
     columns = synthetic_columns() if columns is None else columns
     observables = Observables(columns, settings.runout)
     settings = replace(settings, profile_noise=profile_noise)

@@ -27,8 +27,6 @@ PHASES = {"free_fall": (0.0, 1.0), "spreading": (1.0, 2.5), "stopping": (2.5, np
 PACKINGS = 8          # packings per case for the scatter (the issue asks for at least 8)
 RERUNS = 8            # perturbed reruns per case for the chaos floor
 PERTURBATION = 1e-3   # mean grain diameters (the chaos floor's perturbation)
-# The study reruns builtin trajectories from their own packings, moved by 0.001 d: the builtin engine.
-BUILTIN = {"engine": "builtin"}
 
 
 def case_of(trajectory):
@@ -49,7 +47,7 @@ def phase_means(t, values) -> dict:
 
 def packing_runs(case, n_packings: int = PACKINGS, progress=None) -> list:
     """n_packings builtin runs of `case`, packing seeds case.seed + 1000 + j (each settles its own)."""
-    from dem.engines import simulate_case
+    from dem.engines import BUILTIN, simulate_case
 
     runs = []
     for j in range(n_packings):
@@ -63,7 +61,7 @@ def perturbed_reruns(trajectory, n_reruns: int = RERUNS, perturbation: float = P
                      progress=None) -> list:
     """n_reruns builtin reruns of a builtin trajectory from its own first frame, every grain moved
     by a normal of std `perturbation` mean diameters (seeded)."""
-    from dem.engines import simulate_case
+    from dem.engines import BUILTIN, simulate_case     # reruns of builtin runs, moved by 0.001 d
     from dem.trajectory import Trajectory
 
     case = case_of(trajectory)

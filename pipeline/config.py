@@ -16,7 +16,7 @@ from pathlib import Path
 import jsonschema
 import yaml
 
-from calibration.inverse import InverseDesignError, check_geometry_of_dataset, nearest_dataset
+from calibration.gns_objective import InverseDesignError, check_geometry_of_dataset, nearest_dataset
 from calibration.measured import load_column
 from dem.grid import SPLITS, VARIED, ConfigError, case_id_of
 from dem.runout import RunoutError, RunoutMethod

@@ -19,9 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
+from calibration.design_runs import Library
 from calibration.diagnosis import LIBRARY_SETTINGS, DiagnosisSettings, diagnose
-from calibration.emulator import Library, Observables
 from calibration.measured import MeasuredColumn, MeasuredDataWarning, read_measured
+from calibration.observables import Observables
 from dem.atomic import write_text
 
 PathLike = str | os.PathLike

@@ -5,7 +5,8 @@ Per measured column: a DEM run at the start point and one at the GNS optimum (ru
 GNS inverse design (run_inverse_design), Bayesian optimisation directly on DEM runs
 (run_bayesopt), the comparison of the calibration routes (run_comparison); per dataset: the
 parameter recovery of synthetic DEM targets (run_recovery); then the section
-(write_section). The methods live in calibration.compare, calibration.inverse and
+(write_section). The methods live in calibration.compare, calibration.inverse (with
+calibration.gns_objective, calibration.lbfgsb and calibration.inverse_plots) and
 calibration.recovery; here they meet the pipeline's files: inputs read, outputs written
 atomically, progress logged. Times of the routes come from the Snakemake benchmark files
 (pipeline.benchmarks).
@@ -25,8 +26,9 @@ import torch
 from calibration.compare import (BO_MAX_RUNS, Route, bayesopt_on_dem, comparison_routes, dem_run, markdown_table,
                                  measured_case_fields, plot_bayesopt, plot_comparison, read_table,
                                  validation_summary, write_bayesopt, write_table)
-from calibration.inverse import (GNSObjective, InverseResult, inverse_design, plot_deposits, plot_paths,
-                                 read_result, write_result)
+from calibration.gns_objective import GNSObjective
+from calibration.inverse import InverseResult, inverse_design, read_result, write_result
+from calibration.inverse_plots import plot_deposits, plot_paths
 from calibration.measured import MeasuredColumn, load_column
 from calibration.objective import objective
 from calibration.recovery import plot_recovery, recovery_study

@@ -12,13 +12,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from calibration.diagnosis import (DecisionRule, DiagnosisError, DiagnosisSettings, check_data, decide, diagnose,
-                                   fit_emulated, held_out_folds, noise_model, residual_structure, runs_test)
-from calibration.emulator import (DesignRuns, GPEmulator, Library, Model, Observables, ParameterBox,
-                                  LibraryError, SimulationSettings, latin_hypercube)
+from calibration.decision import DecisionRule, decide
+from calibration.design_runs import DesignRuns, Library, Model, SimulationSettings
+from calibration.diagnosis import DiagnosisSettings, diagnose, fit_emulated
+from calibration.emulator import GPEmulator, ParameterBox, latin_hypercube
 from calibration.measured import MeasuredColumn
 from calibration.mechanisms import (MechanismError, bond_from_cohesion_energy, cohesion_energy_from_bond,
                                     get_mechanisms)
+from calibration.observables import LibraryError, Observables
+from calibration.residuals import DiagnosisError, check_data, held_out_folds, noise_model, residual_structure, runs_test
 from calibration.synthetic import (draw_truth, evidence_margins, synthetic_columns, synthetic_measurement,
                                    write_measured_csv)
 from dem.case import CollapseCase

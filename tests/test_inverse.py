@@ -10,10 +10,11 @@ import pytest
 import torch
 from scipy.optimize import minimize
 
-from calibration.inverse import (FD_STEP, FTOL, GTOL, MAX_LINE_SEARCH, ROUGHNESS_PROBES, STALL_EVALUATIONS, design_bounds, inverse_design, SCIPY_DEFAULT_STEP, GeometryWarning, GNSObjective,
-                                 InverseDesignError, check_bounds, check_geometry, check_step, multistart_lbfgsb,
-                                 posterior_at, step_vanishes)
 from calibration.compare import case_like
+from calibration.gns_objective import GeometryWarning, GNSObjective, InverseDesignError, check_geometry
+from calibration.inverse import ROUGHNESS_PROBES, check_bounds, design_bounds, inverse_design, posterior_at
+from calibration.lbfgsb import (FD_STEP, FTOL, GTOL, MAX_LINE_SEARCH, SCIPY_DEFAULT_STEP, STALL_EVALUATIONS,
+                               check_step, multistart_lbfgsb, step_vanishes)
 from calibration.measured import MeasuredColumn
 from calibration.recovery import observation_times, packing_scatter, recover_case
 from dem.case import CollapseCase

@@ -18,8 +18,10 @@ import pytest
 import torch
 import yaml
 
-from calibration.diagnosis import DiagnosisError, DiagnosisSettings
-from calibration.emulator import Library, LibraryError, Observables
+from calibration.design_runs import Library
+from calibration.diagnosis import DiagnosisSettings
+from calibration.observables import LibraryError, Observables
+from calibration.residuals import DiagnosisError
 from pipeline.inverse import model_error_from_evaluation
 from calibration.measured import MeasuredColumn
 from dem.case import CollapseCase

@@ -25,8 +25,9 @@ log = logging.getLogger(__name__)
 
 ENGINES = {"builtin": BuiltinEngine, "liggghts": LiggghtsEngine, "mfix": MfixEngine}
 AUTO_ORDER = ("mfix", "liggghts", "builtin")
+BUILTIN = {"engine": "builtin"}   # simulate_case's config for runs that need the builtin engine's features
 
-__all__ = ["ENGINES", "Engine", "EngineError", "EngineNotInstalled", "get_engine", "simulate_case", "solver_paths"]
+__all__ = ["BUILTIN", "ENGINES", "Engine", "EngineError", "EngineNotInstalled", "get_engine", "simulate_case", "solver_paths"]
 
 
 def solver_paths(config) -> dict:

@@ -1,0 +1,324 @@
+"""DEM runs over a model's parameter box: the models, the builtin DEM that runs them, and the
+library of design runs.
+
+The design (`build_library`: a seeded Latin hypercube over each model's box) does not depend on the
+measured values, only on the measured columns' geometry and observation points, so one library
+serves any number of data sets of the same columns (the hidden-effect tests use this). Every fit is
+done on a Gaussian-process emulator of a model's runs (`Library.emulator`, calibration/emulator.py).
+
+Packings: the grains' packing is a random realisation; two packings of the same column give runouts
+that differ by several per cent late in the collapse. Design runs cycle through a pool of settled
+packings (seeded, settled once per column at settings.reference), so the emulator learns the mean
+response (its white-noise term takes the scatter); one run of the base model per packing at the box
+centre, and every repeat a diagnosis adds, measure the packing-to-packing scatter that any single
+realisation (such as the measured one) carries on top of it (`Library.packing_std`).
+"""
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calibration.emulator import GPEmulator, ParameterBox, latin_hypercube
+from calibration.measured import MeasuredColumn
+from calibration.mechanisms import BASE_BOUNDS, BASE_PARAMETERS, Mechanism
+from calibration.observables import LibraryError, Observables
+from dem.atomic import atomic_path
+from dem.engines import BUILTIN, simulate_case
+from dem.packing import settle_column
+
+log = logging.getLogger(__name__)
+
+FRAMES_PER_TSTAR = 25         # output frames per t*: the measured t/t* are interpolated between them
+# The diagnosis runs the builtin engine (BUILTIN) whatever dem.engine says: the candidate mechanisms
+# (rolling resistance, cohesion, basal and side-wall friction, gate lift) are its features.
+
+
+# -- models ---------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Model:
+    """The base model (friction, restitution), or the base model plus one candidate mechanism."""
+
+    mechanism: Mechanism | None = None
+
+    @property
+    def name(self) -> str:
+        return "base" if self.mechanism is None else self.mechanism.name
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        return BASE_PARAMETERS + (() if self.mechanism is None else (self.mechanism.parameter,))
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """[p, 2] (low, high) of every parameter."""
+        extra = () if self.mechanism is None else (self.mechanism.bounds,)
+        return np.array(BASE_BOUNDS + extra, float)
+
+    @property
+    def box(self) -> ParameterBox:
+        extra = () if self.mechanism is None else (self.mechanism.log_scale,)
+        return ParameterBox(self.bounds, (False,) * len(BASE_BOUNDS) + extra)
+
+    @property
+    def n_parameters(self) -> int:
+        return len(self.parameter_names)
+
+    def case(self, column: MeasuredColumn, theta, settings: "SimulationSettings", seed: int):
+        """The CollapseCase of `column` at parameters theta [p] (coarse-grained per settings)."""
+        friction, restitution = float(theta[0]), float(theta[1])
+        case = column.collapse_case(friction, restitution, size_scale=settings.size_scale, seed=seed,
+                                    duration_over_tstar=settings.duration_for(column),
+                                    output_interval=None, name=f"{column.name}:{self.name}")
+        if self.mechanism is not None:
+            case = case.replace(**self.mechanism.case_fields(float(theta[2]), case))
+        return case
+
+    def embed_base(self, base_theta) -> np.ndarray:
+        """Base-model points [n, 2] as points [n, p] of this model (mechanism at its off value)."""
+        base_theta = np.atleast_2d(np.asarray(base_theta, float))
+        if self.mechanism is None:
+            return base_theta
+        off = [self.mechanism.off_value(mu, e) for mu, e in base_theta]
+        return np.column_stack([base_theta, np.clip(off, *self.mechanism.bounds)])
+
+
+@dataclass(frozen=True)
+class SimulationSettings:
+    """How the DEM is run for the diagnosis (builtin engine)."""
+
+    size_scale: float = 4.0                        # coarse-graining factor of the grains
+    packing_seeds: tuple[int, ...] = (101, 102, 103)
+    reference: tuple[float, float] = (0.6, 0.6)    # (mu, e) the packings are settled with
+
+    def duration_for(self, column: MeasuredColumn) -> float:
+        """Simulated t/t*: up to the frame at or after the last measured t/t*."""
+        return float(np.ceil(column.t_over_tstar[-1] * FRAMES_PER_TSTAR - 1e-9) / FRAMES_PER_TSTAR)
+
+    def to_dict(self) -> dict:
+        return {"size_scale": self.size_scale, "packing_seeds": list(self.packing_seeds),
+                "reference": list(self.reference)}
+
+
+class DEMRunner:
+    """Runs the builtin DEM for `observables`' columns on a pool of settled packings.
+
+    Packing j of every column is settled once (lazily) at settings.reference with seed
+    settings.packing_seeds[j]; every run starts from one of them.
+    """
+
+    def __init__(self, observables: Observables, settings: SimulationSettings):
+        self.observables = observables
+        self.settings = settings
+        self._packings = {}
+
+    def packing(self, column_index: int, packing_index: int):
+        key = (column_index, packing_index)
+        if key not in self._packings:
+            column = self.observables.columns[column_index]
+            case = Model().case(column, self.settings.reference, self.settings,
+                                self.settings.packing_seeds[packing_index])
+            self._packings[key] = settle_column(case)
+            log.info("settled %s, packing seed %d: %d grains", column.name,
+                     self.settings.packing_seeds[packing_index], case.n_particles)
+        return self._packings[key]
+
+    def trajectories(self, model: Model, theta, packing_index: int, columns=None) -> list:
+        """One collapse per column (or per column index in `columns`) of `model` at theta [p] on
+        packing `packing_index`."""
+        out = []
+        for c in range(len(self.observables.columns)) if columns is None else columns:
+            column = self.observables.columns[c]
+            case = model.case(column, theta, self.settings, self.settings.packing_seeds[packing_index])
+            out.append(simulate_case(case, BUILTIN, packing=self.packing(c, packing_index)))
+        return out
+
+    def observe(self, model: Model, theta, packing_index: int, columns=None) -> np.ndarray:
+        """Observables of `model` at theta [p] on packing `packing_index`: [q], or only the outputs
+        of the column indices in `columns`."""
+        return self.observables.from_trajectories(self.trajectories(model, theta, packing_index, columns), columns)
+
+
+# -- the library of design runs -------------------------------------------------------------------
+STAGES = ("design", "replicate", "refine")
+
+
+@dataclass
+class DesignRuns:
+    """DEM runs of one model: theta [n, p], observed [n, q], packing index [n], wall seconds [n],
+    stage [n]: "design" (Latin hypercube), "replicate" (base model at the box centre, one per
+    packing) or "refine" (added by a diagnosis at its current optimum)."""
+
+    model: str
+    theta: np.ndarray
+    observed: np.ndarray
+    packing: np.ndarray
+    seconds: np.ndarray
+    stage: np.ndarray
+
+    def append(self, theta, observed, packing, seconds, stage: str) -> None:
+        if stage not in STAGES:
+            raise LibraryError(f"run stage {stage!r} is not one of {STAGES}")
+        self.theta = np.vstack([self.theta, np.atleast_2d(theta)])
+        self.observed = np.vstack([self.observed, np.atleast_2d(observed)])
+        self.packing = np.append(self.packing, packing)
+        self.seconds = np.append(self.seconds, seconds)
+        self.stage = np.append(self.stage, np.full(np.size(packing), stage))
+
+
+@dataclass
+class Library:
+    """Design runs of every model for one set of observables and simulation settings."""
+
+    signature: dict                              # Observables.signature() it was built for
+    settings: dict
+    runs: dict                                   # model name -> DesignRuns
+    _emulators: dict = field(default_factory=dict, repr=False)
+
+    def check(self, observables: Observables, models) -> None:
+        if json.loads(json.dumps(observables.signature())) != json.loads(json.dumps(self.signature)):
+            raise LibraryError("the run library was built for other columns, observation points or runout "
+                               f"method (columns {[c[0] for c in self.signature['columns']]}, runout "
+                               f"{self.signature.get('runout', 'not recorded')!r}; asked for "
+                               f"{observables.runout.to_config()!r}); rebuild it")
+        missing = [m.name for m in models if m.name not in self.runs]
+        if missing:
+            raise LibraryError(f"the run library has no runs of model(s) {missing}; it holds {list(self.runs)}")
+
+    def copy(self) -> "Library":
+        """An independent copy (runs copied; fitted emulators shared until a model gets new runs)."""
+        runs = {name: DesignRuns(r.model, r.theta.copy(), r.observed.copy(), r.packing.copy(), r.seconds.copy(),
+                                 r.stage.copy()) for name, r in self.runs.items()}
+        return Library(self.signature, dict(self.settings), runs, dict(self._emulators))
+
+    def training_set(self, model: Model) -> tuple[np.ndarray, np.ndarray]:
+        """(theta [n, p], observed [n, q]) to emulate `model`: its own runs plus the base model's
+        design and replicate runs (where the mechanism is off). Base runs added by a refinement stay
+        with the base model: they would tell an extension nothing new near its own optimum."""
+        base = self.runs["base"]
+        if model.mechanism is None:
+            return base.theta, base.observed
+        shared = base.stage != "refine"
+        own = self.runs[model.name]
+        return (np.concatenate([model.embed_base(base.theta[shared]), own.theta]),
+                np.concatenate([base.observed[shared], own.observed]))
+
+    def emulator(self, model: Model, seed: int = 0) -> "GPEmulator":
+        """The fitted emulator of `model` (cached: it depends on the runs only, not on any data)."""
+        key = (model.name, seed)
+        previous = self._emulators.get(key)
+        theta, observed = self.training_set(model)
+        if previous is None or len(previous.train_u) != len(theta):
+            started = time.perf_counter()
+            self._emulators[key] = GPEmulator(model.box, seed=seed).fit(theta, observed, previous=previous)
+            log.info("emulator of %s fitted on %d runs in %.1f s", model.name, len(theta), time.perf_counter() - started)
+        return self._emulators[key]
+
+    def add_runs(self, model: Model, theta, observed, packing, seconds, stage: str = "refine") -> None:
+        """Append runs of `model` (its emulator is refitted, warm-started, on next use)."""
+        self.runs[model.name].append(theta, observed, packing, seconds, stage)
+
+    def packing_std(self) -> np.ndarray:
+        """[q] packing-to-packing scatter of one realisation, pooled over every group of runs of
+        one model at one parameter point on different packings: the base replicates at the box
+        centre, and the repeated runs a diagnosis adds at its optima (so the estimate follows the
+        scatter where the fits are made, not only at the centre).
+
+        The pooled variance (few dof per group) is smoothed: over neighbouring runout points of the
+        same column, and over all deposit-profile points of a column (the surface roughness of a
+        deposit is about the same everywhere along it).
+        """
+        groups = {}
+        for name, runs in self.runs.items():
+            for theta, observed, packing in zip(runs.theta, runs.observed, runs.packing):
+                # one run per packing: a repeat on the same packing is the same run (deterministic)
+                groups.setdefault((name, tuple(np.round(theta, 12))), {})[int(packing)] = observed
+        squares, dof = 0.0, 0
+        for members in groups.values():
+            if len(members) > 1:
+                members = np.array(list(members.values()))
+                squares = squares + np.sum((members - members.mean(axis=0)) ** 2, axis=0)
+                dof += len(members) - 1
+        if dof < 1:
+            raise LibraryError("the run library has no repeated runs on different packings: no packing scatter")
+        variance = squares / dof
+        labels = [(label[0], label[1]) for label in self.signature["labels"]]
+        smoothed = variance.copy()
+        for k, (column, kind) in enumerate(labels):
+            if kind == "profile":
+                near = [j for j, other in enumerate(labels) if other == (column, kind)]
+            else:
+                near = [j for j in (k - 1, k, k + 1) if 0 <= j < len(labels) and labels[j] == labels[k]]
+            smoothed[k] = variance[near].mean()
+        return np.sqrt(smoothed)
+
+    def save(self, path) -> None:
+        arrays = {"meta": np.array(json.dumps({"signature": self.signature, "settings": self.settings,
+                                               "models": list(self.runs)}))}
+        for name, runs in self.runs.items():
+            for key in ("theta", "observed", "packing", "seconds", "stage"):
+                arrays[f"{name}/{key}"] = getattr(runs, key)
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as handle:
+                np.savez(handle, **arrays)
+
+    @classmethod
+    def load(cls, path) -> "Library":
+        with np.load(path) as data:
+            meta = json.loads(str(data["meta"]))
+            runs = {name: DesignRuns(name, *(data[f"{name}/{key}"] for key in
+                                             ("theta", "observed", "packing", "seconds", "stage")))
+                    for name in meta["models"]}
+        return cls(meta["signature"], meta["settings"], runs)
+
+
+def build_library(observables: Observables, models, settings: SimulationSettings, n_base: int = 10,
+                  n_per_mechanism: int = 8, seed: int = 0, progress=None) -> Library:
+    """DEM design runs of every model (the first must be the base model).
+
+    Base: `n_base` Latin-hypercube points over (mu, e) plus one run per packing at the box centre
+    (the replicates). Each extension: `n_per_mechanism` Latin-hypercube points over its 3-D box
+    (its emulator also uses the base runs, where the mechanism is off). Packings cycle over the
+    pool. progress: callable(fraction_done) or None.
+    """
+    models = list(models)
+    if not models or models[0].mechanism is not None:
+        raise LibraryError("the first model of a run library must be the base model")
+    if n_base < 3 or n_per_mechanism < 2:
+        raise LibraryError(f"too few design runs (n_base = {n_base} >= 3, n_per_mechanism = {n_per_mechanism} >= 2)")
+    n_packings = len(settings.packing_seeds)
+    if n_packings < 2:
+        raise LibraryError("need at least 2 packing seeds (the packing scatter is measured from them)")
+    plans = []
+    for k, model in enumerate(models):
+        n = n_base if model.mechanism is None else n_per_mechanism
+        theta = latin_hypercube(model.box, n, seed + 7919 * k)
+        stage = np.full(n, "design")
+        if model.mechanism is None:
+            centre = model.box.centre
+            theta = np.vstack([theta, np.tile(centre, (n_packings, 1))])
+            stage = np.concatenate([stage, np.full(n_packings, "replicate")])
+        packing = np.arange(len(theta)) % n_packings
+        plans.append((model, theta, packing, stage))
+    total = sum(len(p[1]) for p in plans)
+    started = time.perf_counter()
+    runner = DEMRunner(observables, settings)
+    runs, done = {}, 0
+    for model, theta, packing, stage in plans:
+        observed, seconds = [], []
+        for point, index in zip(theta, packing):
+            t0 = time.perf_counter()
+            observed.append(runner.observe(model, point, int(index)))
+            seconds.append(time.perf_counter() - t0)
+            done += 1
+            log.info("library run %d/%d: %s %s (%.1f s)", done, total, model.name,
+                     ", ".join(f"{n}={v:.3g}" for n, v in zip(model.parameter_names, point)), seconds[-1])
+            if progress is not None:
+                progress(done / total)
+        runs[model.name] = DesignRuns(model.name, theta, np.array(observed), packing, np.array(seconds), stage)
+    log.info("library: %d DEM runs x %d columns in %.0f s", total, len(observables.columns),
+             time.perf_counter() - started)
+    return Library(observables.signature(), settings.to_dict(), runs)

@@ -1,0 +1,279 @@
+"""The objective of the GNS inverse design (calibration.inverse): THE objective of design
+parameters through a GNS rollout of the measured column, and the checks that the column lies in the
+geometry the GNS was trained on.
+
+The design parameters (mu, e) sit in the node features of the initial graph; the trained GNS rolls
+the measured column out from its first C frames; a differentiable runout turns the rollout into L*
+at the measured t/t* points; THE objective (calibration.objective.runout_mse) scores it, with
+gradients by automatic differentiation through the (checkpointed) rollout or without gradient.
+Rollouts stop at the last measured t/t* (the frames the runout needs), a differentiated rollout runs
+in checkpointed segments whose forward pass carries no autograd bookkeeping, and no point is rolled
+out twice (the posterior reuses the optimum's runout). The objective counts where its online time
+goes: rollouts, forward and backward seconds (GNSObjective.timing).
+
+A rollout is chaotic in (mu, e), as the DEM is: below a few hundredths the objective is rough and
+its exact gradient is large and local.
+
+Differentiable runout: gns.runout, the twin of dem.runout's configured method (`runout`, a
+dem.runout.RunoutMethod): the same discrete choice of grains, a soft top-k where dem.runout takes
+a mean or a maximum, an exact running maximum for the "_reached" methods.
+"""
+from __future__ import annotations
+
+import math
+import time
+import warnings
+
+import numpy as np
+import torch
+
+from calibration.measured import MeasuredColumn
+from calibration.objective import runout_mse
+from dem.runout import RunoutError, RunoutMethod
+from dem.trajectory import Trajectory
+from gns.runout import frames_needed, soft_runout_at
+
+DESIGN_NAMES = ("friction", "restitution")
+# Rollout steps per checkpointed segment of a differentiated rollout (GNSObjective._rollout): the
+# backward pass holds one segment's activations, ~40 MB per step per 589-grain graph at latent 64.
+SEGMENT_STEPS = 10
+GEOMETRY_TOLERANCE = 0.05             # relative distance to the nearest training case that warns
+
+
+class InverseDesignError(ValueError):
+    """The inverse design cannot give a trustworthy optimum; the message says why."""
+
+
+class GeometryWarning(UserWarning):
+    """The measured column lies away from every column the GNS was trained on."""
+
+
+def check_geometry(measured: MeasuredColumn, metadata: dict, training_attrs: list[dict]) -> dict:
+    """Where the measured column lies relative to the GNS's training columns.
+
+    training_attrs: attributes of the training trajectories. Returns {"distance": relative
+    distance to the nearest training column in (aspect_ratio, L_i), "nearest": its (a, L_i)}.
+    InverseDesignError for another material or a column outside the trained L_i/H_i range (the
+    model refuses those inputs); GeometryWarning (with the distance) when no training column is
+    within GEOMETRY_TOLERANCE.
+    """
+    materials = metadata.get("materials") or sorted({str(a["material"]) for a in training_attrs})
+    if measured.material not in materials:
+        raise InverseDesignError(f"measured column {measured.name!r} ({measured.source}) is {measured.material}; "
+                                 f"the GNS was trained on {materials} only (it has no material input)")
+    ranges = metadata["parameter_ranges"]
+    outside = []
+    for key, value in (("L_i", measured.L_i), ("H_i", measured.H_i), ("aspect_ratio", measured.aspect_ratio)):
+        low, high = ranges[key]
+        if value < low * (1 - 1e-6) or value > high * (1 + 1e-6):
+            off = (low - value) if value < low else (value - high)
+            outside.append(f"{key} = {value:g} lies outside [{low:g}, {high:g}] (by {off:g}, "
+                           f"{off / max(abs(value), 1e-12):.0%})")
+    if outside:
+        raise InverseDesignError(
+            f"measured column {measured.name!r} ({measured.source}) lies outside the geometry the GNS was trained "
+            f"on: {'; '.join(outside)}; train the GNS on this geometry (a dataset with its material, aspect "
+            "ratio and L_i)")
+    columns = np.array([[float(a["aspect_ratio"]), float(a["L_i"])] for a in training_attrs])
+    target = np.array([measured.aspect_ratio, measured.L_i])
+    relative = np.max(np.abs(columns - target) / target, axis=1)
+    nearest = int(np.argmin(relative))
+    distance = float(relative[nearest])
+    if distance > GEOMETRY_TOLERANCE:
+        warnings.warn(f"measured column {measured.name!r} (a = {measured.aspect_ratio:g}, L_i = {measured.L_i:g} m) "
+                      f"is {distance:.0%} away from the nearest training column (a = {columns[nearest, 0]:g}, "
+                      f"L_i = {columns[nearest, 1]:g} m): the GNS interpolates between geometries here",
+                      GeometryWarning, stacklevel=2)
+    return {"distance": distance, "nearest": columns[nearest].tolist()}
+
+
+def nearest_dataset(measured: MeasuredColumn, rows: list[dict], datasets) -> str:
+    """The dataset (among `datasets`) whose training columns come nearest the measured one.
+
+    rows: case-table rows (dem.grid) with dataset, split, material, aspect_ratio, L_i. Only datasets
+    of the measured material count; the distance is the largest relative difference in (a, L_i).
+    """
+    best, best_distance = None, math.inf
+    for row in rows:
+        if row["dataset"] not in datasets or row["split"] != "train" or row["material"] != measured.material:
+            continue
+        distance = max(abs(float(row["aspect_ratio"]) - measured.aspect_ratio) / measured.aspect_ratio,
+                       abs(float(row["L_i"]) - measured.L_i) / measured.L_i)
+        if distance < best_distance:
+            best, best_distance = row["dataset"], distance
+    if best is None:
+        raise InverseDesignError(f"measured column {measured.name!r} ({measured.source}) is {measured.material}; "
+                                 f"no GNS dataset among {sorted(datasets)} has {measured.material} training cases")
+    return best
+
+
+def check_geometry_of_dataset(measured: MeasuredColumn, rows: list[dict], dataset: str) -> dict:
+    """check_geometry from case-table rows (before any DEM run): the dataset's parameter ranges
+    over all its rows (as dem.dataset computes them) and its training rows as the training set."""
+    mine = [dict(r, H_i=float(r["aspect_ratio"]) * float(r["L_i"])) for r in rows if r["dataset"] == dataset]
+    ranges = {k: [min(float(r[k]) for r in mine), max(float(r[k]) for r in mine)] for k in ("L_i", "H_i", "aspect_ratio")}
+    metadata = {"materials": sorted({str(r["material"]) for r in mine}), "parameter_ranges": ranges}
+    return check_geometry(measured, metadata, [r for r in mine if r["split"] == "train"])
+
+
+class GNSObjective:
+    """THE objective of design parameters through a GNS rollout of the measured column.
+
+    start: a DEM trajectory of the measured column (material, a, L_i; the GNS's grain size and
+    frame interval) whose first C frames start every rollout; the design parameters replace its
+    own. Parameters the model takes but that are not designed keep the start's values.
+    Call with theta [G, P] (P = len(design_names)): G rollouts run as one batch of graphs.
+    """
+
+    def __init__(self, simulator, start: Trajectory, measured: MeasuredColumn, design_names=DESIGN_NAMES,
+                 runout: RunoutMethod | None = None, temperature: float | None = None, checkpoint: bool = True,
+                 segment_steps: int = SEGMENT_STEPS):
+        config = simulator.config
+        self.simulator = simulator
+        self.measured = measured
+        self.runout_method = RunoutMethod.from_config(runout)
+        self.design_names = list(design_names)
+        self.temperature = temperature
+        self.checkpoint = checkpoint
+        self.segment_steps = int(segment_steps)
+        unknown = [n for n in self.design_names if n not in config.parameter_names]
+        if unknown:
+            raise InverseDesignError(f"design parameter(s) {unknown} are not inputs of the GNS "
+                                     f"(it takes {config.parameter_names})")
+        if not math.isclose(float(start.attrs["dt_frame"]), config.dt_frame, rel_tol=1e-9):
+            raise InverseDesignError(f"start trajectory: dt_frame {start.attrs['dt_frame']} s differs from the "
+                                     f"GNS's {config.dt_frame} s (one GNS step is one frame)")
+        self.t_star = float(start.attrs["t_star"])
+        self.L_i = float(start.attrs["L_i"])
+        self.dt_frame = config.dt_frame
+        if start.n_frames < config.n_input_frames:
+            raise InverseDesignError(f"start trajectory has {start.n_frames} frames; the GNS needs C = "
+                                     f"{config.n_input_frames} to start from")
+        self.n_frames = frames_needed(measured.t_over_tstar, self.t_star, self.dt_frame)   # frames the runout reads
+        self.n_steps = max(self.n_frames - config.n_input_frames, 0)
+        dtype = simulator.bounds.dtype
+        device = simulator.bounds.device
+        self.initial = torch.as_tensor(start.positions[: config.n_input_frames], dtype=dtype, device=device)
+        self.radius = torch.as_tensor(start.radius, dtype=dtype, device=device)
+        self.particle_type = torch.as_tensor(start.particle_type, dtype=torch.long, device=device)
+        self.fixed = torch.tensor([float(start.attrs[n]) for n in config.parameter_names], dtype=dtype, device=device)
+        self.layout = torch.tensor([self.L_i, float(start.attrs["H_i"])], dtype=dtype, device=device)
+        self.design_index = [config.parameter_names.index(n) for n in self.design_names]
+        self.target = torch.as_tensor(measured.runout, dtype=dtype, device=device)
+        self.n_particles = start.n_particles
+        # where the online time goes: rollouts (graphs rolled out), forward and backward seconds
+        self.timing = {"rollouts": 0, "forward_s": 0.0, "backward_s": 0.0}
+        self._runouts: dict[tuple, np.ndarray] = {}      # L* [K] of every point rolled out, by its bytes
+
+    def _context(self, theta: torch.Tensor):
+        from gns.simulator import Context
+
+        g, n = theta.shape[0], self.n_particles
+        parameters = self.fixed.repeat(g, 1)
+        parameters = parameters.index_copy(1, torch.tensor(self.design_index, device=theta.device), theta)
+        return Context(self.particle_type.repeat(g), self.radius.repeat(g), parameters, self.layout.repeat(g, 1),
+                       torch.arange(g, device=theta.device).repeat_interleave(n))
+
+    def runout(self, theta: torch.Tensor) -> torch.Tensor:
+        """L* [G, K] at the measured t/t* for theta [G, P] (differentiable when theta requires grad)."""
+        from gns.rollout import RolloutError
+
+        g, n = theta.shape[0], self.n_particles
+        t0 = time.perf_counter()
+        try:
+            positions = self._rollout(theta)
+        except (RolloutError, ValueError) as exc:
+            raise InverseDesignError(f"GNS rollout at {self._describe(theta)} failed: {exc}") from None
+        positions = positions.reshape(positions.shape[0], g, n, 2)
+        try:     # a rollout spread too thin has no front by the configured rule
+            runout = torch.stack([soft_runout_at(positions[:, j], self.radius, self.L_i, self.t_star, self.dt_frame,
+                                                 self.measured.t_over_tstar, self.runout_method, self.temperature)
+                                  for j in range(g)])
+        except RunoutError as exc:
+            raise InverseDesignError(f"GNS rollout at {self._describe(theta)} has no runout: {exc}") from None
+        self.timing["rollouts"] += g
+        self.timing["forward_s"] += time.perf_counter() - t0
+        return runout
+
+    def _segment(self, window: torch.Tensor, theta: torch.Tensor, n_steps: int) -> torch.Tensor:
+        """The n_steps frames [n_steps, G N, 2] after the C frames `window` [C, G N, 2]."""
+        from gns.rollout import rollout
+
+        result = rollout(self.simulator, window, self._context(theta), n_steps, checkpoint=False)
+        return result.positions[window.shape[0]:]
+
+    def _rollout(self, theta: torch.Tensor) -> torch.Tensor:
+        """Positions [C + n_steps, G N, 2] for theta [G, P].
+
+        With a gradient to take, the rollout runs in segments of segment_steps steps, each under a
+        (reentrant) checkpoint: the forward pass runs without autograd bookkeeping (as fast as a
+        no-grad rollout) and keeps only each segment's first C frames; backward recomputes one
+        segment at a time with autograd. Memory: one segment's activations (~40 MB per step per
+        589-grain graph) instead of the whole rollout's. The gradient is the same as without
+        checkpoints (tests/test_inverse.py)."""
+        initial = self.initial.repeat(1, theta.shape[0], 1)
+        if not (self.checkpoint and torch.is_grad_enabled() and theta.requires_grad):
+            return torch.cat([initial, self._segment(initial, theta, self.n_steps)])
+        from torch.utils.checkpoint import checkpoint
+
+        frames, window, done = [initial], initial, 0
+        c = initial.shape[0]
+        while done < self.n_steps:
+            steps = min(self.segment_steps, self.n_steps - done)
+            new = checkpoint(self._segment, window, theta, steps, use_reentrant=True)
+            frames.append(new)
+            window = torch.cat([window, new])[-c:]
+            done += steps
+        return torch.cat(frames)
+
+    def _describe(self, theta) -> str:
+        rows = np.atleast_2d(theta.detach().cpu().numpy() if torch.is_tensor(theta) else theta)
+        return "; ".join(", ".join(f"{n}={v:.4g}" for n, v in zip(self.design_names, row)) for row in rows)
+
+    def _theta(self, points, requires_grad=False) -> torch.Tensor:
+        theta = torch.as_tensor(np.atleast_2d(np.asarray(points, np.float64)), dtype=self.simulator.bounds.dtype,
+                                device=self.simulator.bounds.device)
+        return theta.clone().requires_grad_(requires_grad)
+
+    def _checked(self, values: np.ndarray, points) -> np.ndarray:
+        if not np.all(np.isfinite(values)):
+            bad = np.atleast_2d(points)[~np.isfinite(values)]
+            raise InverseDesignError(f"GNS objective is not finite at {self._describe(bad)}: no optimum from it")
+        return values
+
+    def _key(self, point) -> bytes:
+        """A point as the model sees it (its dtype), so a cached runout is the one a rollout would give."""
+        return self._theta(point).cpu().numpy().tobytes()
+
+    def runout_values(self, points) -> np.ndarray:
+        """L* [G, K] (numpy, no gradient) at points [G, P]; points rolled out before are not rolled
+        out again (a rollout is deterministic)."""
+        points = np.atleast_2d(np.asarray(points, np.float64))
+        missing = [j for j, p in enumerate(points) if self._key(p) not in self._runouts]
+        if missing:
+            with torch.no_grad():
+                fresh = self.runout(self._theta(points[missing])).double().cpu().numpy()
+            self._runouts.update((self._key(points[j]), r) for j, r in zip(missing, fresh))
+        return np.array([self._runouts[self._key(p)] for p in points])
+
+    def values(self, points) -> np.ndarray:
+        """Objective [G] at points [G, P], no gradient."""
+        runout = self.runout_values(points)
+        return self._checked(np.array([runout_mse(r, self.measured.runout) for r in runout]), points)
+
+    def values_and_gradients(self, points) -> tuple[np.ndarray, np.ndarray]:
+        """(objective [G], d objective / d theta [G, P]) by backpropagation through the rollout."""
+        theta = self._theta(points, requires_grad=True)
+        with torch.enable_grad():
+            runout = self.runout(theta)
+            values = torch.stack([runout_mse(r, self.target) for r in runout])
+            self._runouts.update((self._key(p), r) for p, r in zip(np.atleast_2d(points),
+                                                                    runout.detach().double().cpu().numpy()))
+            t0 = time.perf_counter()
+            values.sum().backward()          # graphs are independent: row g of the gradient is d value_g
+            self.timing["backward_s"] += time.perf_counter() - t0
+        values = self._checked(values.detach().double().cpu().numpy(), points)
+        gradients = theta.grad.double().cpu().numpy()
+        if not np.all(np.isfinite(gradients)):
+            raise InverseDesignError(f"GNS gradient is not finite at {self._describe(points)}")
+        return values, gradients

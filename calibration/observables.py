@@ -1,0 +1,118 @@
+"""What a DEM run is compared with the measurement on: the observables of the measured columns.
+
+Observables (`Observables`): for every measured column, the runout L* at its measured t/t* points
+and, when a deposit profile was measured, the deposit height (m) at its measured x points, taken
+from the last simulated frame (the last measured t/t*: this model's grains never quite stop
+rolling, so "final" means "at the end of the measured window"). The runout is read by the
+configured dem.runout method (`Observables.runout`), the same as every other stage's.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calibration.measured import MeasuredColumn
+from calibration.objective import simulated_runout_at
+from dem.runout import RunoutMethod, deposit_profile
+
+PROFILE_BIN_DIAMETERS = 4.0   # deposit-profile bin width in mean grain diameters (dem.runout.deposit_profile)
+
+
+class LibraryError(ValueError):
+    """A run library does not fit the columns, models or settings it is used with."""
+
+
+# -- what is compared ---------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Observables:
+    """The simulated numbers compared with the measurement, in one flat order [q].
+
+    Per column, in column order: runout L* at its t/t* points (read by `runout`, a
+    dem.runout.RunoutMethod), then (if measured) deposit height (m) at its profile x points.
+    """
+
+    columns: tuple[MeasuredColumn, ...]
+    runout: RunoutMethod = field(default_factory=RunoutMethod)
+
+    def __post_init__(self):
+        object.__setattr__(self, "columns", tuple(self.columns))
+        object.__setattr__(self, "runout", RunoutMethod.from_config(self.runout))
+        if not self.columns:
+            raise LibraryError("no measured columns to observe")
+        names = [c.name for c in self.columns]
+        if len(set(names)) != len(names):
+            raise LibraryError(f"measured column names repeat: {names}")
+
+    @property
+    def labels(self) -> list[tuple[str, str, float]]:
+        """(column name, "runout" | "profile", t/t* or x (m)) for every output."""
+        out = []
+        for c in self.columns:
+            out += [(c.name, "runout", float(t)) for t in c.t_over_tstar]
+            if c.profile_x is not None:
+                out += [(c.name, "profile", float(x)) for x in c.profile_x]
+        return out
+
+    @property
+    def size(self) -> int:
+        return len(self.labels)
+
+    @property
+    def column_index(self) -> np.ndarray:
+        names = [c.name for c in self.columns]
+        return np.array([names.index(label[0]) for label in self.labels])
+
+    @property
+    def kind(self) -> np.ndarray:
+        return np.array([label[1] for label in self.labels])
+
+    @property
+    def x(self) -> np.ndarray:
+        return np.array([label[2] for label in self.labels])
+
+    @property
+    def measured(self) -> np.ndarray:
+        parts = []
+        for c in self.columns:
+            parts.append(c.runout)
+            if c.profile_x is not None:
+                parts.append(c.profile_height)
+        return np.concatenate(parts).astype(float)
+
+    @property
+    def measured_std(self) -> np.ndarray:
+        """[q] stated noise std; NaN where the file gives none (profile noise is not in the schema)."""
+        parts = []
+        for c in self.columns:
+            parts.append(c.runout_std if c.runout_std is not None else np.full(len(c.runout), np.nan))
+            if c.profile_x is not None:
+                parts.append(np.full(len(c.profile_x), np.nan))
+        return np.concatenate(parts).astype(float)
+
+    def signature(self) -> dict:
+        """What a library built for these observables must match (geometry, observation points and
+        how the runout is read off a run)."""
+        return {"columns": [[c.name, c.material, c.aspect_ratio, c.L_i] for c in self.columns],
+                "labels": [list(label) for label in self.labels], "runout": self.runout.to_config()}
+
+    def from_trajectories(self, trajectories, columns=None) -> np.ndarray:
+        """Observables of one simulated trajectory per column: [q] for all columns, or, with
+        `columns` (column indices, the trajectories in that order), only those columns' outputs in
+        flat order (the entries of `column_index` in `columns`)."""
+        columns = range(len(self.columns)) if columns is None else columns
+        parts = []
+        for j, trajectory in zip(columns, trajectories, strict=True):
+            column = self.columns[j]
+            t, runout = self.runout.curve(trajectory)
+            parts.append(simulated_runout_at(t, runout, column))
+            if column.profile_x is not None:
+                parts.append(profile_at(trajectory, column.profile_x))
+        return np.concatenate(parts)
+
+
+def profile_at(trajectory, x) -> np.ndarray:
+    """[P] deposit height (m) of the last frame at x [P] (m); 0 beyond the deposit's end."""
+    bin_width = PROFILE_BIN_DIAMETERS * 2.0 * float(np.mean(trajectory.radius))
+    centres, height = deposit_profile(trajectory.positions[-1], trajectory.radius, bin_width=bin_width)
+    return np.interp(np.asarray(x, float), centres, height, right=0.0)
