@@ -20,7 +20,7 @@ include: "workflow/rules/report.smk"
 
 
 rule all:
+    default_target: True
     input:
         FINAL_TARGETS,
         "results/report.md",
-    default_target: True

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The project's two entry points (see README):
 #   bash run.sh main   -- the whole Snakemake DAG on config/config.yaml with the builtin engine
-#   bash run.sh test   -- the test suite
+#   bash run.sh test   -- the linters (ruff, snakefmt, snakemake --lint), then the test suite
 # Each makes (or reuses) the virtual environment .venv from environment.txt first.
 set -euo pipefail
 cd "$(dirname "$0")"
@@ -54,6 +54,12 @@ case "${1:-}" in
         ensure_venv
         ensure_optional_apt
         shift
+        echo "run.sh: linting first: ruff check, ruff format --check, snakefmt --check, snakemake --lint"
+        if ! { "$VENV/bin/ruff" check . && "$VENV/bin/ruff" format --check . \
+            && "$VENV/bin/snakefmt" --check Snakefile workflow/ \
+            && "$VENV/bin/python" -m snakemake --lint --profile workflow/profiles/default; }; then
+            echo "run.sh: lint failed (see above); fix it before the tests run" >&2; exit 1
+        fi
         exec "$VENV/bin/python" -m pytest -q "$@"
         ;;
     *)

@@ -14,6 +14,7 @@ full-scale case (quartz L_i = 0.02 m, a = 1, ~2,450 grains), over --throughput-d
 
     python benchmarks/crossval_liggghts.py [--size-scale 3] [--seeds 10] [--throughput-duration 0.5]
 """
+
 import argparse
 import json
 import os
@@ -35,7 +36,7 @@ from dem.runout import RunoutMethod  # noqa: E402
 
 PAIRS = ((0.3, 0.3), (0.3, 0.9), (0.6, 0.6), (0.9, 0.3), (0.9, 0.9))
 TOLERANCE = 0.05
-PERTURBED_DT = 1 / 65   # dt / t_c of the builtin rerun that measures the chaotic noise floor
+PERTURBED_DT = 1 / 65  # dt / t_c of the builtin rerun that measures the chaotic noise floor
 RUNOUT = RunoutMethod()  # the project's default runout method (config key runout), for both engines
 
 
@@ -43,33 +44,61 @@ def crossval_pair(liggghts, mu, e, args, scratch):
     curves = {"builtin": [], "liggghts": [], "builtin_dt": []}
     per_seed = []
     for seed in range(args.seeds):
-        case = CollapseCase("quartz", args.column_length, args.aspect_ratio, mu, e, seed=seed,
-                            size_scale=args.size_scale, name=f"mu{mu}_e{e}_s{seed}")
+        case = CollapseCase(
+            "quartz",
+            args.column_length,
+            args.aspect_ratio,
+            mu,
+            e,
+            seed=seed,
+            size_scale=args.size_scale,
+            name=f"mu{mu}_e{e}_s{seed}",
+        )
         packing = settle_column(case)
         curves["builtin"].append(RUNOUT.curve(simulate_collapse(case, packing))[1])
-        curves["builtin_dt"].append(RUNOUT.curve(simulate_collapse(case.replace(dt_over_contact_time=PERTURBED_DT),
-                                                                   packing))[1])
+        curves["builtin_dt"].append(
+            RUNOUT.curve(simulate_collapse(case.replace(dt_over_contact_time=PERTURBED_DT), packing))[1]
+        )
         curves["liggghts"].append(RUNOUT.curve(liggghts.simulate(case, packing, os.path.join(scratch, case.name)))[1])
-        per_seed.append({"seed": seed, "final_runout_builtin": round(float(curves["builtin"][-1][-1]), 4),
-                         "final_runout_liggghts": round(float(curves["liggghts"][-1][-1]), 4),
-                         "final_relative_difference": round(float(curves["builtin"][-1][-1] / curves["liggghts"][-1][-1] - 1), 4)})
+        per_seed.append(
+            {
+                "seed": seed,
+                "final_runout_builtin": round(float(curves["builtin"][-1][-1]), 4),
+                "final_runout_liggghts": round(float(curves["liggghts"][-1][-1]), 4),
+                "final_relative_difference": round(
+                    float(curves["builtin"][-1][-1] / curves["liggghts"][-1][-1] - 1), 4
+                ),
+            }
+        )
     final = {k: np.array(v)[:, -1] for k, v in curves.items()}
     mean = runout_agreement(np.mean(curves["builtin"], 0), np.mean(curves["liggghts"], 0))
-    result = {"friction": mu, "restitution": e, "n_particles": case.n_particles,
-              "seed_mean": {"final_runout_builtin": mean["final_runout"],
-                            "final_runout_liggghts": mean["final_runout_reference"],
-                            "final_relative_difference": mean["final_relative_difference"],
-                            "rms_curve_difference_over_final": mean["rms_curve_difference_over_final"]},
-              "noise_floor": {
-                  "sd_per_seed_difference_builtin_vs_liggghts": float(np.std(final["builtin"] / final["liggghts"] - 1, ddof=1)),
-                  "sd_per_seed_difference_builtin_dt_change": float(np.std(final["builtin"] / final["builtin_dt"] - 1, ddof=1)),
-                  "sd_final_runout_over_seeds_builtin": float(np.std(final["builtin"], ddof=1)),
-                  "sd_final_runout_over_seeds_liggghts": float(np.std(final["liggghts"], ddof=1))},
-              "per_seed": per_seed}
+    result = {
+        "friction": mu,
+        "restitution": e,
+        "n_particles": case.n_particles,
+        "seed_mean": {
+            "final_runout_builtin": mean["final_runout"],
+            "final_runout_liggghts": mean["final_runout_reference"],
+            "final_relative_difference": mean["final_relative_difference"],
+            "rms_curve_difference_over_final": mean["rms_curve_difference_over_final"],
+        },
+        "noise_floor": {
+            "sd_per_seed_difference_builtin_vs_liggghts": float(
+                np.std(final["builtin"] / final["liggghts"] - 1, ddof=1)
+            ),
+            "sd_per_seed_difference_builtin_dt_change": float(
+                np.std(final["builtin"] / final["builtin_dt"] - 1, ddof=1)
+            ),
+            "sd_final_runout_over_seeds_builtin": float(np.std(final["builtin"], ddof=1)),
+            "sd_final_runout_over_seeds_liggghts": float(np.std(final["liggghts"], ddof=1)),
+        },
+        "per_seed": per_seed,
+    }
     result["seed_mean"] = {k: round(float(v), 4) for k, v in result["seed_mean"].items()}
     result["noise_floor"] = {k: round(float(v), 4) for k, v in result["noise_floor"].items()}
-    result["seed_mean"]["within_target"] = bool(abs(mean["final_relative_difference"]) <= TOLERANCE
-                                                and mean["rms_curve_difference_over_final"] <= TOLERANCE)
+    result["seed_mean"]["within_target"] = bool(
+        abs(mean["final_relative_difference"]) <= TOLERANCE and mean["rms_curve_difference_over_final"] <= TOLERANCE
+    )
     return result
 
 
@@ -79,12 +108,22 @@ def throughput(liggghts, duration, scratch):
     packing = settle_column(case)
     builtin = simulate_collapse(case, packing)
     reference = liggghts.simulate(case, packing, os.path.join(scratch, case.name))
-    speeds = {"builtin": builtin.attrs["particle_steps_per_second"],
-              "liggghts": reference.attrs["particle_steps_per_second"]}
-    return {"case": {"material": "quartz", "L_i": 0.02, "aspect_ratio": 1.0, "n_particles": case.n_particles,
-                     "duration_over_tstar": duration, "steps": int(builtin.attrs["steps"])},
-            "particle_steps_per_second": {k: round(float(v)) for k, v in speeds.items()},
-            "ratio_builtin_over_liggghts": round(float(speeds["builtin"] / speeds["liggghts"]), 3)}
+    speeds = {
+        "builtin": builtin.attrs["particle_steps_per_second"],
+        "liggghts": reference.attrs["particle_steps_per_second"],
+    }
+    return {
+        "case": {
+            "material": "quartz",
+            "L_i": 0.02,
+            "aspect_ratio": 1.0,
+            "n_particles": case.n_particles,
+            "duration_over_tstar": duration,
+            "steps": int(builtin.attrs["steps"]),
+        },
+        "particle_steps_per_second": {k: round(float(v)) for k, v in speeds.items()},
+        "ratio_builtin_over_liggghts": round(float(speeds["builtin"] / speeds["liggghts"]), 3),
+    }
 
 
 def main():
@@ -101,20 +140,36 @@ def main():
     with tempfile.TemporaryDirectory(prefix="crossval_") as scratch:
         for mu, e in PAIRS:
             results.append(crossval_pair(liggghts, mu, e, args, scratch))
-            print(json.dumps({k: results[-1][k] for k in ("friction", "restitution", "seed_mean", "noise_floor")}),
-                  file=sys.stderr, flush=True)
+            print(
+                json.dumps({k: results[-1][k] for k in ("friction", "restitution", "seed_mean", "noise_floor")}),
+                file=sys.stderr,
+                flush=True,
+            )
         speed = throughput(liggghts, args.throughput_duration, scratch)
-    print(json.dumps({
-        "benchmark": "crossval_liggghts", "date": time.strftime("%Y-%m-%d %H:%M"),
-        "machine": platform.processor() or platform.machine(), "load_average_1min": os.getloadavg()[0],
-        "liggghts_version": liggghts.version(),
-        "crossval_case": {"material": "quartz", "L_i": args.column_length, "aspect_ratio": args.aspect_ratio,
-                          "size_scale": args.size_scale, "seeds": args.seeds, "perturbed_dt_over_contact_time": PERTURBED_DT},
-        "tolerance": TOLERANCE,
-        "pairs_within_target": sum(r["seed_mean"]["within_target"] for r in results),
-        "pairs": results,
-        "throughput": speed,
-    }, indent=2))
+    print(
+        json.dumps(
+            {
+                "benchmark": "crossval_liggghts",
+                "date": time.strftime("%Y-%m-%d %H:%M"),
+                "machine": platform.processor() or platform.machine(),
+                "load_average_1min": os.getloadavg()[0],
+                "liggghts_version": liggghts.version(),
+                "crossval_case": {
+                    "material": "quartz",
+                    "L_i": args.column_length,
+                    "aspect_ratio": args.aspect_ratio,
+                    "size_scale": args.size_scale,
+                    "seeds": args.seeds,
+                    "perturbed_dt_over_contact_time": PERTURBED_DT,
+                },
+                "tolerance": TOLERANCE,
+                "pairs_within_target": sum(r["seed_mean"]["within_target"] for r in results),
+                "pairs": results,
+                "throughput": speed,
+            },
+            indent=2,
+        )
+    )
 
 
 if __name__ == "__main__":

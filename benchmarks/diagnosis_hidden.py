@@ -16,6 +16,7 @@ runout every 0.5 t* up to 5 t*, deposit profile at five points. About 10-25 minu
 
     python benchmarks/diagnosis_hidden.py [--size-scale 4] [--seed 2024] [--rounds 3] [--quick]
 """
+
 import argparse
 import json
 import logging
@@ -47,28 +48,51 @@ def main():
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     if args.quick:
         args.size_scale, args.n_base, args.n_per_mechanism, args.rounds = 5.0, 6, 5, 1
-    settings = DiagnosisSettings(simulation=SimulationSettings(size_scale=args.size_scale), n_base=args.n_base,
-                                 n_per_mechanism=args.n_per_mechanism, n_rounds=args.rounds, seed=0)
+    settings = DiagnosisSettings(
+        simulation=SimulationSettings(size_scale=args.size_scale),
+        n_base=args.n_base,
+        n_per_mechanism=args.n_per_mechanism,
+        n_rounds=args.rounds,
+        seed=0,
+    )
     mechanisms = [m.mechanism for m in settings.models()[1:]]
     rng = np.random.default_rng(args.seed)
     order = rng.permutation(len(mechanisms))
     truths = [draw_truth(rng, mechanisms[k]) for k in order] + [draw_truth(rng, None)]
     started = time.perf_counter()
-    summary = diagnose_hidden_cases(truths, settings, seed=args.seed,
-                                    progress=lambda f: logging.info("hidden cases: %.0f%% done", 100 * f))
-    print(json.dumps({
-        "benchmark": "diagnosis_hidden", "date": time.strftime("%Y-%m-%d %H:%M"),
-        "machine": platform.processor() or platform.machine(), "load_average_1min": os.getloadavg()[0],
-        "settings": {"size_scale": args.size_scale, "n_base": args.n_base, "n_per_mechanism": args.n_per_mechanism,
-                     "rounds": args.rounds, "seed": args.seed, "runout_noise": 0.05, "profile_noise_m": 5e-4,
-                     "decision_rule": settings.rule.to_dict()},
-        "hits": summary["hits"], "n_hidden": summary["n_hidden"], "hit_rate": summary["hit_rate"],
-        "null_correct": summary["null_correct"],
-        "meets_target": summary["hits"] == summary["n_hidden"] and bool(summary["null_correct"]),
-        "cases": [{k: v for k, v in case.items() if k != "result"} for case in summary["cases"]],
-        "library_dem_seconds": round(summary["library_seconds"], 1),
-        "wall_seconds": round(time.perf_counter() - started, 1),
-    }, indent=1, default=float))
+    summary = diagnose_hidden_cases(
+        truths, settings, seed=args.seed, progress=lambda f: logging.info("hidden cases: %.0f%% done", 100 * f)
+    )
+    print(
+        json.dumps(
+            {
+                "benchmark": "diagnosis_hidden",
+                "date": time.strftime("%Y-%m-%d %H:%M"),
+                "machine": platform.processor() or platform.machine(),
+                "load_average_1min": os.getloadavg()[0],
+                "settings": {
+                    "size_scale": args.size_scale,
+                    "n_base": args.n_base,
+                    "n_per_mechanism": args.n_per_mechanism,
+                    "rounds": args.rounds,
+                    "seed": args.seed,
+                    "runout_noise": 0.05,
+                    "profile_noise_m": 5e-4,
+                    "decision_rule": settings.rule.to_dict(),
+                },
+                "hits": summary["hits"],
+                "n_hidden": summary["n_hidden"],
+                "hit_rate": summary["hit_rate"],
+                "null_correct": summary["null_correct"],
+                "meets_target": summary["hits"] == summary["n_hidden"] and bool(summary["null_correct"]),
+                "cases": [{k: v for k, v in case.items() if k != "result"} for case in summary["cases"]],
+                "library_dem_seconds": round(summary["library_seconds"], 1),
+                "wall_seconds": round(time.perf_counter() - started, 1),
+            },
+            indent=1,
+            default=float,
+        )
+    )
 
 
 if __name__ == "__main__":

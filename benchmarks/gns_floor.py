@@ -22,6 +22,7 @@ the runout method `--runout` (dem.runout; every method side by side: benchmarks/
 Each also split by the paper's phases (free fall t/t* <= 1, spreading <= 2.5, stopping). Issue 5's
 target is a test runout MSE of 0.05; `target_below_floor` says whether ideal_mse exceeds it.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -41,8 +42,9 @@ from dem.runout_study import phase_means  # noqa: E402
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--dataset", default="results/datasets/quartz_multiple/metadata.json")
-    parser.add_argument("--model", default=None, help="default results/gns/<dataset name>/train/model_best.pt; "
-                                                       "skipped when absent")
+    parser.add_argument(
+        "--model", default=None, help="default results/gns/<dataset name>/train/model_best.pt; skipped when absent"
+    )
     parser.add_argument("--reruns", type=int, default=6)
     parser.add_argument("--perturbation", type=float, default=1e-3, help="mean grain diameters")
     parser.add_argument("--seed", type=int, default=0)
@@ -68,25 +70,31 @@ def main():
     for k, path in enumerate(split_paths(metadata, "test")):
         dem = read_trajectory(path)
         t, original = method.curve(dem)
-        reruns = np.array([method.curve(r)[1] for r in perturbed_reruns(dem, args.reruns, args.perturbation,
-                                                                          args.seed + k)])
+        reruns = np.array(
+            [method.curve(r)[1] for r in perturbed_reruns(dem, args.reruns, args.perturbation, args.seed + k)]
+        )
         runs = np.vstack([original, reruns])
-        variance = np.var(runs, axis=0, ddof=1)            # [T], across the realisations
-        row = {"case": Path(path).stem, "friction": float(dem.attrs["friction"]),
-               "restitution": float(dem.attrs["restitution"]),
-               "rerun_mse": round(float(np.mean((reruns - original) ** 2)), 4),
-               "rerun_mse_each": [round(float(np.mean((r - original) ** 2)), 4) for r in reruns],
-               "ideal_mse": round(float(np.mean(variance)), 4),
-               "ideal_mse_by_phase": {p: round(v, 4) for p, v in phase_means(t, variance).items()},
-               "final_runout_spread": round(float(np.std(runs[:, -1], ddof=1)), 3)}
+        variance = np.var(runs, axis=0, ddof=1)  # [T], across the realisations
+        row = {
+            "case": Path(path).stem,
+            "friction": float(dem.attrs["friction"]),
+            "restitution": float(dem.attrs["restitution"]),
+            "rerun_mse": round(float(np.mean((reruns - original) ** 2)), 4),
+            "rerun_mse_each": [round(float(np.mean((r - original) ** 2)), 4) for r in reruns],
+            "ideal_mse": round(float(np.mean(variance)), 4),
+            "ideal_mse_by_phase": {p: round(v, 4) for p, v in phase_means(t, variance).items()},
+            "final_runout_spread": round(float(np.std(runs[:, -1], ddof=1)), 3),
+        }
         gns_curve = None
         if simulator is not None:
             gns = rollout_trajectory(simulator, dem, on_invalid="flag")
             if gns.attrs["rollout_valid"]:
                 gns_curve = method.curve(gns)[1]
-                row.update(gns_mse=round(float(np.mean((gns_curve - original) ** 2)), 4),
-                           gns_mse_to_mean=round(float(np.mean((gns_curve - runs.mean(axis=0)) ** 2)), 4),
-                           gns_mse_by_phase={p: round(v, 4) for p, v in phase_means(t, (gns_curve - original) ** 2).items()})
+                row.update(
+                    gns_mse=round(float(np.mean((gns_curve - original) ** 2)), 4),
+                    gns_mse_to_mean=round(float(np.mean((gns_curve - runs.mean(axis=0)) ** 2)), 4),
+                    gns_mse_by_phase={p: round(v, 4) for p, v in phase_means(t, (gns_curve - original) ** 2).items()},
+                )
             else:
                 row["gns_problem"] = gns.attrs["rollout_problem"]
         cases.append(row)
@@ -94,12 +102,21 @@ def main():
         print(json.dumps({k: row[k] for k in ("case", "rerun_mse", "ideal_mse")}), file=sys.stderr, flush=True)
 
     mean = lambda key: round(float(np.mean([c[key] for c in cases])), 4) if all(key in c for c in cases) else None  # noqa: E731
-    summary = {"dataset": metadata["name"], "model": str(model_path) if simulator is not None else None,
-               "reruns": args.reruns, "perturbation_diameters": args.perturbation, "seed": args.seed,
-               "runout": method.to_config(),
-               "rerun_mse": mean("rerun_mse"), "ideal_mse": mean("ideal_mse"),
-               "gns_mse": mean("gns_mse"), "gns_mse_to_mean": mean("gns_mse_to_mean"),
-               "target_mse": 0.05, "target_below_floor": mean("ideal_mse") > 0.05, "cases": cases}
+    summary = {
+        "dataset": metadata["name"],
+        "model": str(model_path) if simulator is not None else None,
+        "reruns": args.reruns,
+        "perturbation_diameters": args.perturbation,
+        "seed": args.seed,
+        "runout": method.to_config(),
+        "rerun_mse": mean("rerun_mse"),
+        "ideal_mse": mean("ideal_mse"),
+        "gns_mse": mean("gns_mse"),
+        "gns_mse_to_mean": mean("gns_mse_to_mean"),
+        "target_mse": 0.05,
+        "target_below_floor": mean("ideal_mse") > 0.05,
+        "cases": cases,
+    }
     if args.figure:
         plot(plotted, args.figure)
     print(json.dumps(summary, indent=1))

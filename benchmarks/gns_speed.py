@@ -19,6 +19,7 @@ wall time on an idle core). Speed-ups, DEM over GNS:
                                  DEM has to settle the column again (the packing depends on mu, e)
 Target (issue 5): GNS rollout at least 2x faster than the builtin DEM.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -47,7 +48,7 @@ def main():
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--train-steps", type=int, default=40)
     args = parser.parse_args()
-    os.environ["NUMBA_NUM_THREADS"] = str(args.threads)   # before numba loads: the DEM gets the same cores
+    os.environ["NUMBA_NUM_THREADS"] = str(args.threads)  # before numba loads: the DEM gets the same cores
     import torch
 
     from dem.collapse import simulate_collapse
@@ -56,7 +57,7 @@ def main():
     from gns.data import read_metadata
     from gns.rollout import rollout_trajectory
     from gns.simulator import load_simulator
-    from gns.train import TrainSettings, Trainer
+    from gns.train import Trainer, TrainSettings
 
     torch.set_num_threads(args.threads)
     metadata = read_metadata(args.dataset)
@@ -69,41 +70,56 @@ def main():
 
     with tempfile.TemporaryDirectory() as scratch:
         trainer = Trainer(args.dataset, scratch, settings)
-        trainer.train_step()                                   # warm-up (allocations, first graph)
+        trainer.train_step()  # warm-up (allocations, first graph)
         _, train_wall, train_cpu = timed(lambda: [trainer.train_step() for _ in range(args.train_steps)])
 
     simulator = load_simulator(model_path, metadata)
     dem = read_trajectory(case_path)
-    rollout_trajectory(simulator, dem, n_steps=2)              # warm-up
+    rollout_trajectory(simulator, dem, n_steps=2)  # warm-up
     gns, gns_wall, gns_cpu = timed(lambda: rollout_trajectory(simulator, dem, on_invalid="flag"))
 
     from dem.runout_study import case_of
 
     case = case_of(dem)
     packing = Trajectory(dem.positions[:1], dem.radius, dem.particle_type, dict(dem.attrs))
-    simulate_collapse(case.replace(duration_over_tstar=2 * case.frame_interval / case.t_star), packing=packing)  # load kernels
+    simulate_collapse(
+        case.replace(duration_over_tstar=2 * case.frame_interval / case.t_star), packing=packing
+    )  # load kernels
     _, settle_wall, settle_cpu = timed(lambda: settle_column(case))
     _, dem_wall, dem_cpu = timed(lambda: simulate_collapse(case, packing=packing))
 
     steps = int(gns.attrs["rollout_steps"])
     c = simulator.config.n_input_frames
-    start_share = (c - 1) / (dem.n_frames - 1)                # of the collapse: the frames the GNS starts from
-    ratio = lambda dem_s, gns_s: round(dem_s / gns_s, 3)       # noqa: E731
+    start_share = (c - 1) / (dem.n_frames - 1)  # of the collapse: the frames the GNS starts from
+    ratio = lambda dem_s, gns_s: round(dem_s / gns_s, 3)  # noqa: E731
     result = {
-        "dataset": metadata["name"], "model": str(model_path), "case": str(case_path), "threads": args.threads,
-        "grains": dem.n_particles, "frames": dem.n_frames, "dt_frame_s": float(dem.attrs["dt_frame"]),
-        "gns_input_frames_C": c, "gns_steps": steps, "gns_rollout_valid": bool(gns.attrs["rollout_valid"]),
-        "model_size": {"latent_size": settings.latent_size, "mlp_hidden_layers": settings.mlp_hidden_layers,
-                       "n_message_passing": settings.n_message_passing,
-                       "connectivity_radius_diameters": settings.connectivity_radius},
+        "dataset": metadata["name"],
+        "model": str(model_path),
+        "case": str(case_path),
+        "threads": args.threads,
+        "grains": dem.n_particles,
+        "frames": dem.n_frames,
+        "dt_frame_s": float(dem.attrs["dt_frame"]),
+        "gns_input_frames_C": c,
+        "gns_steps": steps,
+        "gns_rollout_valid": bool(gns.attrs["rollout_valid"]),
+        "model_size": {
+            "latent_size": settings.latent_size,
+            "mlp_hidden_layers": settings.mlp_hidden_layers,
+            "n_message_passing": settings.n_message_passing,
+            "connectivity_radius_diameters": settings.connectivity_radius,
+        },
         "training_batch_size": settings.batch_size,
         "training_steps_per_s": round(args.train_steps / train_wall, 3),
         "training_steps_per_cpu_s": round(args.train_steps / train_cpu, 3),
-        "gns_rollout_s": round(gns_wall, 3), "gns_rollout_cpu_s": round(gns_cpu, 3),
+        "gns_rollout_s": round(gns_wall, 3),
+        "gns_rollout_cpu_s": round(gns_cpu, 3),
         "gns_ms_per_step": round(1e3 * gns_wall / max(steps, 1), 2),
         "gns_cpu_ms_per_step": round(1e3 * gns_cpu / max(steps, 1), 2),
-        "dem_builtin_collapse_s": round(dem_wall, 3), "dem_builtin_collapse_cpu_s": round(dem_cpu, 3),
-        "dem_builtin_settle_s": round(settle_wall, 3), "dem_builtin_settle_cpu_s": round(settle_cpu, 3),
+        "dem_builtin_collapse_s": round(dem_wall, 3),
+        "dem_builtin_collapse_cpu_s": round(dem_cpu, 3),
+        "dem_builtin_settle_s": round(settle_wall, 3),
+        "dem_builtin_settle_cpu_s": round(settle_cpu, 3),
         "dem_time_steps": int(round(dem.attrs["t_star"] * case.duration_over_tstar / case.time_step)),
         "dem_start_frames_s": round(start_share * dem_wall, 3),
         "speedup_collapse": ratio(dem_wall, gns_wall),

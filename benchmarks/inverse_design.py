@@ -17,6 +17,7 @@ The timed problem is the first recovery target (the mean of 2 DEM packings of th
 with known (mu, e), noise 0.05 in L*), so the optimiser meets a realistic objective. Each timed run
 reports where its online time went: graphs rolled out, rollout steps, forward and backward seconds.
 """
+
 import argparse
 import json
 import logging
@@ -35,8 +36,14 @@ from calibration.compare import case_like  # noqa: E402
 from calibration.gns_objective import GNSObjective  # noqa: E402
 from calibration.inverse import inverse_design  # noqa: E402
 from calibration.lbfgsb import FD_STEP, PAPER_START, SCIPY_DEFAULT_STEP  # noqa: E402
-from calibration.recovery import (PACKINGS_PER_TARGET, TRUTH_SEED_OFFSET, observation_times,  # noqa: E402
-                                  recovery_study, recovery_targets, synthetic_measured)
+from calibration.recovery import (
+    PACKINGS_PER_TARGET,
+    TRUTH_SEED_OFFSET,
+    observation_times,  # noqa: E402
+    recovery_study,
+    recovery_targets,
+    synthetic_measured,
+)
 from dem.collapse import simulate_collapse  # noqa: E402
 from dem.runout import RunoutMethod  # noqa: E402
 from gns.data import read_metadata, read_training_attrs  # noqa: E402
@@ -54,8 +61,10 @@ def step_scan(objective: GNSObjective, x) -> dict:
     for h in (SCIPY_DEFAULT_STEP, 1e-6, 1e-4, 1e-3, FD_STEP, 3e-2):
         values = objective.values(np.array([x, x + [h, 0.0], x + [0.0, h]]))
         forward = (values[1:] - values[0]) / h
-        scan[f"{h:g}"] = {"gradient": forward.tolist(),
-                          "relative_error": float(np.linalg.norm(forward - exact) / max(np.linalg.norm(exact), 1e-30))}
+        scan[f"{h:g}"] = {
+            "gradient": forward.tolist(),
+            "relative_error": float(np.linalg.norm(forward - exact) / max(np.linalg.norm(exact), 1e-30)),
+        }
     return scan
 
 
@@ -74,7 +83,9 @@ def main():
     parser.add_argument("--skip-scan", action="store_true", help="skip the finite-difference step scan")
     parser.add_argument("--packings", type=int, default=PACKINGS_PER_TARGET, help="DEM packings averaged per target")
     parser.add_argument("--model", default=None, help="GNS model (default: RESULTS/gns/DATASET/train/model_best.pt)")
-    parser.add_argument("--metadata", default=None, help="dataset metadata (default: RESULTS/datasets/DATASET/metadata.json)")
+    parser.add_argument(
+        "--metadata", default=None, help="dataset metadata (default: RESULTS/datasets/DATASET/metadata.json)"
+    )
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format="%(asctime)s %(message)s")
     os.environ.setdefault("NUMBA_NUM_THREADS", "1")
@@ -83,14 +94,19 @@ def main():
     model_path = Path(args.model or results / "gns" / args.dataset / "train" / "model_best.pt")
     metadata_path = Path(args.metadata or results / "datasets" / args.dataset / "metadata.json")
     if not model_path.exists() or not metadata_path.exists():
-        sys.exit(f"{model_path} or {metadata_path} missing: train the GNS first, e.g. python -m snakemake --profile "
-                 f"workflow/profiles/default {results}/gns/{args.dataset}/evaluation/summary.json")
+        sys.exit(
+            f"{model_path} or {metadata_path} missing: train the GNS first, e.g. python -m snakemake --profile "
+            f"workflow/profiles/default {results}/gns/{args.dataset}/evaluation/summary.json"
+        )
     metadata = read_metadata(metadata_path)
     simulator = load_simulator(model_path, metadata)
-    runout = RunoutMethod()     # the project's default (config key runout); the evaluation must match it
-    model_error = model_error_from_evaluation(results / "gns" / args.dataset / "evaluation" / "summary.json"
-                                              if (results / "gns" / args.dataset / "evaluation" / "summary.json").exists()
-                                              else None, runout)
+    runout = RunoutMethod()  # the project's default (config key runout); the evaluation must match it
+    model_error = model_error_from_evaluation(
+        results / "gns" / args.dataset / "evaluation" / "summary.json"
+        if (results / "gns" / args.dataset / "evaluation" / "summary.json").exists()
+        else None,
+        runout,
+    )
     trained = read_training_attrs(metadata)
     reference = trained[0]
     t_points = observation_times(float(reference.get("duration_over_tstar", 4.0)))
@@ -98,45 +114,99 @@ def main():
     t0 = time.perf_counter()
     start = simulate_collapse(case_like(reference, *PAPER_START, seed=TRUTH_SEED_OFFSET - 1))
     truth_params = recovery_targets(trained, 1)[0]
-    truths = [simulate_collapse(case_like(reference, *map(float, truth_params), seed=TRUTH_SEED_OFFSET + j))
-              for j in range(2)]
+    truths = [
+        simulate_collapse(case_like(reference, *map(float, truth_params), seed=TRUTH_SEED_OFFSET + j)) for j in range(2)
+    ]
     dem_s = (time.perf_counter() - t0) / 3
     measured = synthetic_measured(truths, t_points, 0.05, seed=0, name="timed_target", runout=runout)  # 2 packings
     objective = GNSObjective(simulator, start, measured, runout=runout)
-    out = {"device": platform.processor() or platform.machine(), "torch_threads": args.threads,
-           "cpu_count": os.cpu_count(), "load_average": os.getloadavg(), "dataset": args.dataset,
-           "n_particles": start.n_particles, "rollout_steps": objective.n_steps,
-           "t_over_tstar": t_points.tolist(), "dem_run_s": dem_s, "model_error_std": model_error,
-           "timed_target": [float(v) for v in truth_params], "target_online_s": TARGET_ONLINE_S}
-    runs = ([("autograd", 1)] + ([] if args.skip_multistart else [("autograd", args.starts)])
-            + ([] if args.skip_fd else [("finite-difference", 1)]))
+    out = {
+        "device": platform.processor() or platform.machine(),
+        "torch_threads": args.threads,
+        "cpu_count": os.cpu_count(),
+        "load_average": os.getloadavg(),
+        "dataset": args.dataset,
+        "n_particles": start.n_particles,
+        "rollout_steps": objective.n_steps,
+        "t_over_tstar": t_points.tolist(),
+        "dem_run_s": dem_s,
+        "model_error_std": model_error,
+        "timed_target": [float(v) for v in truth_params],
+        "target_online_s": TARGET_ONLINE_S,
+    }
+    runs = (
+        [("autograd", 1)]
+        + ([] if args.skip_multistart else [("autograd", args.starts)])
+        + ([] if args.skip_fd else [("finite-difference", 1)])
+    )
     for gradient, starts in runs:
-        result = inverse_design(simulator, start, measured, metadata, trained, gradient=gradient, n_starts=starts,
-                                max_iterations=args.max_iterations, model_error_std=model_error, runout=runout)
+        result = inverse_design(
+            simulator,
+            start,
+            measured,
+            metadata,
+            trained,
+            gradient=gradient,
+            n_starts=starts,
+            max_iterations=args.max_iterations,
+            model_error_std=model_error,
+            runout=runout,
+        )
         seconds = result.seconds
         rollouts = sum(len(s.evaluations.values) for s in result.starts)
         key = f"{gradient}_{starts}_start{'s' if starts > 1 else ''}"
-        out[key] = {"online_s": result.seconds["online"], "optimisation_s": result.seconds["optimisation"],
-                    "posterior_s": result.seconds["posterior"], "batches": result.n_batches, "evaluations": rollouts,
-                    "rollouts": seconds["online_rollouts"], "rollout_steps": seconds["rollout_steps"],
-                    "forward_s": seconds["online_forward"], "backward_s": seconds["online_backward"],
-                    "other_s": seconds["online"] - seconds["online_forward"] - seconds["online_backward"],
-                    "iterations": [s.n_iterations for s in result.starts], "optimum": result.best_params,
-                    "gns_objective": result.best_value, "seconds_per_batch": result.seconds["optimisation"] /
-                    max(result.n_batches, 1), "posterior": [{k: p[k] for k in ("name", "value", "low", "high",
-                                                                                  "identifiable")}
-                                                             for p in result.posterior["parameters"]]}
+        out[key] = {
+            "online_s": result.seconds["online"],
+            "optimisation_s": result.seconds["optimisation"],
+            "posterior_s": result.seconds["posterior"],
+            "batches": result.n_batches,
+            "evaluations": rollouts,
+            "rollouts": seconds["online_rollouts"],
+            "rollout_steps": seconds["rollout_steps"],
+            "forward_s": seconds["online_forward"],
+            "backward_s": seconds["online_backward"],
+            "other_s": seconds["online"] - seconds["online_forward"] - seconds["online_backward"],
+            "iterations": [s.n_iterations for s in result.starts],
+            "optimum": result.best_params,
+            "gns_objective": result.best_value,
+            "seconds_per_batch": result.seconds["optimisation"] / max(result.n_batches, 1),
+            "posterior": [
+                {k: p[k] for k in ("name", "value", "low", "high", "identifiable")}
+                for p in result.posterior["parameters"]
+            ],
+        }
         print(json.dumps({key: out[key]}), file=sys.stderr)
     out["meets_target"] = {k: v["online_s"] < TARGET_ONLINE_S for k, v in out.items() if k.startswith("autograd")}
     if not args.skip_scan:
         out["fd_step_scan_at_start"] = step_scan(objective, PAPER_START)
     if args.cases:
-        summary = recovery_study(simulator, metadata, n_cases=args.cases, model_error_std=model_error,
-                                 n_starts=args.recovery_starts, max_iterations=args.max_iterations,
-                                 gradient=args.recovery_gradient, packings=args.packings)
+        summary = recovery_study(
+            simulator,
+            metadata,
+            n_cases=args.cases,
+            model_error_std=model_error,
+            n_starts=args.recovery_starts,
+            max_iterations=args.max_iterations,
+            gradient=args.recovery_gradient,
+            packings=args.packings,
+        )
         out["recovery"] = {k: v for k, v in summary.items() if k != "cases"}
-        out["recovery"]["cases"] = [{k: r[k] for k in ("truth", "estimate", "interval", "identifiable", "inside",
-                                                       "mu_error", "objective", "online_s")} for r in summary["cases"]]
+        out["recovery"]["cases"] = [
+            {
+                k: r[k]
+                for k in (
+                    "truth",
+                    "estimate",
+                    "interval",
+                    "identifiable",
+                    "inside",
+                    "mu_error",
+                    "objective",
+                    "online_s",
+                )
+            }
+            for r in summary["cases"]
+        ]
     print(json.dumps(out, indent=1))
 
 

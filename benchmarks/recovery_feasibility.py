@@ -19,6 +19,7 @@ As a check without linearisation, an empirical leave-packings-out recovery along
 
 Cost: (5 friction + 2 restitution levels) x seeds runs of ~10 CPU-s each (~5 CPU-min for 4 seeds).
 """
+
 import argparse
 import json
 import os
@@ -40,15 +41,15 @@ from dem.runout import RunoutMethod, runout_at  # noqa: E402
 from dem.trajectory import write_trajectory  # noqa: E402
 from pipeline.config import validate_config  # noqa: E402
 
-T_POINTS = np.array([0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5])   # the measured curve's t/t*
+T_POINTS = np.array([0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5])  # the measured curve's t/t*
 FRICTION_LEVELS = (0.3, 0.45, 0.6, 0.75, 0.9)
 RESTITUTION_LEVELS = (0.3, 0.6, 0.9)
-MIDDLE = (0.6, 0.6)                                        # where the restitution line crosses the friction line
-SEED_BASE = 30_000                                         # packing seeds far from the datasets' and recovery's
-MEASUREMENT_NOISE = 0.05                                   # L*, per point
+MIDDLE = (0.6, 0.6)  # where the restitution line crosses the friction line
+SEED_BASE = 30_000  # packing seeds far from the datasets' and recovery's
+MEASUREMENT_NOISE = 0.05  # L*, per point
 K_PACKINGS = (1, 2, 4, 8, 16)
 MU_TOLERANCE = 0.03
-RUNOUT = RunoutMethod()                                    # the project's default runout method (config key runout)
+RUNOUT = RunoutMethod()  # the project's default runout method (config key runout)
 Z95 = 1.959963984540054
 
 
@@ -65,13 +66,18 @@ def runs_at(case, friction, restitution, seeds, save=None) -> np.ndarray:
     for seed in seeds:
         t0 = time.perf_counter()
         name = f"feasibility_{friction:g}_{restitution:g}_{seed}"
-        trajectory = simulate_collapse(case.replace(friction=friction, restitution=restitution, seed=int(seed),
-                                                    name=name))
+        trajectory = simulate_collapse(
+            case.replace(friction=friction, restitution=restitution, seed=int(seed), name=name)
+        )
         if save is not None:
             write_trajectory(save / f"{name}.h5", trajectory)
         curves.append(runout_at(trajectory, T_POINTS, RUNOUT))
-        print(f"mu {friction:.2f} e {restitution:.2f} seed {seed}: L*(3.5) = {curves[-1][-1]:.3f} "
-              f"({time.perf_counter() - t0:.1f} s)", file=sys.stderr, flush=True)
+        print(
+            f"mu {friction:.2f} e {restitution:.2f} seed {seed}: L*(3.5) = {curves[-1][-1]:.3f} "
+            f"({time.perf_counter() - t0:.1f} s)",
+            file=sys.stderr,
+            flush=True,
+        )
     return np.array(curves)
 
 
@@ -113,13 +119,19 @@ def empirical_recovery(curves, k: int, seed: int = 0) -> list[dict]:
             if not rest:
                 continue
             target = curves[i][list(chosen)].mean(0) + rng.normal(0.0, MEASUREMENT_NOISE, len(T_POINTS))
-            means = np.array([c[rest].mean(0) for c in curves])                   # [levels, K]
+            means = np.array([c[rest].mean(0) for c in curves])  # [levels, K]
             model = np.array([np.interp(grid, levels, means[:, t]) for t in range(len(T_POINTS))]).T
             mu_hat = grid[np.argmin(np.mean((model - target) ** 2, axis=1))]
             errors.append(abs(mu_hat - level))
-        rows.append({"mu": float(level), "k": k, "errors": np.round(errors, 4).tolist(),
-                     "mean_abs_error": float(np.mean(errors)),
-                     "within_0.03": f"{sum(e <= MU_TOLERANCE for e in errors)}/{len(errors)}"})
+        rows.append(
+            {
+                "mu": float(level),
+                "k": k,
+                "errors": np.round(errors, 4).tolist(),
+                "mean_abs_error": float(np.mean(errors)),
+                "within_0.03": f"{sum(e <= MU_TOLERANCE for e in errors)}/{len(errors)}",
+            }
+        )
     return rows
 
 
@@ -130,8 +142,12 @@ def main():
     parser.add_argument("--seeds", type=int, default=4)
     parser.add_argument("--out", type=Path, default=Path("/tmp/inv_work/feasibility"))
     parser.add_argument("--save-trajectories", type=Path, default=None, help="folder for the DEM runs (HDF5)")
-    parser.add_argument("--curves", type=Path, default=None,
-                        help="a JSON this script wrote: analyse its runout curves again instead of running the DEM")
+    parser.add_argument(
+        "--curves",
+        type=Path,
+        default=None,
+        help="a JSON this script wrote: analyse its runout curves again instead of running the DEM",
+    )
     args = parser.parse_args()
     if args.save_trajectories:
         args.save_trajectories.mkdir(parents=True, exist_ok=True)
@@ -147,8 +163,9 @@ def main():
     else:
         friction_curves = [runs_at(case, mu, MIDDLE[1], seeds, save) for mu in FRICTION_LEVELS]
         middle = friction_curves[FRICTION_LEVELS.index(MIDDLE[0])]
-        restitution_curves = [middle if e == MIDDLE[1] else runs_at(case, MIDDLE[0], e, seeds, save)
-                              for e in RESTITUTION_LEVELS]
+        restitution_curves = [
+            middle if e == MIDDLE[1] else runs_at(case, MIDDLE[0], e, seeds, save) for e in RESTITUTION_LEVELS
+        ]
     groups = friction_curves + [c for e, c in zip(RESTITUTION_LEVELS, restitution_curves) if e != MIDDLE[1]]
 
     # packing covariance [K, K], pooled over the points (each point's own mean removed)
@@ -157,7 +174,9 @@ def main():
     packing_cov = residuals.T @ residuals / dof
     packing_std = np.sqrt(np.diag(packing_cov))
     correlation = packing_cov / np.outer(packing_std, packing_std)
-    per_point_std = {f"{mu:g},{MIDDLE[1]:g}": c.std(0, ddof=1).tolist() for mu, c in zip(FRICTION_LEVELS, friction_curves)}
+    per_point_std = {
+        f"{mu:g},{MIDDLE[1]:g}": c.std(0, ddof=1).tolist() for mu, c in zip(FRICTION_LEVELS, friction_curves)
+    }
 
     friction_slopes = slopes(FRICTION_LEVELS, friction_curves)
     restitution_slopes = slopes(RESTITUTION_LEVELS, restitution_curves)
@@ -168,32 +187,51 @@ def main():
         jacobian = np.column_stack([s["slope"], de])
         row = {"mu": s["at"]}
         for k in K_PACKINGS:
-            target = packing_cov / k + MEASUREMENT_NOISE ** 2 * np.eye(len(T_POINTS))
+            target = packing_cov / k + MEASUREMENT_NOISE**2 * np.eye(len(T_POINTS))
             mean_model = mu_std(jacobian, target)
             one_packing_model = mu_std(jacobian, target + packing_cov)
             e_known = mu_std(jacobian[:, :1], target)
-            row[f"k={k}"] = {"mu_std_mean_model": mean_model, "mu_std_single_packing_model": one_packing_model,
-                             "mu_std_e_known": e_known, "within_0.03_at_95%": bool(Z95 * mean_model <= MU_TOLERANCE),
-                             "within_0.03_at_95%_e_known": bool(Z95 * e_known <= MU_TOLERANCE)}
+            row[f"k={k}"] = {
+                "mu_std_mean_model": mean_model,
+                "mu_std_single_packing_model": one_packing_model,
+                "mu_std_e_known": e_known,
+                "within_0.03_at_95%": bool(Z95 * mean_model <= MU_TOLERANCE),
+                "within_0.03_at_95%_e_known": bool(Z95 * e_known <= MU_TOLERANCE),
+            }
         # smallest k that reaches mu within 0.03 at 95% with a model of the mean response
         reach = [k for k in K_PACKINGS if row[f"k={k}"]["within_0.03_at_95%"]]
         row["min_k_for_0.03"] = reach[0] if reach else None
         accuracy.append(row)
 
     summary = {
-        "dataset": args.dataset, "n_particles": case.n_particles, "size_scale": case.size_scale,
-        "t_over_tstar": T_POINTS.tolist(), "seeds": seeds.tolist(), "measurement_noise": MEASUREMENT_NOISE,
-        "packing_std": packing_std.tolist(), "packing_std_dof": dof, "packing_correlation": correlation.round(3).tolist(),
+        "dataset": args.dataset,
+        "n_particles": case.n_particles,
+        "size_scale": case.size_scale,
+        "t_over_tstar": T_POINTS.tolist(),
+        "seeds": seeds.tolist(),
+        "measurement_noise": MEASUREMENT_NOISE,
+        "packing_std": packing_std.tolist(),
+        "packing_std_dof": dof,
+        "packing_correlation": correlation.round(3).tolist(),
         "packing_std_per_point": per_point_std,
-        "curves": {"friction": {f"{mu:g}": c.tolist() for mu, c in zip(FRICTION_LEVELS, friction_curves)},
-                   "restitution": {f"{e:g}": c.tolist() for e, c in zip(RESTITUTION_LEVELS, restitution_curves)}},
-        "mean_curves": {"friction": {f"{mu:g}": c.mean(0).tolist() for mu, c in zip(FRICTION_LEVELS, friction_curves)},
-                        "restitution": {f"{e:g}": c.mean(0).tolist() for e, c in zip(RESTITUTION_LEVELS, restitution_curves)}},
-        "dL_dmu": friction_slopes, "dL_de": restitution_slopes, "dL_de_mean": de.tolist(),
+        "curves": {
+            "friction": {f"{mu:g}": c.tolist() for mu, c in zip(FRICTION_LEVELS, friction_curves)},
+            "restitution": {f"{e:g}": c.tolist() for e, c in zip(RESTITUTION_LEVELS, restitution_curves)},
+        },
+        "mean_curves": {
+            "friction": {f"{mu:g}": c.mean(0).tolist() for mu, c in zip(FRICTION_LEVELS, friction_curves)},
+            "restitution": {f"{e:g}": c.mean(0).tolist() for e, c in zip(RESTITUTION_LEVELS, restitution_curves)},
+        },
+        "dL_dmu": friction_slopes,
+        "dL_de": restitution_slopes,
+        "dL_de_mean": de.tolist(),
         "mu_accuracy": accuracy,
-        "empirical_recovery_e_known": [r for k in (1, 2) if k < len(seeds) for r in empirical_recovery(friction_curves, k)],
+        "empirical_recovery_e_known": [
+            r for k in (1, 2) if k < len(seeds) for r in empirical_recovery(friction_curves, k)
+        ],
         "curves_from": str(args.curves) if args.curves else "DEM runs of this call",
-        "cpu_s": time.process_time(), "wall_s": time.perf_counter() - start,
+        "cpu_s": time.process_time(),
+        "wall_s": time.perf_counter() - start,
         "machine": platform.processor() or platform.machine(),
     }
     args.out.mkdir(parents=True, exist_ok=True)
@@ -210,8 +248,10 @@ def plot(summary, friction_curves, restitution_curves, path):
     from dem.plots import plt, save_figure
 
     fig, axes = plt.subplots(1, 3, figsize=(14, 4.2))
-    for ax, levels, curves, name in ((axes[0], FRICTION_LEVELS, friction_curves, "mu"),
-                                     (axes[1], RESTITUTION_LEVELS, restitution_curves, "e")):
+    for ax, levels, curves, name in (
+        (axes[0], FRICTION_LEVELS, friction_curves, "mu"),
+        (axes[1], RESTITUTION_LEVELS, restitution_curves, "e"),
+    ):
         for j, (level, c) in enumerate(zip(levels, curves)):
             colour = plt.get_cmap("viridis")(j / max(len(levels) - 1, 1))
             ax.plot(T_POINTS, c.T, "-", color=colour, lw=0.6, alpha=0.6)
@@ -223,17 +263,26 @@ def plot(summary, friction_curves, restitution_curves, path):
     ax = axes[2]
     for row in summary["mu_accuracy"]:
         ks = K_PACKINGS
-        line, = ax.plot(ks, [row[f"k={k}"]["mu_std_mean_model"] * Z95 for k in ks], "-o", ms=3,
-                        label=f"mu ~ {row['mu']:.3g}")
+        (line,) = ax.plot(
+            ks, [row[f"k={k}"]["mu_std_mean_model"] * Z95 for k in ks], "-o", ms=3, label=f"mu ~ {row['mu']:.3g}"
+        )
         ax.plot(ks, [row[f"k={k}"]["mu_std_e_known"] * Z95 for k in ks], "--", color=line.get_color(), lw=0.8)
     ax.axhline(MU_TOLERANCE, color="r", ls="--", lw=1, label=f"{MU_TOLERANCE:g}")
-    ax.set(xscale="log", yscale="log", xlabel="packings averaged in the target (k)", ylabel="95% half-width of mu",
-           title=f"best reachable mu (noise {MEASUREMENT_NOISE:g} L*; dashed: e known)")
+    ax.set(
+        xscale="log",
+        yscale="log",
+        xlabel="packings averaged in the target (k)",
+        ylabel="95% half-width of mu",
+        title=f"best reachable mu (noise {MEASUREMENT_NOISE:g} L*; dashed: e known)",
+    )
     ax.set_xticks(K_PACKINGS, [str(k) for k in K_PACKINGS])
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7)
-    fig.suptitle(f"{summary['dataset']}: {summary['n_particles']} grains; packing std of L* "
-                 + " ".join(f"{s:.2f}" for s in summary["packing_std"]), fontsize=9)
+    fig.suptitle(
+        f"{summary['dataset']}: {summary['n_particles']} grains; packing std of L* "
+        + " ".join(f"{s:.2f}" for s in summary["packing_std"]),
+        fontsize=9,
+    )
     fig.tight_layout()
     save_figure(fig, path)
 

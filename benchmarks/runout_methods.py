@@ -12,6 +12,7 @@ chaos floor of benchmarks/gns_floor.py). Where the DAG has trained the GNS
 (`<results>/gns/<dataset>/train/model_best.pt`), the test cases' rollouts are scored too.
 The statistics are defined in dem/runout_study.py. About 10 minutes on one core.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -41,13 +42,15 @@ def main():
     from dem.collapse import simulate_collapse
     from dem.grid import case_from_row, case_table
     from dem.runout_study import compare_methods, markdown_table, plot_methods
-    from doe.design import centre_run_id, design_from_config, design_cases
+    from doe.design import centre_run_id, design_cases, design_from_config
     from pipeline.config import validate_config
 
-    config = validate_config(yaml.safe_load(Path(args.config).read_text()), ROOT / "workflow/schemas/config.schema.yaml")
+    config = validate_config(
+        yaml.safe_load(Path(args.config).read_text()), ROOT / "workflow/schemas/config.schema.yaml"
+    )
     started = time.perf_counter()
     cases, models = {}, {}
-    for key, row in case_table(config).items():
+    for row in case_table(config).values():
         if row["split"] == "test" and row["dataset"] in config["gns"].get("datasets", config["datasets"]):
             cases[f"{row['dataset']} {row['case_id']}"] = case_from_row(row)
             models[f"{row['dataset']} {row['case_id']}"] = row["dataset"]
@@ -55,15 +58,25 @@ def main():
     design = design_from_config(doe)
     for name in doe["measured"]:
         measured = load_column(ROOT / config["measured"][name])
-        centre = design_cases(design, measured, size_scale=doe["size_scale"],
-                              duration_over_tstar=doe["duration_over_tstar"])[centre_run_id(design)]
+        centre = design_cases(
+            design, measured, size_scale=doe["size_scale"], duration_over_tstar=doe["duration_over_tstar"]
+        )[centre_run_id(design)]
         cases[f"DoE {name} centre"] = centre
     trajectories = {label: simulate_collapse(case) for label, case in cases.items()}
     rollouts = gns_rollouts(trajectories, models, Path(args.results), args.threads)
-    study, runs = compare_methods(trajectories, n_packings=args.packings, n_reruns=args.reruns, rollouts=rollouts,
-                                  progress=lambda what: print(what, file=sys.stderr, flush=True))
-    study.update(config=str(args.config), seconds=round(time.perf_counter() - started, 1),
-                 load_average=os.getloadavg(), gns_scored=sorted(rollouts))
+    study, runs = compare_methods(
+        trajectories,
+        n_packings=args.packings,
+        n_reruns=args.reruns,
+        rollouts=rollouts,
+        progress=lambda what: print(what, file=sys.stderr, flush=True),
+    )
+    study.update(
+        config=str(args.config),
+        seconds=round(time.perf_counter() - started, 1),
+        load_average=os.getloadavg(),
+        gns_scored=sorted(rollouts),
+    )
     if args.figure:
         plot_methods(runs, study, args.figure)
     print(markdown_table(study), file=sys.stderr)

@@ -4,6 +4,7 @@ A Gaussian process (Matern 5/2 + white noise, scikit-learn) models the objective
 parameter box; each new run goes where the expected improvement is largest. The budget counts
 every objective call (the initial Latin-hypercube design included).
 """
+
 from __future__ import annotations
 
 import logging
@@ -42,8 +43,14 @@ class OptimisationHistory:
 
     def to_dict(self) -> dict:
         best_params, best_value = self.best
-        return {"names": list(self.names), "params": self.params, "values": self.values,
-                "seconds": self.seconds, "best_params": best_params.tolist(), "best_value": best_value}
+        return {
+            "names": list(self.names),
+            "params": self.params,
+            "values": self.values,
+            "seconds": self.seconds,
+            "best_params": best_params.tolist(),
+            "best_value": best_value,
+        }
 
 
 def expected_improvement(mean, std, best):
@@ -53,8 +60,9 @@ def expected_improvement(mean, std, best):
     return (best - mean) * norm.cdf(z) + std * norm.pdf(z)
 
 
-def bayesian_optimisation(objective, bounds, names, budget: int = 20, n_initial: int = 6,
-                          seed: int = 0, progress=None) -> OptimisationHistory:
+def bayesian_optimisation(
+    objective, bounds, names, budget: int = 20, n_initial: int = 6, seed: int = 0, progress=None
+) -> OptimisationHistory:
     """Minimise objective(params [p]) -> float within bounds [(low, high)] * p in `budget` calls."""
     if budget < n_initial or n_initial < 2:
         raise ValueError(f"budget ({budget}) must be at least n_initial ({n_initial}) >= 2")
@@ -69,8 +77,13 @@ def bayesian_optimisation(objective, bounds, names, budget: int = 20, n_initial:
         if not np.isfinite(value):
             raise ValueError(f"objective is not finite at {dict(zip(names, params))}")
         history.record(params, value, time.perf_counter() - t0)
-        log.info("run %d/%d: %s -> %.4g", len(history.values), budget,
-                 ", ".join(f"{n}={p:.3f}" for n, p in zip(names, params)), value)
+        log.info(
+            "run %d/%d: %s -> %.4g",
+            len(history.values),
+            budget,
+            ", ".join(f"{n}={p:.3f}" for n, p in zip(names, params)),
+            value,
+        )
         if progress is not None:
             progress(len(history.values) / budget)
 
@@ -88,9 +101,10 @@ def bayesian_optimisation(objective, bounds, names, budget: int = 20, n_initial:
             gp.fit(x, y_scaled)
         best = y_scaled.min()
 
+        # negative_ei is only called by minimize() below, within this iteration, so it sees this gp and best.
         def negative_ei(u):
-            mean, std = gp.predict(np.atleast_2d(u), return_std=True)
-            return -expected_improvement(mean, std, best)[0]
+            mean, std = gp.predict(np.atleast_2d(u), return_std=True)  # noqa: B023
+            return -expected_improvement(mean, std, best)[0]  # noqa: B023
 
         candidates = rng.uniform(size=(512, len(low)))
         mean, std = gp.predict(candidates, return_std=True)

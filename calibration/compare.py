@@ -9,6 +9,7 @@ online: the calibration itself) make the comparison. Times are sums of job wall 
 each) from the Snakemake benchmark files, so the routes compare in CPU time; the DoE's and the
 GNS dataset's runs are independent and spread over cores, the BO's runs are sequential.
 """
+
 from __future__ import annotations
 
 import csv
@@ -39,8 +40,20 @@ class ComparisonError(ValueError):
 
 
 # case fields that say which column and which run it is, not which DEM model
-NOT_MODEL_FIELDS = ("material", "column_length", "aspect_ratio", "friction", "restitution", "friction_wall",
-                    "restitution_wall", "friction_base", "seed", "name", "duration_over_tstar", "output_interval")
+NOT_MODEL_FIELDS = (
+    "material",
+    "column_length",
+    "aspect_ratio",
+    "friction",
+    "restitution",
+    "friction_wall",
+    "restitution_wall",
+    "friction_base",
+    "seed",
+    "name",
+    "duration_over_tstar",
+    "output_interval",
+)
 
 
 def model_case_fields(attrs: dict) -> dict:
@@ -56,30 +69,49 @@ def model_case_fields(attrs: dict) -> dict:
     for key in ("friction_wall", "restitution_wall", "friction_base"):
         grain = "restitution" if key.startswith("restitution") else "friction"
         if key in attrs and not np.isclose(float(attrs[key]), float(attrs[grain])):
-            out[key] = float(attrs[key])       # a wall value set apart from the grain value stays
+            out[key] = float(attrs[key])  # a wall value set apart from the grain value stays
     return out
 
 
-def case_like(attrs: dict, friction: float, restitution: float, seed: int, name: str = "",
-              duration_over_tstar: float | None = None) -> CollapseCase:
+def case_like(
+    attrs: dict,
+    friction: float,
+    restitution: float,
+    seed: int,
+    name: str = "",
+    duration_over_tstar: float | None = None,
+) -> CollapseCase:
     """The case of a trajectory's column and DEM model at other (mu, e) and packing seed."""
-    return CollapseCase(material=str(attrs["material"]), column_length=float(attrs["L_i"]),
-                        aspect_ratio=float(attrs["aspect_ratio"]), friction=friction, restitution=restitution,
-                        seed=seed, name=name,
-                        duration_over_tstar=float(duration_over_tstar or attrs.get("duration_over_tstar", 4.0)),
-                        **model_case_fields(attrs))
+    return CollapseCase(
+        material=str(attrs["material"]),
+        column_length=float(attrs["L_i"]),
+        aspect_ratio=float(attrs["aspect_ratio"]),
+        friction=friction,
+        restitution=restitution,
+        seed=seed,
+        name=name,
+        duration_over_tstar=float(duration_over_tstar or attrs.get("duration_over_tstar", 4.0)),
+        **model_case_fields(attrs),
+    )
 
 
 def measured_case_fields(metadata: dict, seed: int = 0) -> dict:
     """CollapseCase fields for DEM runs of a measured column with the GNS dataset's DEM model
     (grain size, frame interval, contact constants, simulated time), packing `seed`."""
     first = read_training_attrs(metadata)[0]
-    return dict(model_case_fields(first), seed=int(seed),
-                duration_over_tstar=float(first.get("duration_over_tstar", 4.0)))
+    return dict(
+        model_case_fields(first), seed=int(seed), duration_over_tstar=float(first.get("duration_over_tstar", 4.0))
+    )
 
 
-def dem_run(measured: MeasuredColumn, params: dict, case_fields: dict, name: str = "", progress=None,
-            dem_config: dict | None = None) -> Trajectory:
+def dem_run(
+    measured: MeasuredColumn,
+    params: dict,
+    case_fields: dict,
+    name: str = "",
+    progress=None,
+    dem_config: dict | None = None,
+) -> Trajectory:
     """DEM collapse of the measured column (its material, a, L_i) at params {name: value}, with the
     engine of dem_config (the workflow's `dem` section; None: builtin).
 
@@ -88,24 +120,36 @@ def dem_run(measured: MeasuredColumn, params: dict, case_fields: dict, name: str
     from dem.engines import simulate_case
 
     case = measured.collapse_case(**{k: float(v) for k, v in params.items()}, name=name, **case_fields)
-    log.info("DEM run %s: %s, %d grains", name, ", ".join(f"{k}={float(v):.4f}" for k, v in params.items()),
-             case.n_particles)
+    log.info(
+        "DEM run %s: %s, %d grains", name, ", ".join(f"{k}={float(v):.4f}" for k, v in params.items()), case.n_particles
+    )
     return simulate_case(case, dem_config, progress=progress)
 
 
 def validation_summary(trajectory: Trajectory, measured: MeasuredColumn, runout: RunoutMethod) -> dict:
     """Objective and L* (read by `runout`) at the measured t/t* of a DEM run, with its parameters
     and run time."""
-    return {"mse": objective(trajectory, measured, runout),
-            "runout": runout_at(trajectory, measured.t_over_tstar, runout).tolist(),
-            "friction": float(trajectory.attrs["friction"]), "restitution": float(trajectory.attrs["restitution"]),
-            "dem_wall_time_s": float(trajectory.attrs.get("wall_time_s", math.nan))}
+    return {
+        "mse": objective(trajectory, measured, runout),
+        "runout": runout_at(trajectory, measured.t_over_tstar, runout).tolist(),
+        "friction": float(trajectory.attrs["friction"]),
+        "restitution": float(trajectory.attrs["restitution"]),
+        "dem_wall_time_s": float(trajectory.attrs.get("wall_time_s", math.nan)),
+    }
 
 
 # -- Bayesian optimisation directly on the DEM ----------------------------------------------------------
-def bayesopt_on_dem(measured: MeasuredColumn, case_fields: dict, bounds, runout: RunoutMethod,
-                    budget: int = BO_MAX_RUNS, n_initial: int = 6, seed: int = 0, names=("friction", "restitution"),
-                    dem_config: dict | None = None):
+def bayesopt_on_dem(
+    measured: MeasuredColumn,
+    case_fields: dict,
+    bounds,
+    runout: RunoutMethod,
+    budget: int = BO_MAX_RUNS,
+    n_initial: int = 6,
+    seed: int = 0,
+    names=("friction", "restitution"),
+    dem_config: dict | None = None,
+):
     """GP expected-improvement BO where every objective call is a DEM run of the measured column.
 
     Returns (OptimisationHistory, best trajectory, seconds spent). The best run's objective is a
@@ -123,14 +167,21 @@ def bayesopt_on_dem(measured: MeasuredColumn, case_fields: dict, bounds, runout:
         return value
 
     start = time.perf_counter()
-    history = bayesian_optimisation(dem_objective, bounds, list(names), budget=budget,
-                                    n_initial=min(n_initial, budget), seed=seed)
+    history = bayesian_optimisation(
+        dem_objective, bounds, list(names), budget=budget, n_initial=min(n_initial, budget), seed=seed
+    )
     return history, best["trajectory"], time.perf_counter() - start
 
 
 def write_bayesopt(history: OptimisationHistory, seconds: float, path, runout: RunoutMethod) -> None:
-    write_text(path, json.dumps({**history.to_dict(), "dem_runs": len(history.values), "seconds": seconds,
-                                 "runout": runout.to_config()}, indent=1) + "\n")
+    write_text(
+        path,
+        json.dumps(
+            {**history.to_dict(), "dem_runs": len(history.values), "seconds": seconds, "runout": runout.to_config()},
+            indent=1,
+        )
+        + "\n",
+    )
 
 
 def plot_bayesopt(history: dict, path, title: str = "") -> None:
@@ -164,12 +215,12 @@ def plot_bayesopt(history: dict, path, title: str = "") -> None:
 class Route:
     """One row of the comparison: a calibration route (or one stage of it)."""
 
-    method: str                  # "GNS inverse design", "DoE (quadratic)", "BO on DEM", "start point"
-    stage: str                   # "offline", "online", "total"
-    dem_runs: int                # DEM runs this stage needed
-    wall_s: float                # summed job wall time of this stage (s)
-    task: str                    # what the stage does
-    validated_mse: float | None = None    # objective of the DEM run at the route's optimum
+    method: str  # "GNS inverse design", "DoE (quadratic)", "BO on DEM", "start point"
+    stage: str  # "offline", "online", "total"
+    dem_runs: int  # DEM runs this stage needed
+    wall_s: float  # summed job wall time of this stage (s)
+    task: str  # what the stage does
+    validated_mse: float | None = None  # objective of the DEM run at the route's optimum
     friction: float | None = None
     restitution: float | None = None
 
@@ -187,20 +238,33 @@ def read_table(path) -> list[Route]:
         return None if text in ("", "None") else kind(float(text))
 
     with open(path, newline="") as handle:
-        return [Route(method=r["method"], stage=r["stage"], dem_runs=number(r["dem_runs"], int),
-                      wall_s=number(r["wall_s"]), task=r["task"], validated_mse=number(r["validated_mse"]),
-                      friction=number(r["friction"]), restitution=number(r["restitution"]))
-                for r in csv.DictReader(handle)]
+        return [
+            Route(
+                method=r["method"],
+                stage=r["stage"],
+                dem_runs=number(r["dem_runs"], int),
+                wall_s=number(r["wall_s"]),
+                task=r["task"],
+                validated_mse=number(r["validated_mse"]),
+                friction=number(r["friction"]),
+                restitution=number(r["restitution"]),
+            )
+            for r in csv.DictReader(handle)
+        ]
 
 
 def markdown_table(routes: list[Route]) -> str:
-    lines = ["| method (stage) | DEM runs | task | wall time | validated objective | mu | e |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [
+        "| method (stage) | DEM runs | task | wall time | validated objective | mu | e |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in routes:
         mse = "" if r.validated_mse is None else f"**{r.validated_mse:.3f}**"
         mu = "" if r.friction is None else f"{r.friction:.3f}"
         e = "" if r.restitution is None else f"{r.restitution:.3f}"
-        lines.append(f"| {r.method} ({r.stage}) | {r.dem_runs} | {r.task} | {_duration(r.wall_s)} | {mse} | {mu} | {e} |")
+        lines.append(
+            f"| {r.method} ({r.stage}) | {r.dem_runs} | {r.task} | {_duration(r.wall_s)} | {mse} | {mu} | {e} |"
+        )
     return "\n".join(lines)
 
 
@@ -235,12 +299,26 @@ def plot_comparison(routes: list[Route], path, title: str = "") -> None:
         ax_runs.plot(t["dem_runs"], t["validated_mse"], "o", ms=9, color=colour, label=method)
         ax_time.plot(t["wall_s"] / 60, t["validated_mse"], "o", ms=9, color=colour, label=f"{method}: total")
         if t["online_s"] < t["wall_s"]:
-            ax_time.plot(t["online_s"] / 60, t["validated_mse"], "s", ms=7, mfc="none", color=colour,
-                         label=f"{method}: online only")
-    ax_runs.set(xlabel="DEM runs", ylabel="validated objective (runout MSE, DEM at the optimum)",
-                title="accuracy against DEM runs")
-    ax_time.set(xlabel="wall time (min, summed over jobs)", ylabel="validated objective", xscale="log",
-                title="accuracy against time")
+            ax_time.plot(
+                t["online_s"] / 60,
+                t["validated_mse"],
+                "s",
+                ms=7,
+                mfc="none",
+                color=colour,
+                label=f"{method}: online only",
+            )
+    ax_runs.set(
+        xlabel="DEM runs",
+        ylabel="validated objective (runout MSE, DEM at the optimum)",
+        title="accuracy against DEM runs",
+    )
+    ax_time.set(
+        xlabel="wall time (min, summed over jobs)",
+        ylabel="validated objective",
+        xscale="log",
+        title="accuracy against time",
+    )
     for ax in (ax_runs, ax_time):
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
@@ -249,9 +327,16 @@ def plot_comparison(routes: list[Route], path, title: str = "") -> None:
     save_figure(fig, path)
 
 
-def comparison_routes(measured: MeasuredColumn, inverse: dict, gns_validation: Trajectory, start: Trajectory,
-                      times: dict, runout: RunoutMethod, doe: dict | None = None,
-                      bayesopt: dict | None = None) -> list[Route]:
+def comparison_routes(
+    measured: MeasuredColumn,
+    inverse: dict,
+    gns_validation: Trajectory,
+    start: Trajectory,
+    times: dict,
+    runout: RunoutMethod,
+    doe: dict | None = None,
+    bayesopt: dict | None = None,
+) -> list[Route]:
     """The comparison rows of one measured column.
 
     inverse: the inverse design's result (inverse.json); gns_validation: DEM run at its optimum;
@@ -262,23 +347,64 @@ def comparison_routes(measured: MeasuredColumn, inverse: dict, gns_validation: T
     bayesopt.json dict, or None. runout: how every validated L* is read.
     """
     first = validation_summary(start, measured, runout)
-    routes = [Route("start point", "total", 1, times.get("start", math.nan), "one DEM run at the paper's start",
-                    first["mse"], first["friction"], first["restitution"])]
+    routes = [
+        Route(
+            "start point",
+            "total",
+            1,
+            times.get("start", math.nan),
+            "one DEM run at the paper's start",
+            first["mse"],
+            first["friction"],
+            first["restitution"],
+        )
+    ]
     dataset_s, dataset_runs = times["gns_dataset"]
     gns = validation_summary(gns_validation, measured, runout)
-    routes += [Route("GNS inverse design", "offline", dataset_runs, dataset_s + times["gns_training"],
-                     "DEM dataset + GNS training"),
-               Route("GNS inverse design", "online", 1, inverse["seconds"]["online"] + times["gns_validation"],
-                     f"L-BFGS-B ({inverse['gradient']}, {len(inverse['starts'])} starts) + 1 DEM validation",
-                     gns["mse"], gns["friction"], gns["restitution"])]
+    routes += [
+        Route(
+            "GNS inverse design",
+            "offline",
+            dataset_runs,
+            dataset_s + times["gns_training"],
+            "DEM dataset + GNS training",
+        ),
+        Route(
+            "GNS inverse design",
+            "online",
+            1,
+            inverse["seconds"]["online"] + times["gns_validation"],
+            f"L-BFGS-B ({inverse['gradient']}, {len(inverse['starts'])} starts) + 1 DEM validation",
+            gns["mse"],
+            gns["friction"],
+            gns["restitution"],
+        ),
+    ]
     for model, trajectory in (doe or {}).items():
         doe_s, doe_runs = times["doe"]
         summary = validation_summary(trajectory, measured, runout)
-        routes.append(Route(f"DoE ({model})", "total", doe_runs + 1, doe_s + times["doe_validation"][model],
-                            "factorial DEM runs + regression + 1 DEM validation", summary["mse"],
-                            summary["friction"], summary["restitution"]))
+        routes.append(
+            Route(
+                f"DoE ({model})",
+                "total",
+                doe_runs + 1,
+                doe_s + times["doe_validation"][model],
+                "factorial DEM runs + regression + 1 DEM validation",
+                summary["mse"],
+                summary["friction"],
+                summary["restitution"],
+            )
+        )
     if bayesopt:
-        routes.append(Route("BO on DEM", "total", bayesopt["dem_runs"], times.get("bayesopt", bayesopt["seconds"]),
-                            f"GP expected improvement on DEM runs (budget {bayesopt['dem_runs']})",
-                            bayesopt["best_value"], *bayesopt["best_params"][:2]))
+        routes.append(
+            Route(
+                "BO on DEM",
+                "total",
+                bayesopt["dem_runs"],
+                times.get("bayesopt", bayesopt["seconds"]),
+                f"GP expected improvement on DEM runs (budget {bayesopt['dem_runs']})",
+                bayesopt["best_value"],
+                *bayesopt["best_params"][:2],
+            )
+        )
     return routes

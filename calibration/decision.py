@@ -6,6 +6,7 @@ model by a stated gain and no worse than the runner-up (beyond the chance scatte
 chi^2), the emulators rank it first too, and the data raised no warning; otherwise "none", with the
 checks that failed.
 """
+
 from __future__ import annotations
 
 import math
@@ -17,10 +18,10 @@ class DecisionRule:
     """When a cause is named. Margins on the BIC follow Kass & Raftery (1995): a difference of 10
     is "very strong" evidence, 6 "strong"."""
 
-    misfit_p_value: float = 0.01          # the base model "misfits beyond the noise" below this p (reported)
-    min_delta_bic_vs_base: float = 10.0   # BIC(base) - BIC(best) at least this
+    misfit_p_value: float = 0.01  # the base model "misfits beyond the noise" below this p (reported)
+    min_delta_bic_vs_base: float = 10.0  # BIC(base) - BIC(best) at least this
     min_delta_bic_vs_runner_up: float = 6.0
-    min_heldout_gain: float = 0.25        # held-out chi^2 at least this fraction below the base model's
+    min_heldout_gain: float = 0.25  # held-out chi^2 at least this fraction below the base model's
     # The held-out chi^2 of the best candidate may exceed the runner-up's by at most this many
     # standard deviations of a chi^2 over the n held-out values, sqrt(2 n): a smaller difference is
     # a tie, and a tie does not overturn the BIC margin (it would veto a decisive fit on a coin
@@ -60,16 +61,19 @@ def decide(dem: dict, rule: DecisionRule, data_warnings, emulator_best: str | No
     versus = f"runner-up {runner_up}: {base['bic'] - r['bic']:.1f}" if r else "no runner-up"
     fits = "misfits beyond" if base["p_value"] < rule.misfit_p_value else "fits within"
     if all(checks.values()):
-        verdict = (f"Cause: {best}. The calibrated base model {fits} the noise (p = {base['p_value']:.2g}); "
-                   f"adding {best} lowers the BIC by {base['bic'] - b['bic']:.1f} ({versus}) and the held-out "
-                   f"chi^2 from {base['heldout_chi2']:.1f} to {b['heldout_chi2']:.1f} (runner-up "
-                   f"{r['heldout_chi2'] if r else float('nan'):.1f}), all in DEM runs.")
+        verdict = (
+            f"Cause: {best}. The calibrated base model {fits} the noise (p = {base['p_value']:.2g}); "
+            f"adding {best} lowers the BIC by {base['bic'] - b['bic']:.1f} ({versus}) and the held-out "
+            f"chi^2 from {base['heldout_chi2']:.1f} to {b['heldout_chi2']:.1f} (runner-up "
+            f"{r['heldout_chi2'] if r else float('nan'):.1f}), all in DEM runs."
+        )
         return best, checks, verdict
     failed = [k for k, ok in checks.items() if not ok]
     if base["bic"] - b["bic"] < 0:
-        why = (f"no candidate improves on the calibrated base model, which {fits} the noise "
-               f"(p = {base['p_value']:.2g})")
+        why = f"no candidate improves on the calibrated base model, which {fits} the noise (p = {base['p_value']:.2g})"
     else:
-        why = (f"the best candidate, {best} (BIC {base['bic'] - b['bic']:+.1f} vs base; {versus}), "
-               f"is not decisive: {', '.join(failed)} failed")
+        why = (
+            f"the best candidate, {best} (BIC {base['bic'] - b['bic']:+.1f} vs base; {versus}), "
+            f"is not decisive: {', '.join(failed)} failed"
+        )
     return "none", checks, f"No cause named: {why}."

@@ -13,6 +13,7 @@ response (its white-noise term takes the scatter); one run of the base model per
 centre, and every repeat a diagnosis adds, measure the packing-to-packing scatter that any single
 realisation (such as the measured one) carries on top of it (`Library.packing_std`).
 """
+
 from __future__ import annotations
 
 import json
@@ -32,7 +33,7 @@ from dem.packing import settle_column
 
 log = logging.getLogger(__name__)
 
-FRAMES_PER_TSTAR = 25         # output frames per t*: the measured t/t* are interpolated between them
+FRAMES_PER_TSTAR = 25  # output frames per t*: the measured t/t* are interpolated between them
 # The diagnosis runs the builtin engine (BUILTIN) whatever dem.engine says: the candidate mechanisms
 # (rolling resistance, cohesion, basal and side-wall friction, gate lift) are its features.
 
@@ -67,12 +68,18 @@ class Model:
     def n_parameters(self) -> int:
         return len(self.parameter_names)
 
-    def case(self, column: MeasuredColumn, theta, settings: "SimulationSettings", seed: int):
+    def case(self, column: MeasuredColumn, theta, settings: SimulationSettings, seed: int):
         """The CollapseCase of `column` at parameters theta [p] (coarse-grained per settings)."""
         friction, restitution = float(theta[0]), float(theta[1])
-        case = column.collapse_case(friction, restitution, size_scale=settings.size_scale, seed=seed,
-                                    duration_over_tstar=settings.duration_for(column),
-                                    output_interval=None, name=f"{column.name}:{self.name}")
+        case = column.collapse_case(
+            friction,
+            restitution,
+            size_scale=settings.size_scale,
+            seed=seed,
+            duration_over_tstar=settings.duration_for(column),
+            output_interval=None,
+            name=f"{column.name}:{self.name}",
+        )
         if self.mechanism is not None:
             case = case.replace(**self.mechanism.case_fields(float(theta[2]), case))
         return case
@@ -90,17 +97,20 @@ class Model:
 class SimulationSettings:
     """How the DEM is run for the diagnosis (builtin engine)."""
 
-    size_scale: float = 4.0                        # coarse-graining factor of the grains
+    size_scale: float = 4.0  # coarse-graining factor of the grains
     packing_seeds: tuple[int, ...] = (101, 102, 103)
-    reference: tuple[float, float] = (0.6, 0.6)    # (mu, e) the packings are settled with
+    reference: tuple[float, float] = (0.6, 0.6)  # (mu, e) the packings are settled with
 
     def duration_for(self, column: MeasuredColumn) -> float:
         """Simulated t/t*: up to the frame at or after the last measured t/t*."""
         return float(np.ceil(column.t_over_tstar[-1] * FRAMES_PER_TSTAR - 1e-9) / FRAMES_PER_TSTAR)
 
     def to_dict(self) -> dict:
-        return {"size_scale": self.size_scale, "packing_seeds": list(self.packing_seeds),
-                "reference": list(self.reference)}
+        return {
+            "size_scale": self.size_scale,
+            "packing_seeds": list(self.packing_seeds),
+            "reference": list(self.reference),
+        }
 
 
 class DEMRunner:
@@ -119,11 +129,16 @@ class DEMRunner:
         key = (column_index, packing_index)
         if key not in self._packings:
             column = self.observables.columns[column_index]
-            case = Model().case(column, self.settings.reference, self.settings,
-                                self.settings.packing_seeds[packing_index])
+            case = Model().case(
+                column, self.settings.reference, self.settings, self.settings.packing_seeds[packing_index]
+            )
             self._packings[key] = settle_column(case)
-            log.info("settled %s, packing seed %d: %d grains", column.name,
-                     self.settings.packing_seeds[packing_index], case.n_particles)
+            log.info(
+                "settled %s, packing seed %d: %d grains",
+                column.name,
+                self.settings.packing_seeds[packing_index],
+                case.n_particles,
+            )
         return self._packings[key]
 
     def trajectories(self, model: Model, theta, packing_index: int, columns=None) -> list:
@@ -173,25 +188,31 @@ class DesignRuns:
 class Library:
     """Design runs of every model for one set of observables and simulation settings."""
 
-    signature: dict                              # Observables.signature() it was built for
+    signature: dict  # Observables.signature() it was built for
     settings: dict
-    runs: dict                                   # model name -> DesignRuns
+    runs: dict  # model name -> DesignRuns
     _emulators: dict = field(default_factory=dict, repr=False)
 
     def check(self, observables: Observables, models) -> None:
         if json.loads(json.dumps(observables.signature())) != json.loads(json.dumps(self.signature)):
-            raise LibraryError("the run library was built for other columns, observation points or runout "
-                               f"method (columns {[c[0] for c in self.signature['columns']]}, runout "
-                               f"{self.signature.get('runout', 'not recorded')!r}; asked for "
-                               f"{observables.runout.to_config()!r}); rebuild it")
+            raise LibraryError(
+                "the run library was built for other columns, observation points or runout "
+                f"method (columns {[c[0] for c in self.signature['columns']]}, runout "
+                f"{self.signature.get('runout', 'not recorded')!r}; asked for "
+                f"{observables.runout.to_config()!r}); rebuild it"
+            )
         missing = [m.name for m in models if m.name not in self.runs]
         if missing:
             raise LibraryError(f"the run library has no runs of model(s) {missing}; it holds {list(self.runs)}")
 
-    def copy(self) -> "Library":
+    def copy(self) -> Library:
         """An independent copy (runs copied; fitted emulators shared until a model gets new runs)."""
-        runs = {name: DesignRuns(r.model, r.theta.copy(), r.observed.copy(), r.packing.copy(), r.seconds.copy(),
-                                 r.stage.copy()) for name, r in self.runs.items()}
+        runs = {
+            name: DesignRuns(
+                r.model, r.theta.copy(), r.observed.copy(), r.packing.copy(), r.seconds.copy(), r.stage.copy()
+            )
+            for name, r in self.runs.items()
+        }
         return Library(self.signature, dict(self.settings), runs, dict(self._emulators))
 
     def training_set(self, model: Model) -> tuple[np.ndarray, np.ndarray]:
@@ -203,10 +224,12 @@ class Library:
             return base.theta, base.observed
         shared = base.stage != "refine"
         own = self.runs[model.name]
-        return (np.concatenate([model.embed_base(base.theta[shared]), own.theta]),
-                np.concatenate([base.observed[shared], own.observed]))
+        return (
+            np.concatenate([model.embed_base(base.theta[shared]), own.theta]),
+            np.concatenate([base.observed[shared], own.observed]),
+        )
 
-    def emulator(self, model: Model, seed: int = 0) -> "GPEmulator":
+    def emulator(self, model: Model, seed: int = 0) -> GPEmulator:
         """The fitted emulator of `model` (cached: it depends on the runs only, not on any data)."""
         key = (model.name, seed)
         previous = self._emulators.get(key)
@@ -214,7 +237,9 @@ class Library:
         if previous is None or len(previous.train_u) != len(theta):
             started = time.perf_counter()
             self._emulators[key] = GPEmulator(model.box, seed=seed).fit(theta, observed, previous=previous)
-            log.info("emulator of %s fitted on %d runs in %.1f s", model.name, len(theta), time.perf_counter() - started)
+            log.info(
+                "emulator of %s fitted on %d runs in %.1f s", model.name, len(theta), time.perf_counter() - started
+            )
         return self._emulators[key]
 
     def add_runs(self, model: Model, theta, observed, packing, seconds, stage: str = "refine") -> None:
@@ -256,8 +281,11 @@ class Library:
         return np.sqrt(smoothed)
 
     def save(self, path) -> None:
-        arrays = {"meta": np.array(json.dumps({"signature": self.signature, "settings": self.settings,
-                                               "models": list(self.runs)}))}
+        arrays = {
+            "meta": np.array(
+                json.dumps({"signature": self.signature, "settings": self.settings, "models": list(self.runs)})
+            )
+        }
         for name, runs in self.runs.items():
             for key in ("theta", "observed", "packing", "seconds", "stage"):
                 arrays[f"{name}/{key}"] = getattr(runs, key)
@@ -266,17 +294,27 @@ class Library:
                 np.savez(handle, **arrays)
 
     @classmethod
-    def load(cls, path) -> "Library":
+    def load(cls, path) -> Library:
         with np.load(path) as data:
             meta = json.loads(str(data["meta"]))
-            runs = {name: DesignRuns(name, *(data[f"{name}/{key}"] for key in
-                                             ("theta", "observed", "packing", "seconds", "stage")))
-                    for name in meta["models"]}
+            runs = {
+                name: DesignRuns(
+                    name, *(data[f"{name}/{key}"] for key in ("theta", "observed", "packing", "seconds", "stage"))
+                )
+                for name in meta["models"]
+            }
         return cls(meta["signature"], meta["settings"], runs)
 
 
-def build_library(observables: Observables, models, settings: SimulationSettings, n_base: int = 10,
-                  n_per_mechanism: int = 8, seed: int = 0, progress=None) -> Library:
+def build_library(
+    observables: Observables,
+    models,
+    settings: SimulationSettings,
+    n_base: int = 10,
+    n_per_mechanism: int = 8,
+    seed: int = 0,
+    progress=None,
+) -> Library:
     """DEM design runs of every model (the first must be the base model).
 
     Base: `n_base` Latin-hypercube points over (mu, e) plus one run per packing at the box centre
@@ -314,11 +352,18 @@ def build_library(observables: Observables, models, settings: SimulationSettings
             observed.append(runner.observe(model, point, int(index)))
             seconds.append(time.perf_counter() - t0)
             done += 1
-            log.info("library run %d/%d: %s %s (%.1f s)", done, total, model.name,
-                     ", ".join(f"{n}={v:.3g}" for n, v in zip(model.parameter_names, point)), seconds[-1])
+            log.info(
+                "library run %d/%d: %s %s (%.1f s)",
+                done,
+                total,
+                model.name,
+                ", ".join(f"{n}={v:.3g}" for n, v in zip(model.parameter_names, point)),
+                seconds[-1],
+            )
             if progress is not None:
                 progress(done / total)
         runs[model.name] = DesignRuns(model.name, theta, np.array(observed), packing, np.array(seconds), stage)
-    log.info("library: %d DEM runs x %d columns in %.0f s", total, len(observables.columns),
-             time.perf_counter() - started)
+    log.info(
+        "library: %d DEM runs x %d columns in %.0f s", total, len(observables.columns), time.perf_counter() - started
+    )
     return Library(observables.signature(), settings.to_dict(), runs)

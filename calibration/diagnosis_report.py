@@ -1,5 +1,6 @@
 """Figures of the discrepancy diagnosis (read only the diagnosis dict/JSON); the report section is
 pipeline/diagnosis.py's."""
+
 from __future__ import annotations
 
 import matplotlib
@@ -11,7 +12,7 @@ import numpy as np  # noqa: E402
 
 from dem.plots import save_figure  # noqa: E402
 
-PHASE_EDGES = (1.0, 2.5)   # t/t*: the paper's free-fall | spreading | stopping phases
+PHASE_EDGES = (1.0, 2.5)  # t/t*: the paper's free-fall | spreading | stopping phases
 BASE_COLOUR, EXTENDED_COLOUR = "tab:orange", "tab:blue"
 
 
@@ -31,8 +32,9 @@ def plot_residuals(result: dict, path) -> None:
     sigma = np.array(base["sigma"])
     columns = [c["name"] for c in result["columns"]]
     has_profile = any(kind == "profile" for _, kind, _ in labels)
-    fig, axes = plt.subplots(len(columns), 3 if has_profile else 2, figsize=(13 if has_profile else 9, 3.2 * len(columns)),
-                             squeeze=False)
+    fig, axes = plt.subplots(
+        len(columns), 3 if has_profile else 2, figsize=(13 if has_profile else 9, 3.2 * len(columns)), squeeze=False
+    )
     for row, name in enumerate(columns):
         runout = np.array([lab[0] == name and lab[1] == "runout" for lab in labels])
         profile = np.array([lab[0] == name and lab[1] == "profile" for lab in labels])
@@ -41,8 +43,14 @@ def plot_residuals(result: dict, path) -> None:
         for k, curves in enumerate(base["curves"]):
             ax.plot(*curves[row], color=BASE_COLOUR, lw=1, alpha=0.7, label="base model (DEM)" if k == 0 else None)
         for k, curves in enumerate(other["curves"]):
-            ax.plot(*curves[row], color=EXTENDED_COLOUR, lw=1, ls="--", alpha=0.8,
-                    label=f"+ {other_name} (DEM)" if k == 0 else None)
+            ax.plot(
+                *curves[row],
+                color=EXTENDED_COLOUR,
+                lw=1,
+                ls="--",
+                alpha=0.8,
+                label=f"+ {other_name} (DEM)" if k == 0 else None,
+            )
         ax.errorbar(t, measured[runout], yerr=sigma[runout], fmt="o", color="k", ms=3, capsize=2, label="measured")
         ax.set(xlabel="t / t*", ylabel="L*", title=f"{name}: runout")
         ax.legend(fontsize=7)
@@ -57,24 +65,42 @@ def plot_residuals(result: dict, path) -> None:
         for level in (-2, 2):
             ax.axhline(level, color="0.5", ls=":", lw=0.8)
         ax.axhline(0, color="k", lw=0.6)
-        ax.set(xlabel="t / t*  (shaded: free-fall | stopping phase)", ylabel="(simulated - measured) / sigma",
-               title="runout residuals, normalised by the noise")
+        ax.set(
+            xlabel="t / t*  (shaded: free-fall | stopping phase)",
+            ylabel="(simulated - measured) / sigma",
+            title="runout residuals, normalised by the noise",
+        )
         ax.legend(fontsize=7)
         if has_profile:
             ax = axes[row, 2]
             if profile.any():
                 x = np.array([lab[2] for lab in labels])[profile] * 1e3
-                ax.errorbar(x, measured[profile] * 1e3, yerr=sigma[profile] * 1e3, fmt="o", color="k", ms=3,
-                            capsize=2, label="measured")
+                ax.errorbar(
+                    x,
+                    measured[profile] * 1e3,
+                    yerr=sigma[profile] * 1e3,
+                    fmt="o",
+                    color="k",
+                    ms=3,
+                    capsize=2,
+                    label="measured",
+                )
                 ax.plot(x, np.array(base["observed_mean"])[profile] * 1e3, "-", color=BASE_COLOUR, label="base model")
-                ax.plot(x, np.array(other["observed_mean"])[profile] * 1e3, "--", color=EXTENDED_COLOUR,
-                        label=f"+ {other_name}")
+                ax.plot(
+                    x,
+                    np.array(other["observed_mean"])[profile] * 1e3,
+                    "--",
+                    color=EXTENDED_COLOUR,
+                    label=f"+ {other_name}",
+                )
                 ax.legend(fontsize=7)
             ax.set(xlabel="x (mm)", ylabel="deposit height (mm)", title="deposit profile (last frame)")
             ax.grid(alpha=0.3)
-    fig.suptitle(f"{result['name'] or 'diagnosis'}: cause = {result['cause']}   "
-                 f"(base model chi^2 = {base['chi2']:.1f} for {base['n_data']} values, p = {base['p_value']:.2g})",
-                 fontsize=10)
+    fig.suptitle(
+        f"{result['name'] or 'diagnosis'}: cause = {result['cause']}   "
+        f"(base model chi^2 = {base['chi2']:.1f} for {base['n_data']} values, p = {base['p_value']:.2g})",
+        fontsize=10,
+    )
     fig.tight_layout()
     save_figure(fig, path)
 
@@ -90,8 +116,13 @@ def plot_candidates(result: dict, path) -> None:
         emulated = [evidence["emulator"][key] for _, evidence in rows]
         dem = [evidence["dem"][key] if evidence["dem"] else np.nan for _, evidence in rows]
         ax.barh(y + 0.2, emulated, height=0.38, color="0.8", label="emulator")
-        ax.barh(y - 0.2, dem, height=0.38, color=[EXTENDED_COLOUR if n == result["cause"] else "0.35" for n in names],
-                label="DEM runs")
+        ax.barh(
+            y - 0.2,
+            dem,
+            height=0.38,
+            color=[EXTENDED_COLOUR if n == result["cause"] else "0.35" for n in names],
+            label="DEM runs",
+        )
         ax.set_yticks(y, names)
         ax.set_xscale("log")
         ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
@@ -100,9 +131,12 @@ def plot_candidates(result: dict, path) -> None:
         ax.grid(alpha=0.3, axis="x")
         ax.legend(fontsize=7)
     rule = result["decision_rule"]
-    fig.suptitle(f"{result['name'] or 'diagnosis'}: cause = {result['cause']}  (rule: BIC {rule['min_delta_bic_vs_base']:g} "
-                 f"below the base model and {rule['min_delta_bic_vs_runner_up']:g} below the runner-up, held-out chi^2 "
-                 f"{100 * rule['min_heldout_gain']:.0f}% below the base model's and no worse than the runner-up's "
-                 f"beyond {rule.get('heldout_tie_sd', 0):g} sd)", fontsize=9)
+    fig.suptitle(
+        f"{result['name'] or 'diagnosis'}: cause = {result['cause']}  (rule: BIC {rule['min_delta_bic_vs_base']:g} "
+        f"below the base model and {rule['min_delta_bic_vs_runner_up']:g} below the runner-up, held-out chi^2 "
+        f"{100 * rule['min_heldout_gain']:.0f}% below the base model's and no worse than the runner-up's "
+        f"beyond {rule.get('heldout_tie_sd', 0):g} sd)",
+        fontsize=9,
+    )
     fig.tight_layout()
     save_figure(fig, path)

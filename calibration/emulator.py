@@ -6,6 +6,7 @@ So each model gets a space-filling design of DEM runs once (a seeded Latin hyper
 `latin_hypercube`; the runs: `build_library` in calibration/design_runs.py), and every fit is done
 on a cheap emulator of those runs (`GPEmulator`).
 """
+
 from __future__ import annotations
 
 import warnings
@@ -85,7 +86,7 @@ class GPEmulator:
     def _unit(self, theta) -> np.ndarray:
         return self.box.to_unit(theta)
 
-    def fit(self, theta, observed, previous: "GPEmulator | None" = None) -> "GPEmulator":
+    def fit(self, theta, observed, previous: GPEmulator | None = None) -> GPEmulator:
         """theta [n, p] within the bounds, observed [n, q].
 
         previous: an emulator of the same outputs fitted on fewer runs; its hyperparameters start
@@ -98,7 +99,7 @@ class GPEmulator:
             raise LibraryError(f"emulator: {n} runs for {p} parameters (observed {observed.shape}); need >= {p + 2}")
         self.train_u = u
         design = np.column_stack([np.ones(n), u])
-        self.trend, *_ = np.linalg.lstsq(design, observed, rcond=None)          # [p + 1, q]
+        self.trend, *_ = np.linalg.lstsq(design, observed, rcond=None)  # [p + 1, q]
         residual = observed - design @ self.trend
         self.scale = np.maximum(residual.std(axis=0), 1e-9 * (1 + np.abs(observed).max(axis=0)))
         self.length, self.amplitude, self.alpha, self.noise_std, self.loo = [], [], [], [], []
@@ -107,10 +108,12 @@ class GPEmulator:
             if previous is not None:
                 amplitude, length = previous.amplitude[j], previous.length[j]
                 noise = (previous.noise_std[j] / previous.scale[j]) ** 2
-            kernel = (ConstantKernel(amplitude, (1e-3, 1e2)) * Matern(length, (0.05, 20.0), nu=2.5)
-                      + WhiteKernel(float(np.clip(noise, 1e-6, 2.0)), (1e-6, 2.0)))
-            gp = GaussianProcessRegressor(kernel, alpha=1e-8, n_restarts_optimizer=0 if previous else 1,
-                                          random_state=self.seed + j)
+            kernel = ConstantKernel(amplitude, (1e-3, 1e2)) * Matern(length, (0.05, 20.0), nu=2.5) + WhiteKernel(
+                float(np.clip(noise, 1e-6, 2.0)), (1e-6, 2.0)
+            )
+            gp = GaussianProcessRegressor(
+                kernel, alpha=1e-8, n_restarts_optimizer=0 if previous else 1, random_state=self.seed + j
+            )
             # matrices of a few dozen rows: BLAS threads only fight over the shared cores
             with warnings.catch_warnings(), threadpool_limits(1):
                 warnings.simplefilter("ignore", ConvergenceWarning)
@@ -123,11 +126,11 @@ class GPEmulator:
             # leave-one-out residuals of the GP in closed form (hyperparameters and trend held fixed)
             inverse = np.linalg.inv(k(u) + 1e-8 * np.eye(n))
             self.loo.append((inverse @ (residual[:, j] / self.scale[j])) / np.diag(inverse) * self.scale[j])
-        self.length = np.array(self.length)            # [q, p]
-        self.amplitude = np.array(self.amplitude)      # [q]
-        self.alpha = np.array(self.alpha)              # [q, n]
-        self.noise_std = np.array(self.noise_std)      # [q]
-        self.loo = np.array(self.loo).T                # [n, q]
+        self.length = np.array(self.length)  # [q, p]
+        self.amplitude = np.array(self.amplitude)  # [q]
+        self.alpha = np.array(self.alpha)  # [q, n]
+        self.noise_std = np.array(self.noise_std)  # [q]
+        self.loo = np.array(self.loo).T  # [n, q]
         return self
 
     def predict(self, theta) -> np.ndarray:
@@ -140,10 +143,10 @@ class GPEmulator:
         out = np.column_stack([np.ones(len(u)), u]) @ self.trend
         for j in range(len(self.alpha)):
             r = cdist(u / self.length[j], self.train_u / self.length[j])
-            kernel = self.amplitude[j] * (1 + np.sqrt(5) * r + 5.0 / 3.0 * r ** 2) * np.exp(-np.sqrt(5) * r)
+            kernel = self.amplitude[j] * (1 + np.sqrt(5) * r + 5.0 / 3.0 * r**2) * np.exp(-np.sqrt(5) * r)
             out[:, j] += self.scale[j] * (kernel @ self.alpha[j])
         return out
 
     def loo_rmse(self) -> np.ndarray:
         """[q] leave-one-out RMS error of the emulator (includes the runs' own scatter)."""
-        return np.sqrt(np.mean(self.loo ** 2, axis=0))
+        return np.sqrt(np.mean(self.loo**2, axis=0))

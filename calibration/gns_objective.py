@@ -18,6 +18,7 @@ Differentiable runout: gns.runout, the twin of dem.runout's configured method (`
 dem.runout.RunoutMethod): the same discrete choice of grains, a soft top-k where dem.runout takes
 a mean or a maximum, an exact running maximum for the "_reached" methods.
 """
+
 from __future__ import annotations
 
 import math
@@ -37,7 +38,7 @@ DESIGN_NAMES = ("friction", "restitution")
 # Rollout steps per checkpointed segment of a differentiated rollout (GNSObjective._rollout): the
 # backward pass holds one segment's activations, ~40 MB per step per 589-grain graph at latent 64.
 SEGMENT_STEPS = 10
-GEOMETRY_TOLERANCE = 0.05             # relative distance to the nearest training case that warns
+GEOMETRY_TOLERANCE = 0.05  # relative distance to the nearest training case that warns
 
 
 class InverseDesignError(ValueError):
@@ -59,31 +60,38 @@ def check_geometry(measured: MeasuredColumn, metadata: dict, training_attrs: lis
     """
     materials = metadata.get("materials") or sorted({str(a["material"]) for a in training_attrs})
     if measured.material not in materials:
-        raise InverseDesignError(f"measured column {measured.name!r} ({measured.source}) is {measured.material}; "
-                                 f"the GNS was trained on {materials} only (it has no material input)")
+        raise InverseDesignError(
+            f"measured column {measured.name!r} ({measured.source}) is {measured.material}; "
+            f"the GNS was trained on {materials} only (it has no material input)"
+        )
     ranges = metadata["parameter_ranges"]
     outside = []
     for key, value in (("L_i", measured.L_i), ("H_i", measured.H_i), ("aspect_ratio", measured.aspect_ratio)):
         low, high = ranges[key]
         if value < low * (1 - 1e-6) or value > high * (1 + 1e-6):
             off = (low - value) if value < low else (value - high)
-            outside.append(f"{key} = {value:g} lies outside [{low:g}, {high:g}] (by {off:g}, "
-                           f"{off / max(abs(value), 1e-12):.0%})")
+            outside.append(
+                f"{key} = {value:g} lies outside [{low:g}, {high:g}] (by {off:g}, {off / max(abs(value), 1e-12):.0%})"
+            )
     if outside:
         raise InverseDesignError(
             f"measured column {measured.name!r} ({measured.source}) lies outside the geometry the GNS was trained "
             f"on: {'; '.join(outside)}; train the GNS on this geometry (a dataset with its material, aspect "
-            "ratio and L_i)")
+            "ratio and L_i)"
+        )
     columns = np.array([[float(a["aspect_ratio"]), float(a["L_i"])] for a in training_attrs])
     target = np.array([measured.aspect_ratio, measured.L_i])
     relative = np.max(np.abs(columns - target) / target, axis=1)
     nearest = int(np.argmin(relative))
     distance = float(relative[nearest])
     if distance > GEOMETRY_TOLERANCE:
-        warnings.warn(f"measured column {measured.name!r} (a = {measured.aspect_ratio:g}, L_i = {measured.L_i:g} m) "
-                      f"is {distance:.0%} away from the nearest training column (a = {columns[nearest, 0]:g}, "
-                      f"L_i = {columns[nearest, 1]:g} m): the GNS interpolates between geometries here",
-                      GeometryWarning, stacklevel=2)
+        warnings.warn(
+            f"measured column {measured.name!r} (a = {measured.aspect_ratio:g}, L_i = {measured.L_i:g} m) "
+            f"is {distance:.0%} away from the nearest training column (a = {columns[nearest, 0]:g}, "
+            f"L_i = {columns[nearest, 1]:g} m): the GNS interpolates between geometries here",
+            GeometryWarning,
+            stacklevel=2,
+        )
     return {"distance": distance, "nearest": columns[nearest].tolist()}
 
 
@@ -97,13 +105,17 @@ def nearest_dataset(measured: MeasuredColumn, rows: list[dict], datasets) -> str
     for row in rows:
         if row["dataset"] not in datasets or row["split"] != "train" or row["material"] != measured.material:
             continue
-        distance = max(abs(float(row["aspect_ratio"]) - measured.aspect_ratio) / measured.aspect_ratio,
-                       abs(float(row["L_i"]) - measured.L_i) / measured.L_i)
+        distance = max(
+            abs(float(row["aspect_ratio"]) - measured.aspect_ratio) / measured.aspect_ratio,
+            abs(float(row["L_i"]) - measured.L_i) / measured.L_i,
+        )
         if distance < best_distance:
             best, best_distance = row["dataset"], distance
     if best is None:
-        raise InverseDesignError(f"measured column {measured.name!r} ({measured.source}) is {measured.material}; "
-                                 f"no GNS dataset among {sorted(datasets)} has {measured.material} training cases")
+        raise InverseDesignError(
+            f"measured column {measured.name!r} ({measured.source}) is {measured.material}; "
+            f"no GNS dataset among {sorted(datasets)} has {measured.material} training cases"
+        )
     return best
 
 
@@ -111,7 +123,9 @@ def check_geometry_of_dataset(measured: MeasuredColumn, rows: list[dict], datase
     """check_geometry from case-table rows (before any DEM run): the dataset's parameter ranges
     over all its rows (as dem.dataset computes them) and its training rows as the training set."""
     mine = [dict(r, H_i=float(r["aspect_ratio"]) * float(r["L_i"])) for r in rows if r["dataset"] == dataset]
-    ranges = {k: [min(float(r[k]) for r in mine), max(float(r[k]) for r in mine)] for k in ("L_i", "H_i", "aspect_ratio")}
+    ranges = {
+        k: [min(float(r[k]) for r in mine), max(float(r[k]) for r in mine)] for k in ("L_i", "H_i", "aspect_ratio")
+    }
     metadata = {"materials": sorted({str(r["material"]) for r in mine}), "parameter_ranges": ranges}
     return check_geometry(measured, metadata, [r for r in mine if r["split"] == "train"])
 
@@ -125,9 +139,17 @@ class GNSObjective:
     Call with theta [G, P] (P = len(design_names)): G rollouts run as one batch of graphs.
     """
 
-    def __init__(self, simulator, start: Trajectory, measured: MeasuredColumn, design_names=DESIGN_NAMES,
-                 runout: RunoutMethod | None = None, temperature: float | None = None, checkpoint: bool = True,
-                 segment_steps: int = SEGMENT_STEPS):
+    def __init__(
+        self,
+        simulator,
+        start: Trajectory,
+        measured: MeasuredColumn,
+        design_names=DESIGN_NAMES,
+        runout: RunoutMethod | None = None,
+        temperature: float | None = None,
+        checkpoint: bool = True,
+        segment_steps: int = SEGMENT_STEPS,
+    ):
         config = simulator.config
         self.simulator = simulator
         self.measured = measured
@@ -138,18 +160,22 @@ class GNSObjective:
         self.segment_steps = int(segment_steps)
         unknown = [n for n in self.design_names if n not in config.parameter_names]
         if unknown:
-            raise InverseDesignError(f"design parameter(s) {unknown} are not inputs of the GNS "
-                                     f"(it takes {config.parameter_names})")
+            raise InverseDesignError(
+                f"design parameter(s) {unknown} are not inputs of the GNS (it takes {config.parameter_names})"
+            )
         if not math.isclose(float(start.attrs["dt_frame"]), config.dt_frame, rel_tol=1e-9):
-            raise InverseDesignError(f"start trajectory: dt_frame {start.attrs['dt_frame']} s differs from the "
-                                     f"GNS's {config.dt_frame} s (one GNS step is one frame)")
+            raise InverseDesignError(
+                f"start trajectory: dt_frame {start.attrs['dt_frame']} s differs from the "
+                f"GNS's {config.dt_frame} s (one GNS step is one frame)"
+            )
         self.t_star = float(start.attrs["t_star"])
         self.L_i = float(start.attrs["L_i"])
         self.dt_frame = config.dt_frame
         if start.n_frames < config.n_input_frames:
-            raise InverseDesignError(f"start trajectory has {start.n_frames} frames; the GNS needs C = "
-                                     f"{config.n_input_frames} to start from")
-        self.n_frames = frames_needed(measured.t_over_tstar, self.t_star, self.dt_frame)   # frames the runout reads
+            raise InverseDesignError(
+                f"start trajectory has {start.n_frames} frames; the GNS needs C = {config.n_input_frames} to start from"
+            )
+        self.n_frames = frames_needed(measured.t_over_tstar, self.t_star, self.dt_frame)  # frames the runout reads
         self.n_steps = max(self.n_frames - config.n_input_frames, 0)
         dtype = simulator.bounds.dtype
         device = simulator.bounds.device
@@ -163,7 +189,7 @@ class GNSObjective:
         self.n_particles = start.n_particles
         # where the online time goes: rollouts (graphs rolled out), forward and backward seconds
         self.timing = {"rollouts": 0, "forward_s": 0.0, "backward_s": 0.0}
-        self._runouts: dict[tuple, np.ndarray] = {}      # L* [K] of every point rolled out, by its bytes
+        self._runouts: dict[tuple, np.ndarray] = {}  # L* [K] of every point rolled out, by its bytes
 
     def _context(self, theta: torch.Tensor):
         from gns.simulator import Context
@@ -171,8 +197,13 @@ class GNSObjective:
         g, n = theta.shape[0], self.n_particles
         parameters = self.fixed.repeat(g, 1)
         parameters = parameters.index_copy(1, torch.tensor(self.design_index, device=theta.device), theta)
-        return Context(self.particle_type.repeat(g), self.radius.repeat(g), parameters, self.layout.repeat(g, 1),
-                       torch.arange(g, device=theta.device).repeat_interleave(n))
+        return Context(
+            self.particle_type.repeat(g),
+            self.radius.repeat(g),
+            parameters,
+            self.layout.repeat(g, 1),
+            torch.arange(g, device=theta.device).repeat_interleave(n),
+        )
 
     def runout(self, theta: torch.Tensor) -> torch.Tensor:
         """L* [G, K] at the measured t/t* for theta [G, P] (differentiable when theta requires grad)."""
@@ -185,10 +216,22 @@ class GNSObjective:
         except (RolloutError, ValueError) as exc:
             raise InverseDesignError(f"GNS rollout at {self._describe(theta)} failed: {exc}") from None
         positions = positions.reshape(positions.shape[0], g, n, 2)
-        try:     # a rollout spread too thin has no front by the configured rule
-            runout = torch.stack([soft_runout_at(positions[:, j], self.radius, self.L_i, self.t_star, self.dt_frame,
-                                                 self.measured.t_over_tstar, self.runout_method, self.temperature)
-                                  for j in range(g)])
+        try:  # a rollout spread too thin has no front by the configured rule
+            runout = torch.stack(
+                [
+                    soft_runout_at(
+                        positions[:, j],
+                        self.radius,
+                        self.L_i,
+                        self.t_star,
+                        self.dt_frame,
+                        self.measured.t_over_tstar,
+                        self.runout_method,
+                        self.temperature,
+                    )
+                    for j in range(g)
+                ]
+            )
         except RunoutError as exc:
             raise InverseDesignError(f"GNS rollout at {self._describe(theta)} has no runout: {exc}") from None
         self.timing["rollouts"] += g
@@ -200,7 +243,7 @@ class GNSObjective:
         from gns.rollout import rollout
 
         result = rollout(self.simulator, window, self._context(theta), n_steps, checkpoint=False)
-        return result.positions[window.shape[0]:]
+        return result.positions[window.shape[0] :]
 
     def _rollout(self, theta: torch.Tensor) -> torch.Tensor:
         """Positions [C + n_steps, G N, 2] for theta [G, P].
@@ -231,8 +274,11 @@ class GNSObjective:
         return "; ".join(", ".join(f"{n}={v:.4g}" for n, v in zip(self.design_names, row)) for row in rows)
 
     def _theta(self, points, requires_grad=False) -> torch.Tensor:
-        theta = torch.as_tensor(np.atleast_2d(np.asarray(points, np.float64)), dtype=self.simulator.bounds.dtype,
-                                device=self.simulator.bounds.device)
+        theta = torch.as_tensor(
+            np.atleast_2d(np.asarray(points, np.float64)),
+            dtype=self.simulator.bounds.dtype,
+            device=self.simulator.bounds.device,
+        )
         return theta.clone().requires_grad_(requires_grad)
 
     def _checked(self, values: np.ndarray, points) -> np.ndarray:
@@ -267,10 +313,11 @@ class GNSObjective:
         with torch.enable_grad():
             runout = self.runout(theta)
             values = torch.stack([runout_mse(r, self.target) for r in runout])
-            self._runouts.update((self._key(p), r) for p, r in zip(np.atleast_2d(points),
-                                                                    runout.detach().double().cpu().numpy()))
+            self._runouts.update(
+                (self._key(p), r) for p, r in zip(np.atleast_2d(points), runout.detach().double().cpu().numpy())
+            )
             t0 = time.perf_counter()
-            values.sum().backward()          # graphs are independent: row g of the gradient is d value_g
+            values.sum().backward()  # graphs are independent: row g of the gradient is d value_g
             self.timing["backward_s"] += time.perf_counter() - t0
         values = self._checked(values.detach().double().cpu().numpy(), points)
         gradients = theta.grad.double().cpu().numpy()

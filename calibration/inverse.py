@@ -21,6 +21,7 @@ noise = the measured std (or, when the file gives none, estimated from the resid
 with the surrogate's own runout error against the DEM; a parameter the runout cannot pin down is
 reported as not identifiable.
 """
+
 from __future__ import annotations
 
 import logging
@@ -40,7 +41,7 @@ from dem.trajectory import Trajectory
 log = logging.getLogger(__name__)
 
 BOUNDS = ((0.3, 0.9), (0.3, 0.9))
-JACOBIAN_STEP = 2e-2                  # central-difference step of the posterior's Jacobian
+JACOBIAN_STEP = 2e-2  # central-difference step of the posterior's Jacobian
 # A rollout is a chaotic function of the parameters (so is the DEM): below some scale the objective
 # is noise, not trend. The objective ROUGHNESS_RADIUS from the optimum, reported with every result,
 # shows how large that noise is (its spread against the trend over JACOBIAN_STEP).
@@ -65,7 +66,8 @@ def check_bounds(bounds, names, parameter_ranges: dict) -> list[tuple[float, flo
             raise InverseDesignError(
                 f"bounds of {name} [{low:g}, {high:g}] leave the range the GNS was trained on "
                 f"[{trained_low:g}, {trained_high:g}]: it would extrapolate; narrow the bounds (config "
-                f"inverse.{name}) or train on a wider range")
+                f"inverse.{name}) or train on a wider range"
+            )
     return bounds
 
 
@@ -92,26 +94,44 @@ class InverseResult:
     names: list
     bounds: list
     gradient: str
-    starts: list                      # [StartResult]
+    starts: list  # [StartResult]
     best_params: list
     best_value: float
-    best_runout: list                 # GNS L* at the measured t/t* at the optimum
-    start_runout: list                # GNS L* at the first start
+    best_runout: list  # GNS L* at the measured t/t* at the optimum
+    start_runout: list  # GNS L* at the first start
     posterior: dict
     geometry: dict
-    seconds: dict                     # optimisation, posterior, total (online), landscape
+    seconds: dict  # optimisation, posterior, total (online), landscape
     n_batches: int
-    landscape: dict | None = None     # {"axes": [[...], [...]], "values": [[...]]} GNS objective grid
+    landscape: dict | None = None  # {"axes": [[...], [...]], "values": [[...]]} GNS objective grid
     model_error_std: float | None = None  # GNS runout error (L*) joined to the noise model
-    roughness: dict | None = None     # objective near the optimum (see posterior_at)
+    roughness: dict | None = None  # objective near the optimum (see posterior_at)
     start_packing_std: list | None = None  # packing scatter of L* [K] joined to the noise model
-    runout: dict | None = None        # the runout method (dem.runout.RunoutMethod.to_config) every L* was read by
+    runout: dict | None = None  # the runout method (dem.runout.RunoutMethod.to_config) every L* was read by
 
     def to_dict(self) -> dict:
-        data = {k: getattr(self, k) for k in ("measured", "names", "bounds", "gradient", "best_params", "best_value",
-                                              "best_runout", "start_runout", "posterior", "geometry", "seconds",
-                                              "n_batches", "landscape", "model_error_std", "roughness",
-                                              "start_packing_std", "runout")}
+        data = {
+            k: getattr(self, k)
+            for k in (
+                "measured",
+                "names",
+                "bounds",
+                "gradient",
+                "best_params",
+                "best_value",
+                "best_runout",
+                "start_runout",
+                "posterior",
+                "geometry",
+                "seconds",
+                "n_batches",
+                "landscape",
+                "model_error_std",
+                "roughness",
+                "start_packing_std",
+                "runout",
+            )
+        }
         data["starts"] = [s.to_dict() for s in self.starts]
         return data
 
@@ -128,11 +148,12 @@ def noise_level(measured: MeasuredColumn, model_error_std: float | None, start_p
     if measured.runout_std is None:
         return None
     packing = 0.0 if start_packing_std is None else np.asarray(start_packing_std, float)
-    return np.sqrt(np.asarray(measured.runout_std, float) ** 2 + (model_error_std or 0.0) ** 2 + packing ** 2)
+    return np.sqrt(np.asarray(measured.runout_std, float) ** 2 + (model_error_std or 0.0) ** 2 + packing**2)
 
 
-def posterior_at(objective: GNSObjective, optimum, bounds, model_error_std=None, step: float = JACOBIAN_STEP,
-                 start_packing_std=None):
+def posterior_at(
+    objective: GNSObjective, optimum, bounds, model_error_std=None, step: float = JACOBIAN_STEP, start_packing_std=None
+):
     """Laplace posterior (calibration.uncertainty) at `optimum` from a central-difference Jacobian of
     the GNS's L*, and a roughness probe: the objective ROUGHNESS_RADIUS away in ROUGHNESS_PROBES
     directions. All
@@ -145,16 +166,27 @@ def posterior_at(objective: GNSObjective, optimum, bounds, model_error_std=None,
     angles = np.pi / 4 + np.arange(ROUGHNESS_PROBES) * 2 * np.pi / ROUGHNESS_PROBES
     probes = [np.clip(optimum + ROUGHNESS_RADIUS * np.array([np.cos(a), np.sin(a)]), low, high) for a in angles]
     runouts = objective.runout_values(np.vstack([optimum] + points + probes))
-    replay = iter(runouts[1:1 + len(points)])
+    replay = iter(runouts[1 : 1 + len(points)])
     jacobian = finite_difference_jacobian(lambda theta: next(replay), optimum, bounds, step)
     residuals = runouts[0] - objective.measured.runout
-    posterior = laplace_posterior(objective.design_names, optimum, jacobian, residuals, bounds,
-                                  sigma=noise_level(objective.measured, model_error_std, start_packing_std))
+    posterior = laplace_posterior(
+        objective.design_names,
+        optimum,
+        jacobian,
+        residuals,
+        bounds,
+        sigma=noise_level(objective.measured, model_error_std, start_packing_std),
+    )
     values = [runout_mse(r, objective.measured.runout) for r in runouts]
-    probe_values = values[1 + len(points):]
-    roughness = {"radius": ROUGHNESS_RADIUS, "values": probe_values, "optimum_value": values[0],
-                 "spread": float(np.max(probe_values + values[:1]) - np.min(probe_values + values[:1])),
-                 "jacobian_step": step, "jacobian_step_values": values[1:1 + len(points)]}
+    probe_values = values[1 + len(points) :]
+    roughness = {
+        "radius": ROUGHNESS_RADIUS,
+        "values": probe_values,
+        "optimum_value": values[0],
+        "spread": float(np.max(probe_values + values[:1]) - np.min(probe_values + values[:1])),
+        "jacobian_step": step,
+        "jacobian_step_values": values[1 : 1 + len(points)],
+    }
     return posterior, runouts[0], roughness
 
 
@@ -162,16 +194,32 @@ def landscape(objective: GNSObjective, bounds, levels: int, batch_size: int = 8)
     """The GNS objective on a levels x levels grid over two design parameters (batched, no grad)."""
     axes = [np.linspace(low, high, levels) for low, high in bounds]
     grid = np.array([(a, b) for b in axes[1] for a in axes[0]])
-    values = np.concatenate([objective.values(grid[k:k + batch_size]) for k in range(0, len(grid), batch_size)])
+    values = np.concatenate([objective.values(grid[k : k + batch_size]) for k in range(0, len(grid), batch_size)])
     return {"axes": [a.tolist() for a in axes], "values": values.reshape(levels, levels).tolist()}
 
 
-def inverse_design(simulator, start: Trajectory, measured: MeasuredColumn, metadata: dict, training_attrs: list[dict],
-                   bounds=None, n_starts: int = 4, first_start=PAPER_START, gradient: str = "autograd",
-                   fd_step: float = FD_STEP, max_iterations: int = 20, ftol: float = FTOL, gtol: float = GTOL,
-                   max_evaluations: int | None = None, model_error_std: float | None = None,
-                   landscape_levels: int = 0, seed: int = 0, start_packing_std=None,
-                   design_names=DESIGN_NAMES, runout: RunoutMethod | None = None) -> InverseResult:
+def inverse_design(
+    simulator,
+    start: Trajectory,
+    measured: MeasuredColumn,
+    metadata: dict,
+    training_attrs: list[dict],
+    bounds=None,
+    n_starts: int = 4,
+    first_start=PAPER_START,
+    gradient: str = "autograd",
+    fd_step: float = FD_STEP,
+    max_iterations: int = 20,
+    ftol: float = FTOL,
+    gtol: float = GTOL,
+    max_evaluations: int | None = None,
+    model_error_std: float | None = None,
+    landscape_levels: int = 0,
+    seed: int = 0,
+    start_packing_std=None,
+    design_names=DESIGN_NAMES,
+    runout: RunoutMethod | None = None,
+) -> InverseResult:
     """Calibrate design_names against `measured` through the GNS `simulator`.
 
     start: DEM trajectory of the measured column giving the first C frames (see GNSObjective);
@@ -188,43 +236,81 @@ def inverse_design(simulator, start: Trajectory, measured: MeasuredColumn, metad
     runout = RunoutMethod.from_config(runout)
     objective = GNSObjective(simulator, start, measured, names, runout=runout)
     starts = starting_points(n_starts, bounds, first_start, seed)
-    log.info("inverse design of %s: %d starts, %s gradients, %d rollout steps of %d grains", measured.name,
-             len(starts), gradient, objective.n_steps, objective.n_particles)
+    log.info(
+        "inverse design of %s: %d starts, %s gradients, %d rollout steps of %d grains",
+        measured.name,
+        len(starts),
+        gradient,
+        objective.n_steps,
+        objective.n_particles,
+    )
 
     def evaluate(points):
         return objective.values_and_gradients(points) if gradient == "autograd" else objective.values(points)
 
     def progress(batch, seconds, values):
-        log.info("batch %d: %d rollouts in %.1f s, objective %s", batch, len(values), seconds,
-                 " ".join(f"{v:.4g}" for v in values))
+        log.info(
+            "batch %d: %d rollouts in %.1f s, objective %s",
+            batch,
+            len(values),
+            seconds,
+            " ".join(f"{v:.4g}" for v in values),
+        )
 
     t0 = time.perf_counter()
-    runs, n_batches = multistart_lbfgsb(evaluate, starts, bounds, names, gradient, fd_step, max_iterations,
-                                        ftol, gtol, progress, max_evaluations)
+    runs, n_batches = multistart_lbfgsb(
+        evaluate, starts, bounds, names, gradient, fd_step, max_iterations, ftol, gtol, progress, max_evaluations
+    )
     t1 = time.perf_counter()
     best = min(runs, key=lambda r: r.value)
-    posterior, best_runout, roughness = posterior_at(objective, best.params, bounds, model_error_std,
-                                                     start_packing_std=start_packing_std)
+    posterior, best_runout, roughness = posterior_at(
+        objective, best.params, bounds, model_error_std, start_packing_std=start_packing_std
+    )
     t2 = time.perf_counter()
-    online = dict(objective.timing)          # where the online time went: rollouts, forward, backward
+    online = dict(objective.timing)  # where the online time went: rollouts, forward, backward
     start_runout = objective.runout_values(starts[:1])[0]
     grid = landscape(objective, bounds, landscape_levels) if landscape_levels else None
     t3 = time.perf_counter()
     for p in posterior.parameters:
-        log.info("%s = %.4f, 95%% interval [%.4f, %.4f]%s", p.name, p.value, p.low, p.high,
-                 "" if p.identifiable else f" NOT identifiable: {p.why}")
-    return InverseResult(measured=measured.name, names=names, bounds=[list(b) for b in bounds], gradient=gradient,
-                         starts=runs, best_params=list(best.params), best_value=best.value,
-                         best_runout=best_runout.tolist(), start_runout=start_runout.tolist(),
-                         posterior=posterior.to_dict(), geometry=geometry,
-                         seconds={"optimisation": t1 - t0, "posterior": t2 - t1, "online": t2 - t0,
-                                  "landscape": t3 - t2, "online_forward": online["forward_s"],
-                                  "online_backward": online["backward_s"], "online_rollouts": online["rollouts"],
-                                  "rollout_steps": objective.n_steps},
-                         n_batches=n_batches, landscape=grid, model_error_std=model_error_std,
-                         roughness=roughness, start_packing_std=None if start_packing_std is None else
-                         np.broadcast_to(start_packing_std, measured.runout.shape).tolist(),
-                         runout=runout.to_config())
+        log.info(
+            "%s = %.4f, 95%% interval [%.4f, %.4f]%s",
+            p.name,
+            p.value,
+            p.low,
+            p.high,
+            "" if p.identifiable else f" NOT identifiable: {p.why}",
+        )
+    return InverseResult(
+        measured=measured.name,
+        names=names,
+        bounds=[list(b) for b in bounds],
+        gradient=gradient,
+        starts=runs,
+        best_params=list(best.params),
+        best_value=best.value,
+        best_runout=best_runout.tolist(),
+        start_runout=start_runout.tolist(),
+        posterior=posterior.to_dict(),
+        geometry=geometry,
+        seconds={
+            "optimisation": t1 - t0,
+            "posterior": t2 - t1,
+            "online": t2 - t0,
+            "landscape": t3 - t2,
+            "online_forward": online["forward_s"],
+            "online_backward": online["backward_s"],
+            "online_rollouts": online["rollouts"],
+            "rollout_steps": objective.n_steps,
+        },
+        n_batches=n_batches,
+        landscape=grid,
+        model_error_std=model_error_std,
+        roughness=roughness,
+        start_packing_std=None
+        if start_packing_std is None
+        else np.broadcast_to(start_packing_std, measured.runout.shape).tolist(),
+        runout=runout.to_config(),
+    )
 
 
 # -- outputs ----------------------------------------------------------------------------------------

@@ -2,6 +2,7 @@
 over the objective landscape (the paper's Fig. 2) and the GNS deposits for labelled parameter sets
 (the paper's Fig. 9).
 """
+
 from __future__ import annotations
 
 import math
@@ -21,8 +22,9 @@ def _ellipse(ax, centre, covariance, colour="w"):
     scale = math.sqrt(chi2.ppf(0.95, 2))
     width, height = 2 * scale * np.sqrt(np.maximum(values, 0))
     angle = math.degrees(math.atan2(vectors[1, 1], vectors[0, 1]))
-    ax.add_patch(Ellipse(centre, height, width, angle=angle, fill=False, ec=colour, lw=1.2, ls="--",
-                         label="95% credible region"))
+    ax.add_patch(
+        Ellipse(centre, height, width, angle=angle, fill=False, ec=colour, lw=1.2, ls="--", label="95% credible region")
+    )
 
 
 def plot_paths(result: dict, path, dem_points=None, title: str = "") -> None:
@@ -46,12 +48,27 @@ def plot_paths(result: dict, path, dem_points=None, title: str = "") -> None:
     finite = np.array([v for v in values if np.isfinite(v)])
     norm = plt.matplotlib.colors.LogNorm(max(finite.min(), 1e-4), max(finite.max(), 1e-3))
     if grid:
-        shade = ax.contourf(grid["axes"][0], grid["axes"][1], np.maximum(grid["values"], norm.vmin),
-                            levels=np.geomspace(norm.vmin, norm.vmax, 16), norm=norm, cmap="viridis")
+        shade = ax.contourf(
+            grid["axes"][0],
+            grid["axes"][1],
+            np.maximum(grid["values"], norm.vmin),
+            levels=np.geomspace(norm.vmin, norm.vmax, 16),
+            norm=norm,
+            cmap="viridis",
+        )
         fig.colorbar(shade, ax=ax, label="objective (runout MSE), GNS landscape")
     if dem_points is not None:
-        dots = ax.scatter(dem_points[names[0]], dem_points[names[1]], c=np.maximum(dem_points["mse"], norm.vmin),
-                          norm=norm, cmap="viridis", marker="s", s=40, edgecolors="0.3", label="DEM runs (DoE)")
+        dots = ax.scatter(
+            dem_points[names[0]],
+            dem_points[names[1]],
+            c=np.maximum(dem_points["mse"], norm.vmin),
+            norm=norm,
+            cmap="viridis",
+            marker="s",
+            s=40,
+            edgecolors="0.3",
+            label="DEM runs (DoE)",
+        )
         if not grid:
             fig.colorbar(dots, ax=ax, label="objective (runout MSE), DEM")
     for k, start in enumerate(result["starts"]):
@@ -61,20 +78,41 @@ def plot_paths(result: dict, path, dem_points=None, title: str = "") -> None:
         for a, b in zip(points[:-1], points[1:]):
             ax.annotate("", b, a, arrowprops={"arrowstyle": "->", "color": colour, "lw": 1.2})
         ax.plot(*points[0], "o", color="k", ms=6, zorder=4)
-        ax.plot(*points[-1], "o", color=colour, mec="k", ms=6, zorder=4,
-                label=f"start {k + 1}: {start['iterates'][0]['value']:.3g} -> {start['value']:.3g}")
+        ax.plot(
+            *points[-1],
+            "o",
+            color=colour,
+            mec="k",
+            ms=6,
+            zorder=4,
+            label=f"start {k + 1}: {start['iterates'][0]['value']:.3g} -> {start['value']:.3g}",
+        )
     best = result["best_params"]
     ax.plot(*best, "r*", ms=16, mec="w", zorder=5, label=f"optimum ({best[0]:.3f}, {best[1]:.3f})")
     _ellipse(ax, best, result["posterior"]["covariance"], colour="r")
-    if dem_points is not None:      # the DEM runs may lie beyond the GNS's (trained-range) bounds
+    if dem_points is not None:  # the DEM runs may lie beyond the GNS's (trained-range) bounds
         x_low, x_high = min(x_low, np.min(dem_points[names[0]])), max(x_high, np.max(dem_points[names[0]]))
         y_low, y_high = min(y_low, np.min(dem_points[names[1]])), max(y_high, np.max(dem_points[names[1]]))
-        ax.add_patch(plt.Rectangle((result["bounds"][0][0], result["bounds"][1][0]),
-                                   np.diff(result["bounds"][0])[0], np.diff(result["bounds"][1])[0], fill=False,
-                                   ec="0.4", ls=":", lw=1, label="GNS bounds"))
+        ax.add_patch(
+            plt.Rectangle(
+                (result["bounds"][0][0], result["bounds"][1][0]),
+                np.diff(result["bounds"][0])[0],
+                np.diff(result["bounds"][1])[0],
+                fill=False,
+                ec="0.4",
+                ls=":",
+                lw=1,
+                label="GNS bounds",
+            )
+        )
     pad = 0.02
-    ax.set(xlim=(x_low - pad, x_high + pad), ylim=(y_low - pad, y_high + pad), xlabel=f"{names[0]}", ylabel=f"{names[1]}",
-           title=title or f"GNS inverse design of {result['measured']} ({result['gradient']} gradients)")
+    ax.set(
+        xlim=(x_low - pad, x_high + pad),
+        ylim=(y_low - pad, y_high + pad),
+        xlabel=f"{names[0]}",
+        ylabel=f"{names[1]}",
+        title=title or f"GNS inverse design of {result['measured']} ({result['gradient']} gradients)",
+    )
     ax.legend(fontsize=7, loc="best")
     fig.tight_layout()
     save_figure(fig, path)
@@ -91,8 +129,13 @@ def plot_deposits(objective: GNSObjective, params: dict, path, title: str = "") 
     from gns.runout import frame_weights
 
     with torch.no_grad():
-        result = rollout(objective.simulator, objective.initial.repeat(1, len(labels), 1), objective._context(theta),
-                         objective.n_steps, checkpoint=False)
+        result = rollout(
+            objective.simulator,
+            objective.initial.repeat(1, len(labels), 1),
+            objective._context(theta),
+            objective.n_steps,
+            checkpoint=False,
+        )
     t_last = float(objective.measured.t_over_tstar[-1])
     k, w = frame_weights([t_last], objective.t_star, objective.dt_frame, result.positions.shape[0])[0]
     frame = int(k + round(w))
@@ -104,11 +147,18 @@ def plot_deposits(objective: GNSObjective, params: dict, path, title: str = "") 
     fig, axes = plt.subplots(len(labels), 1, figsize=(8, 1.2 + 1.3 * len(labels)), squeeze=False)
     for ax, label, frame_positions in zip(axes[:, 0], labels, positions):
         draw_grains(ax, frame_positions, radius, color="tab:blue")
-        ax.axvline(measured_front, color="0.4", ls="--", lw=1, label=f"measured L* = {objective.measured.runout[-1]:.3g}")
+        ax.axvline(
+            measured_front, color="0.4", ls="--", lw=1, label=f"measured L* = {objective.measured.runout[-1]:.3g}"
+        )
         ax.axvline(objective.L_i, color="0.7", ls=":", lw=0.8)
         ax.set(xlim=(0, extent), ylim=(0, height), aspect="equal")
-        ax.set_title(f"{label}: " + ", ".join(f"{n} = {v:.3f}" for n, v in zip(objective.design_names, params[label]))
-                     + f"  (t/t* = {frame * objective.dt_frame / objective.t_star:.2f})", fontsize=8, loc="left")
+        ax.set_title(
+            f"{label}: "
+            + ", ".join(f"{n} = {v:.3f}" for n, v in zip(objective.design_names, params[label]))
+            + f"  (t/t* = {frame * objective.dt_frame / objective.t_star:.2f})",
+            fontsize=8,
+            loc="left",
+        )
         ax.tick_params(labelsize=6)
     axes[0, 0].legend(fontsize=7, loc="upper right")
     fig.suptitle(title or f"GNS deposits during the inverse design of {objective.measured.name}", fontsize=9)

@@ -13,6 +13,7 @@ finite differences each start asks for its whole stencil (x and x + h e_j) at on
 A GNS objective is rough (calibration.gns_objective), so line searches may fail; each start keeps
 its best evaluated point and says so.
 """
+
 from __future__ import annotations
 
 import math
@@ -26,8 +27,8 @@ from scipy.optimize import OptimizeResult, minimize
 from calibration.bayesopt import OptimisationHistory
 from calibration.gns_objective import InverseDesignError
 
-PAPER_START = (0.55, 0.73)            # the paper's starting point (Fig. 2, loss 0.66)
-SCIPY_DEFAULT_STEP = 1e-8             # scipy's L-BFGS-B `eps`, the step of the paper's public code
+PAPER_START = (0.55, 0.73)  # the paper's starting point (Fig. 2, loss 0.66)
+SCIPY_DEFAULT_STEP = 1e-8  # scipy's L-BFGS-B `eps`, the step of the paper's public code
 # Forward-difference step for the float32 GNS. The rounding error of a float32 objective is
 # ~1e-7 relative, so a step h gives a gradient error ~1e-7 / h; the radius graph also switches
 # edges on and off, which puts small jumps in the objective. 1e-2 (1.7% of the [0.3, 0.9] range)
@@ -68,7 +69,8 @@ def check_step(step: float, bounds, dtype=np.float32) -> None:
                 raise InverseDesignError(
                     f"finite-difference step {step:g} vanishes in {np.dtype(dtype).name} at {value:g} "
                     f"({value:g} + {step:g} == {value:g}): the differences would be exactly zero; "
-                    f"use a step above {np.spacing(dtype(high)):.2g} (default {FD_STEP:g})")
+                    f"use a step above {np.spacing(dtype(high)):.2g} (default {FD_STEP:g})"
+                )
 
 
 # -- multi-start L-BFGS-B in lockstep --------------------------------------------------------------
@@ -83,13 +85,20 @@ class StartResult:
     message: str
     n_iterations: int
     evaluations: OptimisationHistory
-    iterates: list = field(default_factory=list)     # [(params [P], value)] after each iteration
+    iterates: list = field(default_factory=list)  # [(params [P], value)] after each iteration
 
     def to_dict(self) -> dict:
-        return {"start": self.start, "params": self.params, "value": self.value, "success": self.success,
-                "message": self.message, "n_iterations": self.n_iterations,
-                "n_evaluations": len(self.evaluations.values), "evaluations": self.evaluations.to_dict(),
-                "iterates": [{"params": list(p), "value": v} for p, v in self.iterates]}
+        return {
+            "start": self.start,
+            "params": self.params,
+            "value": self.value,
+            "success": self.success,
+            "message": self.message,
+            "n_iterations": self.n_iterations,
+            "n_evaluations": len(self.evaluations.values),
+            "evaluations": self.evaluations.to_dict(),
+            "iterates": [{"params": list(p), "value": v} for p, v in self.iterates],
+        }
 
 
 class _Lockstep:
@@ -142,14 +151,25 @@ class _Lockstep:
             self.batches += 1
             with self.condition:
                 ends = np.cumsum([len(points) for points in batch.values()])
-                self.results.update((run, answers[end - len(points):end])
-                                    for (run, points), end in zip(batch.items(), ends))
+                self.results.update(
+                    (run, answers[end - len(points) : end]) for (run, points), end in zip(batch.items(), ends)
+                )
                 self.condition.notify_all()
 
 
-def multistart_lbfgsb(evaluate_batch, starts, bounds, names, gradient: str = "autograd", fd_step: float = FD_STEP,
-                      max_iterations: int = 20, ftol: float = FTOL, gtol: float = GTOL, progress=None,
-                      max_evaluations: int | None = None) -> tuple[list, int]:
+def multistart_lbfgsb(
+    evaluate_batch,
+    starts,
+    bounds,
+    names,
+    gradient: str = "autograd",
+    fd_step: float = FD_STEP,
+    max_iterations: int = 20,
+    ftol: float = FTOL,
+    gtol: float = GTOL,
+    progress=None,
+    max_evaluations: int | None = None,
+) -> tuple[list, int]:
     """L-BFGS-B from each of starts [S, P] within bounds [(low, high)] * P, in lockstep.
 
     evaluate_batch(points [G, P]) -> (values [G], gradients [G, P]) for gradient="autograd", or
@@ -221,15 +241,25 @@ def multistart_lbfgsb(evaluate_batch, starts, bounds, names, gradient: str = "au
             iterates[index].append((intermediate_result.x.tolist(), float(intermediate_result.fun)))
 
         try:
-            options = {"maxiter": max_iterations, "ftol": ftol, "gtol": gtol, "maxls": MAX_LINE_SEARCH,
-                       "maxfun": max_evaluations or 2 * max_iterations}
-            outcomes[index] = minimize(fun, starts[index], method="L-BFGS-B", jac=True, bounds=bounds,
-                                       options=options, callback=callback)
+            options = {
+                "maxiter": max_iterations,
+                "ftol": ftol,
+                "gtol": gtol,
+                "maxls": MAX_LINE_SEARCH,
+                "maxfun": max_evaluations or 2 * max_iterations,
+            }
+            outcomes[index] = minimize(
+                fun, starts[index], method="L-BFGS-B", jac=True, bounds=bounds, options=options, callback=callback
+            )
         except _Stalled:
             params, value = histories[index].best
-            outcomes[index] = OptimizeResult(x=np.asarray(params), fun=value, success=False, nit=len(iterates[index]),
-                                             message=f"stopped: {STALL_EVALUATIONS} evaluations in a row without "
-                                                     "improvement (rough objective)")
+            outcomes[index] = OptimizeResult(
+                x=np.asarray(params),
+                fun=value,
+                success=False,
+                nit=len(iterates[index]),
+                message=f"stopped: {STALL_EVALUATIONS} evaluations in a row without improvement (rough objective)",
+            )
         except BaseException as exc:  # noqa: BLE001 - reported by the main thread
             outcomes[index] = exc
         finally:
@@ -255,10 +285,18 @@ def multistart_lbfgsb(evaluate_batch, starts, bounds, names, gradient: str = "au
             message += f"; best evaluated point kept (L-BFGS-B ended at {float(outcome.fun):.4g})"
         else:
             params, value = outcome.x, float(outcome.fun)
-        results.append(StartResult(start=starts[k].tolist(), params=np.asarray(params).tolist(), value=float(value),
-                                   success=bool(outcome.success), message=message,
-                                   n_iterations=int(outcome.nit), evaluations=histories[k],
-                                   iterates=[(starts[k].tolist(), histories[k].values[0])] + iterates[k]))
+        results.append(
+            StartResult(
+                start=starts[k].tolist(),
+                params=np.asarray(params).tolist(),
+                value=float(value),
+                success=bool(outcome.success),
+                message=message,
+                n_iterations=int(outcome.nit),
+                evaluations=histories[k],
+                iterates=[(starts[k].tolist(), histories[k].values[0])] + iterates[k],
+            )
+        )
     return results, lockstep.batches
 
 

@@ -18,6 +18,7 @@ Schema (full description and examples in data/measured/README.md). A CSV file in
 Each column needs at least two runout points; material, aspect_ratio and L_i must agree on every
 row of a column. Every error names the file, the line and the CSV column that is wrong.
 """
+
 from __future__ import annotations
 
 import csv
@@ -55,7 +56,7 @@ class MeasuredColumn:
     name: str
     material: str
     aspect_ratio: float
-    L_i: float                       # m
+    L_i: float  # m
     t_over_tstar: np.ndarray
     runout: np.ndarray
     runout_std: np.ndarray | None = None
@@ -74,11 +75,19 @@ class MeasuredColumn:
         case_fields: any other CollapseCase field (size_scale for a coarse-grained counterpart,
         seed, ...). The simulated window must cover the last measured t/t*.
         """
-        case = CollapseCase(material=self.material, column_length=self.L_i, aspect_ratio=self.aspect_ratio,
-                            friction=friction, restitution=restitution, **case_fields)
+        case = CollapseCase(
+            material=self.material,
+            column_length=self.L_i,
+            aspect_ratio=self.aspect_ratio,
+            friction=friction,
+            restitution=restitution,
+            **case_fields,
+        )
         if case.duration_over_tstar < self.t_over_tstar[-1]:
-            raise CaseError(f"duration_over_tstar = {case.duration_over_tstar} ends before the last measured "
-                            f"t/t* = {self.t_over_tstar[-1]} of {self.name!r} ({self.source})")
+            raise CaseError(
+                f"duration_over_tstar = {case.duration_over_tstar} ends before the last measured "
+                f"t/t* = {self.t_over_tstar[-1]} of {self.name!r} ({self.source})"
+            )
         return case
 
 
@@ -129,12 +138,15 @@ def _read_rows(path: Path) -> list[tuple[int, dict]]:
     header = [name.strip() for name in next(csv.reader([header_text]))]
     missing = [name for name in REQUIRED_FIELDS if name not in header]
     if missing:
-        raise MeasuredDataError(f"{path}, line {header_line}: header lacks column(s) {missing}; "
-                                f"the schema needs {list(REQUIRED_FIELDS)} (+ optional {list(OPTIONAL_FIELDS)})")
+        raise MeasuredDataError(
+            f"{path}, line {header_line}: header lacks column(s) {missing}; "
+            f"the schema needs {list(REQUIRED_FIELDS)} (+ optional {list(OPTIONAL_FIELDS)})"
+        )
     unknown = [name for name in header if name not in REQUIRED_FIELDS + OPTIONAL_FIELDS]
     if unknown:
-        raise MeasuredDataError(f"{path}, line {header_line}: unknown column(s) {unknown}; "
-                                f"known: {list(REQUIRED_FIELDS + OPTIONAL_FIELDS)}")
+        raise MeasuredDataError(
+            f"{path}, line {header_line}: unknown column(s) {unknown}; known: {list(REQUIRED_FIELDS + OPTIONAL_FIELDS)}"
+        )
     duplicated = sorted({name for name in header if header.count(name) > 1})
     if duplicated:
         raise MeasuredDataError(f"{path}, line {header_line}: column(s) {duplicated} appear twice")
@@ -165,26 +177,34 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
         raise MeasuredDataError(f"{path}, line {first_line}, column 'column': empty column name")
     material = first["material"]
     if material not in MATERIALS:
-        raise MeasuredDataError(f"{path}, line {first_line}, column 'material': unknown material {material!r}; "
-                                f"known: {sorted(MATERIALS)}")
+        raise MeasuredDataError(
+            f"{path}, line {first_line}, column 'material': unknown material {material!r}; known: {sorted(MATERIALS)}"
+        )
     aspect_ratio = _number(path, first_line, "aspect_ratio", first["aspect_ratio"])
     L_i = _number(path, first_line, "L_i", first["L_i"])
     if aspect_ratio <= 0:
-        raise MeasuredDataError(f"{path}, line {first_line}, column 'aspect_ratio': must be positive, "
-                                f"got {aspect_ratio}")
+        raise MeasuredDataError(
+            f"{path}, line {first_line}, column 'aspect_ratio': must be positive, got {aspect_ratio}"
+        )
     if not 0 < L_i <= MAX_L_I:
-        raise MeasuredDataError(f"{path}, line {first_line}, column 'L_i': {L_i} is not a column length in metres "
-                                f"(0 < L_i <= {MAX_L_I} m; was it given in mm?)")
+        raise MeasuredDataError(
+            f"{path}, line {first_line}, column 'L_i': {L_i} is not a column length in metres "
+            f"(0 < L_i <= {MAX_L_I} m; was it given in mm?)"
+        )
     series = {kind: [] for kind in KINDS}
     for line, row in rows:
         for field, expected in (("material", material),):
             if row[field] != expected:
-                raise MeasuredDataError(f"{path}, line {line}, column {field!r}: {row[field]!r} differs from "
-                                        f"{expected!r} on line {first_line} for the same measured column {name!r}")
+                raise MeasuredDataError(
+                    f"{path}, line {line}, column {field!r}: {row[field]!r} differs from "
+                    f"{expected!r} on line {first_line} for the same measured column {name!r}"
+                )
         for field, expected in (("aspect_ratio", aspect_ratio), ("L_i", L_i)):
             if _number(path, line, field, row[field]) != expected:
-                raise MeasuredDataError(f"{path}, line {line}, column {field!r}: {row[field]} differs from "
-                                        f"{expected} on line {first_line} for the same measured column {name!r}")
+                raise MeasuredDataError(
+                    f"{path}, line {line}, column {field!r}: {row[field]} differs from "
+                    f"{expected} on line {first_line} for the same measured column {name!r}"
+                )
         kind = row["kind"]
         if kind not in KINDS:
             raise MeasuredDataError(f"{path}, line {line}, column 'kind': {kind!r} is not one of {list(KINDS)}")
@@ -194,27 +214,40 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
         if x < 0:
             raise MeasuredDataError(f"{path}, line {line}, column 'x': must be >= 0, got {x}")
         if not math.isnan(std) and std <= 0:
-            raise MeasuredDataError(f"{path}, line {line}, column 'std': a noise level of {std} is not a "
-                                    "standard deviation (zero would claim an exact measurement); leave the cell "
-                                    "empty if unknown")
+            raise MeasuredDataError(
+                f"{path}, line {line}, column 'std': a noise level of {std} is not a "
+                "standard deviation (zero would claim an exact measurement); leave the cell "
+                "empty if unknown"
+            )
         series[kind].append((line, x, value, std))
 
     t, runout, std = _series(path, name, series["runout"], "t/t*", min_points=2)
     if np.isnan(std).any() and not np.isnan(std).all():
         line = series["runout"][int(np.flatnonzero(np.isnan(std))[0])][0]
-        raise MeasuredDataError(f"{path}, line {line}, column 'std': noise level missing here but given on other "
-                                f"runout rows of {name!r}; give it on every runout row or on none")
+        raise MeasuredDataError(
+            f"{path}, line {line}, column 'std': noise level missing here but given on other "
+            f"runout rows of {name!r}; give it on every runout row or on none"
+        )
     profile = None
     if series["profile"]:
         profile = _series(path, name, series["profile"], "profile x", min_points=2)
         negative = np.flatnonzero(profile[1] < 0)
         if negative.size:
-            raise MeasuredDataError(f"{path}, line {series['profile'][negative[0]][0]}, column 'value': deposit "
-                                    "height must be >= 0 m")
-    column = MeasuredColumn(name=name, material=material, aspect_ratio=aspect_ratio, L_i=L_i,
-                            t_over_tstar=t, runout=runout, runout_std=None if np.isnan(std).all() else std,
-                            profile_x=None if profile is None else profile[0],
-                            profile_height=None if profile is None else profile[1], source=str(path))
+            raise MeasuredDataError(
+                f"{path}, line {series['profile'][negative[0]][0]}, column 'value': deposit height must be >= 0 m"
+            )
+    column = MeasuredColumn(
+        name=name,
+        material=material,
+        aspect_ratio=aspect_ratio,
+        L_i=L_i,
+        t_over_tstar=t,
+        runout=runout,
+        runout_std=None if np.isnan(std).all() else std,
+        profile_x=None if profile is None else profile[0],
+        profile_height=None if profile is None else profile[1],
+        source=str(path),
+    )
     _check_runout_units(path, column, series["runout"][0][0])
     return column
 
@@ -223,14 +256,18 @@ def _series(path, name, points, what, min_points):
     """(x [K], value [K], std [K]) from parsed points, checking count and increasing x."""
     if len(points) < min_points:
         where = f", line {points[0][0]}" if points else ""
-        raise MeasuredDataError(f"{path}{where}: measured column {name!r} has {len(points)} {what} point(s); "
-                                f"at least {min_points} are needed (one point cannot constrain a curve)")
+        raise MeasuredDataError(
+            f"{path}{where}: measured column {name!r} has {len(points)} {what} point(s); "
+            f"at least {min_points} are needed (one point cannot constrain a curve)"
+        )
     lines = [p[0] for p in points]
     x, value, std = (np.array([p[k] for p in points], float) for k in (1, 2, 3))
     for k in range(1, len(x)):
         if x[k] <= x[k - 1]:
-            raise MeasuredDataError(f"{path}, line {lines[k]}, column 'x': {what} = {x[k]} does not increase "
-                                    f"(previous row of {name!r} has {x[k - 1]}); list points in increasing order")
+            raise MeasuredDataError(
+                f"{path}, line {lines[k]}, column 'x': {what} = {x[k]} does not increase "
+                f"(previous row of {name!r} has {x[k - 1]}); list points in increasing order"
+            )
     return x, value, std
 
 
@@ -251,8 +288,12 @@ def _check_runout_units(path, column: MeasuredColumn, line: int) -> None:
             f"{path}, line {line}, column 'value': runout of {column.name!r} peaks at {reached:g}, yet a column of "
             f"a = {column.aspect_ratio:g} runs out to L* ~ {expected:.2g}; divided by L_i = {column.L_i:g} m it "
             f"would be {reached / column.L_i:.3g}. The values look like metres (L or L - L_i); "
-            "give L* = (L - L_i)/L_i instead")
+            "give L* = (L - L_i)/L_i instead"
+        )
     if not expected / 4 <= reached <= 4 * expected:
-        warnings.warn(f"{path}: runout of {column.name!r} peaks at L* = {reached:g}, far from the L* ~ "
-                      f"{expected:.2g} expected for a = {column.aspect_ratio:g} (Lube et al. 2005); check units",
-                      MeasuredDataWarning, stacklevel=3)
+        warnings.warn(
+            f"{path}: runout of {column.name!r} peaks at L* = {reached:g}, far from the L* ~ "
+            f"{expected:.2g} expected for a = {column.aspect_ratio:g} (Lube et al. 2005); check units",
+            MeasuredDataWarning,
+            stacklevel=3,
+        )

@@ -23,6 +23,7 @@ emulator then needs few runs):
 - the gate is described by its slowness 1/v (s/m): the time it takes to clear a column of height H
   is H/v, so the delay it causes grows linearly in 1/v, and 0 is the paper's instant removal.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -42,13 +43,13 @@ class MechanismError(ValueError):
 class Mechanism:
     """One candidate: a single parameter (`parameter`, in `unit`) added to the base model."""
 
-    name: str                             # the diagnosis' `cause` when this candidate is named
-    parameter: str                        # name of its parameter in reports
+    name: str  # the diagnosis' `cause` when this candidate is named
+    parameter: str  # name of its parameter in reports
     unit: str
-    bounds: tuple[float, float]           # search box of the diagnosis
-    hidden_range: tuple[float, float]     # magnitudes drawn by the hidden-effect tests
+    bounds: tuple[float, float]  # search box of the diagnosis
+    hidden_range: tuple[float, float]  # magnitudes drawn by the hidden-effect tests
     description: str
-    log_scale: bool = False               # design and emulator work in log(parameter)
+    log_scale: bool = False  # design and emulator work in log(parameter)
 
     def case_fields(self, value: float, case: CollapseCase) -> dict:
         """CollapseCase fields that switch the mechanism on at `value` for `case` (its base fields)."""
@@ -61,7 +62,9 @@ class Mechanism:
     def check(self, value: float) -> float:
         low, high = self.bounds
         if not low - 1e-12 <= value <= high + 1e-12:
-            raise MechanismError(f"{self.name}: {self.parameter} = {value} outside its bounds [{low}, {high}] {self.unit}")
+            raise MechanismError(
+                f"{self.name}: {self.parameter} = {value} outside its bounds [{low}, {high}] {self.unit}"
+            )
         return float(value)
 
 
@@ -85,7 +88,7 @@ class BasalFriction(Mechanism):
 
 @dataclass(frozen=True)
 class SidewallFriction(Mechanism):
-    channel_width: float = 0.01           # m, width of the quasi-2D channel (fixed, not fitted)
+    channel_width: float = 0.01  # m, width of the quasi-2D channel (fixed, not fitted)
 
     def case_fields(self, value, case):
         return {"sidewall_friction": self.check(value), "channel_width": self.channel_width}
@@ -99,33 +102,58 @@ class GateLift(Mechanism):
 
 def cohesion_energy_from_bond(bond: float, case: CollapseCase) -> float:
     """Work of adhesion w (J/m^2) whose mean-pair pull-off force is `bond` mean-grain weights."""
-    return bond * case.density * GRAVITY * case.diameter ** 2 / 2.25
+    return bond * case.density * GRAVITY * case.diameter**2 / 2.25
 
 
 def bond_from_cohesion_energy(cohesion_energy: float, case: CollapseCase) -> float:
-    return 2.25 * cohesion_energy / (case.density * GRAVITY * case.diameter ** 2)
+    return 2.25 * cohesion_energy / (case.density * GRAVITY * case.diameter**2)
 
 
 def candidate_mechanisms(channel_width: float = 0.01) -> dict[str, Mechanism]:
     """The five candidates by name, in report order."""
     candidates = (
         RollingResistance(
-            "rolling_resistance", "rolling_friction", "-", (0.0, 0.4), (0.15, 0.35),
-            "type-C (EPSD2) rolling resistance mu_r: a torque up to mu_r R* |Fn| opposes rolling"),
+            "rolling_resistance",
+            "rolling_friction",
+            "-",
+            (0.0, 0.4),
+            (0.15, 0.35),
+            "type-C (EPSD2) rolling resistance mu_r: a torque up to mu_r R* |Fn| opposes rolling",
+        ),
         Cohesion(
-            "cohesion", "bond_number", "-", (0.0, 60.0), (15.0, 45.0),
-            "JKR pull-off cohesion, as a Bond number (pull-off force / grain weight)"),
+            "cohesion",
+            "bond_number",
+            "-",
+            (0.0, 60.0),
+            (15.0, 45.0),
+            "JKR pull-off cohesion, as a Bond number (pull-off force / grain weight)",
+        ),
         BasalFriction(
-            "basal_friction", "friction_base", "-", (0.02, 1.0), (0.03, 0.08),
+            "basal_friction",
+            "friction_base",
+            "-",
+            (0.02, 1.0),
+            (0.03, 0.08),
             "floor friction different from the grains' friction (base model: floor mu = grain mu)",
-            log_scale=True),
+            log_scale=True,
+        ),
         SidewallFriction(
-            "sidewall_friction", "sidewall_friction", "-", (0.0, 0.3), (0.08, 0.2),
+            "sidewall_friction",
+            "sidewall_friction",
+            "-",
+            (0.0, 0.3),
+            (0.08, 0.2),
             f"Coulomb drag of the front/back walls of a {channel_width * 1e3:g} mm quasi-2D channel",
-            channel_width=channel_width),
+            channel_width=channel_width,
+        ),
         GateLift(
-            "gate_lift", "gate_slowness", "s/m", (0.0, 4.0), (1.0, 3.3),
-            "gate lifted at finite speed v (parameter 1/v; 0 = removed at once, as in the paper)"),
+            "gate_lift",
+            "gate_slowness",
+            "s/m",
+            (0.0, 4.0),
+            (1.0, 3.3),
+            "gate lifted at finite speed v (parameter 1/v; 0 = removed at once, as in the paper)",
+        ),
     )
     return {m.name: m for m in candidates}
 

@@ -4,6 +4,7 @@ objective = mean over the measured t/t* points of (L*_simulated - L*_measured)^2
 runout curve that Jiang et al. (2024, section 2.3) minimise. The simulated curve comes from a
 trajectory (DEM run or GNS rollout, through dem.runout.runout_at) or from arrays.
 """
+
 from __future__ import annotations
 
 import math
@@ -42,8 +43,9 @@ def simulated_runout_at(t_over_tstar, runout, measured: MeasuredColumn) -> np.nd
     t = np.asarray(t_over_tstar, float)
     runout = np.asarray(runout, float)
     if t.ndim != 1 or t.shape != runout.shape or len(t) < 2:
-        raise ObjectiveError(f"simulated curve: t/t* {t.shape} and L* {runout.shape} must be equal 1-D arrays "
-                             "of at least 2 points")
+        raise ObjectiveError(
+            f"simulated curve: t/t* {t.shape} and L* {runout.shape} must be equal 1-D arrays of at least 2 points"
+        )
     if np.any(np.diff(t) <= 0):
         raise ObjectiveError("simulated curve: t/t* must increase")
     check_window(t[0], t[-1], measured)
@@ -55,9 +57,11 @@ def check_window(t_first: float, t_last: float, measured: MeasuredColumn) -> Non
     times = measured.t_over_tstar
     outside = times[(times < t_first - 1e-9) | (times > t_last + 1e-9)]
     if outside.size:
-        raise ObjectiveError(f"measured column {measured.name!r} ({measured.source}): t/t* = {outside.tolist()} "
-                             f"fall outside the simulated window [{t_first:.3g}, {t_last:.3g}]; simulate longer "
-                             "(duration_over_tstar) or drop those points")
+        raise ObjectiveError(
+            f"measured column {measured.name!r} ({measured.source}): t/t* = {outside.tolist()} "
+            f"fall outside the simulated window [{t_first:.3g}, {t_last:.3g}]; simulate longer "
+            "(duration_over_tstar) or drop those points"
+        )
 
 
 def objective_from_curve(t_over_tstar, runout, measured: MeasuredColumn) -> float:
@@ -71,13 +75,17 @@ def check_same_column(trajectory_attrs: dict, measured: MeasuredColumn, where: s
     The grain size may differ (coarse-graining); the column geometry and material may not.
     """
     if str(trajectory_attrs.get("material")) != measured.material:
-        raise ObjectiveError(f"{where}: material {trajectory_attrs.get('material')!r} differs from the measured "
-                             f"column {measured.name!r} ({measured.material})")
+        raise ObjectiveError(
+            f"{where}: material {trajectory_attrs.get('material')!r} differs from the measured "
+            f"column {measured.name!r} ({measured.material})"
+        )
     for key, value in (("aspect_ratio", measured.aspect_ratio), ("L_i", measured.L_i)):
         simulated = float(trajectory_attrs[key])
         if not math.isclose(simulated, value, rel_tol=GEOMETRY_RTOL):
-            raise ObjectiveError(f"{where}: {key} = {simulated:g} differs from the measured column "
-                                 f"{measured.name!r} ({key} = {value:g}, {measured.source})")
+            raise ObjectiveError(
+                f"{where}: {key} = {simulated:g} differs from the measured column "
+                f"{measured.name!r} ({key} = {value:g}, {measured.source})"
+            )
 
 
 def objective(trajectory, measured: MeasuredColumn, runout: RunoutMethod) -> float:

@@ -6,6 +6,7 @@ from the last simulated frame (the last measured t/t*: this model's grains never
 rolling, so "final" means "at the end of the measured window"). The runout is read by the
 configured dem.runout method (`Observables.runout`), the same as every other stage's.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -16,7 +17,7 @@ from calibration.measured import MeasuredColumn
 from calibration.objective import simulated_runout_at
 from dem.runout import RunoutMethod, deposit_profile
 
-PROFILE_BIN_DIAMETERS = 4.0   # deposit-profile bin width in mean grain diameters (dem.runout.deposit_profile)
+PROFILE_BIN_DIAMETERS = 4.0  # deposit-profile bin width in mean grain diameters (dem.runout.deposit_profile)
 
 
 class LibraryError(ValueError):
@@ -93,8 +94,11 @@ class Observables:
     def signature(self) -> dict:
         """What a library built for these observables must match (geometry, observation points and
         how the runout is read off a run)."""
-        return {"columns": [[c.name, c.material, c.aspect_ratio, c.L_i] for c in self.columns],
-                "labels": [list(label) for label in self.labels], "runout": self.runout.to_config()}
+        return {
+            "columns": [[c.name, c.material, c.aspect_ratio, c.L_i] for c in self.columns],
+            "labels": [list(label) for label in self.labels],
+            "runout": self.runout.to_config(),
+        }
 
     def from_trajectories(self, trajectories, columns=None) -> np.ndarray:
         """Observables of one simulated trajectory per column: [q] for all columns, or, with

@@ -17,6 +17,7 @@ posterior's noise model on the model side as well (calibration.inverse.noise_lev
 intervals of both parameters (an unidentifiable parameter's interval is the whole bound: it
 cannot fail by being too narrow, and is reported as such).
 """
+
 from __future__ import annotations
 
 import logging
@@ -33,8 +34,16 @@ from dem.trajectory import Trajectory
 from gns.data import read_training_attrs
 
 log = logging.getLogger(__name__)
-def recovery_targets(training_attrs: list[dict], n_cases: int, bounds=BOUNDS, seed: int = 0,
-                     min_distance: float = 0.05, margin: float = 0.1) -> np.ndarray:
+
+
+def recovery_targets(
+    training_attrs: list[dict],
+    n_cases: int,
+    bounds=BOUNDS,
+    seed: int = 0,
+    min_distance: float = 0.05,
+    margin: float = 0.1,
+) -> np.ndarray:
     """[n_cases, 2] (mu, e) spread over the bounds (shrunk by `margin` of the range at each side, so
     the truth is not on a bound), each at least `min_distance` from every training case."""
     from scipy.stats import qmc
@@ -63,11 +72,12 @@ def packing_scatter(curves) -> tuple[np.ndarray, int]:
     dof = len(residuals) - len(curves)
     if dof < 1:
         raise ValueError("packing scatter needs a target with at least two packings")
-    return np.sqrt(np.sum(residuals ** 2, axis=0) / dof), dof
+    return np.sqrt(np.sum(residuals**2, axis=0) / dof), dof
 
 
-def synthetic_measured(truths, t_points, noise_std: float, seed: int, name: str,
-                       packing_std=None, runout: RunoutMethod | None = None) -> MeasuredColumn:
+def synthetic_measured(
+    truths, t_points, noise_std: float, seed: int, name: str, packing_std=None, runout: RunoutMethod | None = None
+) -> MeasuredColumn:
     """The mean runout of DEM runs of one (mu, e) at t_points plus Gaussian noise (std noise_std).
 
     truths: a Trajectory or a list of k (one per packing). Its stated std is that of a mean of k
@@ -81,21 +91,40 @@ def synthetic_measured(truths, t_points, noise_std: float, seed: int, name: str,
     curves = np.array([runout_at(truth, t_points, runout) for truth in truths])
     if packing_std is None:
         if len(truths) < 2:
-            raise ValueError(f"{name}: one packing tells nothing of the packing scatter; pass packing_std or "
-                             "use at least two packings")
+            raise ValueError(
+                f"{name}: one packing tells nothing of the packing scatter; pass packing_std or "
+                "use at least two packings"
+            )
         packing_std = packing_scatter([curves])[0]
     packing_std = np.broadcast_to(np.asarray(packing_std, float), t_points.shape)
     noisy = curves.mean(axis=0) + np.random.default_rng(seed).normal(0.0, noise_std, len(t_points))
     a = truths[0].attrs
-    return MeasuredColumn(name=name, material=str(a["material"]), aspect_ratio=float(a["aspect_ratio"]),
-                          L_i=float(a["L_i"]), t_over_tstar=t_points, runout=noisy,
-                          runout_std=np.sqrt(noise_std ** 2 + packing_std ** 2 / len(truths)),
-                          source=f"synthetic DEM runs ({name}: mean of {len(truths)} packings, noise {noise_std:g})")
+    return MeasuredColumn(
+        name=name,
+        material=str(a["material"]),
+        aspect_ratio=float(a["aspect_ratio"]),
+        L_i=float(a["L_i"]),
+        t_over_tstar=t_points,
+        runout=noisy,
+        runout_std=np.sqrt(noise_std**2 + packing_std**2 / len(truths)),
+        source=f"synthetic DEM runs ({name}: mean of {len(truths)} packings, noise {noise_std:g})",
+    )
 
 
-def recover_case(simulator, metadata, training_attrs, start: Trajectory, truths, t_points,
-                 noise_std: float, seed: int, mu_tolerance: float = 0.03, packing_std=None,
-                 runout: RunoutMethod | None = None, **inverse_kwargs) -> dict:
+def recover_case(
+    simulator,
+    metadata,
+    training_attrs,
+    start: Trajectory,
+    truths,
+    t_points,
+    noise_std: float,
+    seed: int,
+    mu_tolerance: float = 0.03,
+    packing_std=None,
+    runout: RunoutMethod | None = None,
+    **inverse_kwargs,
+) -> dict:
     """Inverse design against one synthetic target; returns truth, estimate, intervals and verdicts.
 
     truths: the target's DEM runs (a Trajectory or a list, one per packing, same (mu, e));
@@ -106,28 +135,56 @@ def recover_case(simulator, metadata, training_attrs, start: Trajectory, truths,
     runout = RunoutMethod.from_config(runout)
     truths = [truths] if isinstance(truths, Trajectory) else list(truths)
     if packing_std is None:
-        packing_std = packing_scatter([[runout_at(t, t_points, runout) for t in truths]])[0] if len(truths) > 1 else None
-    measured = synthetic_measured(truths, t_points, noise_std, seed, name=f"target_{seed}", packing_std=packing_std,
-                                  runout=runout)
+        packing_std = (
+            packing_scatter([[runout_at(t, t_points, runout) for t in truths]])[0] if len(truths) > 1 else None
+        )
+    measured = synthetic_measured(
+        truths, t_points, noise_std, seed, name=f"target_{seed}", packing_std=packing_std, runout=runout
+    )
     t0 = time.perf_counter()
-    result = inverse_design(simulator, start, measured, metadata, training_attrs, start_packing_std=packing_std,
-                            runout=runout, **inverse_kwargs)
+    result = inverse_design(
+        simulator,
+        start,
+        measured,
+        metadata,
+        training_attrs,
+        start_packing_std=packing_std,
+        runout=runout,
+        **inverse_kwargs,
+    )
     seconds = time.perf_counter() - t0
     truth_values = [float(truths[0].attrs[n]) for n in result.names]
     parameters = result.posterior["parameters"]
     inside = [p["low"] <= v <= p["high"] for p, v in zip(parameters, truth_values)]
     mu_error = abs(parameters[0]["value"] - truth_values[0])
-    row = {"target": measured.name, "truth": truth_values, "estimate": [p["value"] for p in parameters],
-           "interval": [[p["low"], p["high"]] for p in parameters],
-           "identifiable": [p["identifiable"] for p in parameters], "inside": inside,
-           "mu_error": mu_error, "mu_within": bool(mu_error <= mu_tolerance), "objective": result.best_value,
-           "start_objective": result.starts[0].iterates[0][1], "packings": len(truths),
-           "packing_std": None if packing_std is None else np.broadcast_to(packing_std, measured.runout.shape).tolist(),
-           "measured": measured.runout.tolist(), "measured_std": measured.runout_std.tolist(),
-           "t_over_tstar": measured.t_over_tstar.tolist(), "seconds": seconds, "online_s": result.seconds["online"],
-           "n_batches": result.n_batches}
-    log.info("%s: truth %s, estimate %s, mu error %.3f, inside %s", measured.name, truth_values, row["estimate"],
-             mu_error, inside)
+    row = {
+        "target": measured.name,
+        "truth": truth_values,
+        "estimate": [p["value"] for p in parameters],
+        "interval": [[p["low"], p["high"]] for p in parameters],
+        "identifiable": [p["identifiable"] for p in parameters],
+        "inside": inside,
+        "mu_error": mu_error,
+        "mu_within": bool(mu_error <= mu_tolerance),
+        "objective": result.best_value,
+        "start_objective": result.starts[0].iterates[0][1],
+        "packings": len(truths),
+        "packing_std": None if packing_std is None else np.broadcast_to(packing_std, measured.runout.shape).tolist(),
+        "measured": measured.runout.tolist(),
+        "measured_std": measured.runout_std.tolist(),
+        "t_over_tstar": measured.t_over_tstar.tolist(),
+        "seconds": seconds,
+        "online_s": result.seconds["online"],
+        "n_batches": result.n_batches,
+    }
+    log.info(
+        "%s: truth %s, estimate %s, mu error %.3f, inside %s",
+        measured.name,
+        truth_values,
+        row["estimate"],
+        mu_error,
+        inside,
+    )
     return row
 
 
@@ -136,10 +193,16 @@ def recovery_summary(rows: list[dict], mu_tolerance: float = 0.03) -> dict:
     n = len(rows)
     within = sum(r["mu_within"] for r in rows)
     inside = sum(all(r["inside"]) for r in rows)
-    return {"n_cases": n, "mu_tolerance": mu_tolerance, "mu_within": within, "truth_inside_95": inside,
-            "mu_error_mean": float(np.mean([r["mu_error"] for r in rows])) if rows else float("nan"),
-            "mu_error_max": float(np.max([r["mu_error"] for r in rows])) if rows else float("nan"),
-            "passes": bool(n and within == n and inside >= int(np.ceil(0.8 * n))), "cases": rows}
+    return {
+        "n_cases": n,
+        "mu_tolerance": mu_tolerance,
+        "mu_within": within,
+        "truth_inside_95": inside,
+        "mu_error_mean": float(np.mean([r["mu_error"] for r in rows])) if rows else float("nan"),
+        "mu_error_max": float(np.max([r["mu_error"] for r in rows])) if rows else float("nan"),
+        "passes": bool(n and within == n and inside >= int(np.ceil(0.8 * n))),
+        "cases": rows,
+    }
 
 
 def plot_recovery(summary: dict, path, title: str = "") -> None:
@@ -165,15 +228,19 @@ def plot_recovery(summary: dict, path, title: str = "") -> None:
         ax.set(xlabel=f"true {name}", ylabel=f"recovered {name}", title=name)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-    fig.suptitle(title or f"parameter recovery: mu within {summary['mu_tolerance']:g} in {summary['mu_within']} of "
-                 f"{summary['n_cases']}, truth inside 95% in {summary['truth_inside_95']}", fontsize=9)
+    fig.suptitle(
+        title
+        or f"parameter recovery: mu within {summary['mu_tolerance']:g} in {summary['mu_within']} of "
+        f"{summary['n_cases']}, truth inside 95% in {summary['truth_inside_95']}",
+        fontsize=9,
+    )
     fig.tight_layout()
     save_figure(fig, path)
 
 
 PAPER_TIMES = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5)
-TRUTH_SEED_OFFSET = 20_000      # packing seeds of the targets, far from the datasets' own
-PACKING_SEED_STRIDE = 100       # target k's packings: seeds TRUTH_SEED_OFFSET + 100 k + j
+TRUTH_SEED_OFFSET = 20_000  # packing seeds of the targets, far from the datasets' own
+PACKING_SEED_STRIDE = 100  # target k's packings: seeds TRUTH_SEED_OFFSET + 100 k + j
 # Packings averaged per target: benchmarks/recovery_feasibility.py finds the best reachable 95%
 # half-width of mu at about 0.21/0.16/0.26/0.32 (mu ~ 0.375/0.525/0.675/0.825) from one packing and
 # 0.12/0.10/0.17/0.19 from 4; more packings gain slowly (sqrt k) and cost a DEM run each.
@@ -188,10 +255,21 @@ def observation_times(duration_over_tstar: float, times=PAPER_TIMES) -> np.ndarr
     return kept
 
 
-def recovery_study(simulator, metadata, n_cases: int = 5, noise_std: float = 0.05, model_error_std=None,
-                   seed: int = 0, mu_tolerance: float = 0.03, start=None, bounds=None,
-                   packings: int = PACKINGS_PER_TARGET, runout: RunoutMethod | None = None,
-                   dem_config: dict | None = None, **inverse_kwargs) -> dict:
+def recovery_study(
+    simulator,
+    metadata,
+    n_cases: int = 5,
+    noise_std: float = 0.05,
+    model_error_std=None,
+    seed: int = 0,
+    mu_tolerance: float = 0.03,
+    start=None,
+    bounds=None,
+    packings: int = PACKINGS_PER_TARGET,
+    runout: RunoutMethod | None = None,
+    dem_config: dict | None = None,
+    **inverse_kwargs,
+) -> dict:
     """Recover n_cases synthetic DEM targets of the GNS dataset's own column, each the mean of
     `packings` DEM runs; returns the summary (recovery_summary plus dataset, t/t* points, noise,
     packing scatter and model error). bounds: as calibration.inverse.design_bounds (None: the
@@ -208,28 +286,72 @@ def recovery_study(simulator, metadata, n_cases: int = 5, noise_std: float = 0.0
     t_points = observation_times(float(reference.get("duration_over_tstar", 4.0)))
     start = start or PAPER_START
     bounds = design_bounds(bounds, list(DESIGN_NAMES), metadata["parameter_ranges"])
-    log.info("recovery on %s: %d targets of %d packings, t/t* %s, noise %.3g, GNS runout error %s", metadata["name"],
-             n_cases, packings, t_points.tolist(), noise_std, model_error_std)
-    start_run = simulate_case(case_like(reference, *start, seed=TRUTH_SEED_OFFSET - 1, name="recovery_start"),
-                              dem_config)
+    log.info(
+        "recovery on %s: %d targets of %d packings, t/t* %s, noise %.3g, GNS runout error %s",
+        metadata["name"],
+        n_cases,
+        packings,
+        t_points.tolist(),
+        noise_std,
+        model_error_std,
+    )
+    start_run = simulate_case(
+        case_like(reference, *start, seed=TRUTH_SEED_OFFSET - 1, name="recovery_start"), dem_config
+    )
     targets = recovery_targets(trained, n_cases, bounds, seed)
     truths = []
     for k, (mu, e) in enumerate(targets):
-        truths.append([simulate_case(case_like(reference, float(mu), float(e),
-                                               seed=TRUTH_SEED_OFFSET + PACKING_SEED_STRIDE * k + j,
-                                               name=f"target_{k}_packing_{j}"), dem_config) for j in range(packings)])
+        truths.append(
+            [
+                simulate_case(
+                    case_like(
+                        reference,
+                        float(mu),
+                        float(e),
+                        seed=TRUTH_SEED_OFFSET + PACKING_SEED_STRIDE * k + j,
+                        name=f"target_{k}_packing_{j}",
+                    ),
+                    dem_config,
+                )
+                for j in range(packings)
+            ]
+        )
         log.info("target %d/%d: %d DEM packings run", k + 1, n_cases, packings)
     runout = RunoutMethod.from_config(runout)
     packing_std, packing_dof = packing_scatter([[runout_at(t, t_points, runout) for t in group] for group in truths])
     log.info("packing scatter of L* (pooled, %d dof): %s", packing_dof, np.round(packing_std, 3).tolist())
     rows = []
     for k, group in enumerate(truths):
-        rows.append(recover_case(simulator, metadata, trained, start_run, group, t_points, noise_std, seed + k,
-                                 mu_tolerance, packing_std=packing_std, bounds=bounds, first_start=start,
-                                 model_error_std=model_error_std, runout=runout, **inverse_kwargs))
+        rows.append(
+            recover_case(
+                simulator,
+                metadata,
+                trained,
+                start_run,
+                group,
+                t_points,
+                noise_std,
+                seed + k,
+                mu_tolerance,
+                packing_std=packing_std,
+                bounds=bounds,
+                first_start=start,
+                model_error_std=model_error_std,
+                runout=runout,
+                **inverse_kwargs,
+            )
+        )
         log.info("target %d/%d done", k + 1, n_cases)
     summary = recovery_summary(rows, mu_tolerance)
-    summary.update(dataset=metadata["name"], t_over_tstar=t_points.tolist(), noise_std=noise_std, packings=packings,
-                   packing_std=packing_std.tolist(), packing_dof=packing_dof,
-                   model_error_std=model_error_std, bounds=[list(b) for b in bounds], runout=runout.to_config())
+    summary.update(
+        dataset=metadata["name"],
+        t_over_tstar=t_points.tolist(),
+        noise_std=noise_std,
+        packings=packings,
+        packing_std=packing_std.tolist(),
+        packing_dof=packing_dof,
+        model_error_std=model_error_std,
+        bounds=[list(b) for b in bounds],
+        runout=runout.to_config(),
+    )
     return summary

@@ -19,6 +19,7 @@ runs): chi^2 against the noise, grouped by time phase (the paper's free-fall t/t
 1-2.5, stopping > 2.5), column and deposit region, a runs test on the signs; said in plain words
 (and drawn by calibration/diagnosis_report.py).
 """
+
 from __future__ import annotations
 
 import math
@@ -33,10 +34,12 @@ from calibration.measured import MeasuredColumn
 from calibration.observables import Observables
 
 # The paper's three phases of a collapse (Jiang et al. 2024, section 4.1).
-PHASES = (("free-fall phase (t/t* <= 1)", 0.0, 1.0),
-          ("spreading phase (1 < t/t* <= 2.5)", 1.0, 2.5),
-          ("stopping phase (t/t* > 2.5)", 2.5, math.inf))
-BIAS_Z = 2.0                 # |sum of z| / sqrt(n) above this: a group's residuals are biased
+PHASES = (
+    ("free-fall phase (t/t* <= 1)", 0.0, 1.0),
+    ("spreading phase (1 < t/t* <= 2.5)", 1.0, 2.5),
+    ("stopping phase (t/t* > 2.5)", 2.5, math.inf),
+)
+BIAS_Z = 2.0  # |sum of z| / sqrt(n) above this: a group's residuals are biased
 
 
 class DiagnosisError(ValueError):
@@ -54,11 +57,17 @@ class NoiseModel:
 
     @property
     def total(self) -> np.ndarray:
-        return np.sqrt(self.measurement ** 2 + self.packing ** 2)
+        return np.sqrt(self.measurement**2 + self.packing**2)
 
 
-def noise_model(observables: Observables, library: Library, runout_noise=None, profile_noise=None,
-                assumed_runout_noise: float = 0.1, assumed_profile_noise: float = 1e-3):
+def noise_model(
+    observables: Observables,
+    library: Library,
+    runout_noise=None,
+    profile_noise=None,
+    assumed_runout_noise: float = 0.1,
+    assumed_profile_noise: float = 1e-3,
+):
     """(NoiseModel, warnings [str]).
 
     Runout noise: the file's std where given, else `runout_noise` (std of L*), else
@@ -66,12 +75,17 @@ def noise_model(observables: Observables, library: Library, runout_noise=None, p
     `assumed_profile_noise` with a warning (the CSV reader keeps no profile std).
     """
     notes = []
-    for value, what in ((runout_noise, "runout_noise"), (profile_noise, "profile_noise"),
-                        (assumed_runout_noise, "assumed_runout_noise"),
-                        (assumed_profile_noise, "assumed_profile_noise")):
+    for value, what in (
+        (runout_noise, "runout_noise"),
+        (profile_noise, "profile_noise"),
+        (assumed_runout_noise, "assumed_runout_noise"),
+        (assumed_profile_noise, "assumed_profile_noise"),
+    ):
         if value is not None and not (math.isfinite(value) and value > 0):
-            raise DiagnosisError(f"{what} = {value}: a noise level must be a positive standard deviation "
-                                 "(zero would claim an exact measurement and make any misfit 'decisive')")
+            raise DiagnosisError(
+                f"{what} = {value}: a noise level must be a positive standard deviation "
+                "(zero would claim an exact measurement and make any misfit 'decisive')"
+            )
     stated = observables.measured_std.copy()
     kind = observables.kind
     sources = set()
@@ -86,8 +100,10 @@ def noise_model(observables: Observables, library: Library, runout_noise=None, p
         else:
             stated[rows] = assumed_runout_noise
             sources.add(f"runout std {assumed_runout_noise:g} ASSUMED")
-            notes.append(f"column {c.name!r} ({c.source}) states no runout noise level; assumed std "
-                         f"{assumed_runout_noise:g} L* - the verdict depends on this assumption")
+            notes.append(
+                f"column {c.name!r} ({c.source}) states no runout noise level; assumed std "
+                f"{assumed_runout_noise:g} L* - the verdict depends on this assumption"
+            )
     profile_rows = kind == "profile"
     if profile_rows.any():
         if profile_noise is not None:
@@ -100,8 +116,9 @@ def noise_model(observables: Observables, library: Library, runout_noise=None, p
     if np.any(~np.isfinite(stated)) or np.any(stated <= 0):
         raise DiagnosisError("measurement noise: a noise level must be a positive standard deviation")
     packing = library.packing_std()
-    return NoiseModel(stated, packing, "; ".join(sorted(sources)) + "; plus packing scatter from "
-                      "replicate DEM runs"), notes
+    return NoiseModel(
+        stated, packing, "; ".join(sorted(sources)) + "; plus packing scatter from replicate DEM runs"
+    ), notes
 
 
 # -- input checks ------------------------------------------------------------------------------------
@@ -110,11 +127,15 @@ def check_data(observables: Observables, library: Library, models, noise: NoiseM
     largest = max(m.n_parameters for m in models)
     for c in observables.columns:
         if len(c.t_over_tstar) < 3:
-            raise DiagnosisError(f"column {c.name!r} ({c.source}): {len(c.t_over_tstar)} runout point(s); the "
-                                 "diagnosis needs at least 3 per column (a curve, not a point)")
+            raise DiagnosisError(
+                f"column {c.name!r} ({c.source}): {len(c.t_over_tstar)} runout point(s); the "
+                "diagnosis needs at least 3 per column (a curve, not a point)"
+            )
     if observables.size < largest + 3:
-        raise DiagnosisError(f"{observables.size} measured values for models of up to {largest} parameters: "
-                             "too few to compare models (need at least parameters + 3)")
+        raise DiagnosisError(
+            f"{observables.size} measured values for models of up to {largest} parameters: "
+            "too few to compare models (need at least parameters + 3)"
+        )
     # Units. A runout given in metres (L - L_i = L* L_i) is far below every base-model run (which
     # always collapses), grows like a runout, and divided by L_i becomes a plausible L*. (A
     # cohesive column that stands has an L* near zero too, but it does not grow.) A runout far
@@ -131,30 +152,39 @@ def check_data(observables: Observables, library: Library, models, noise: NoiseM
         peak, lowest = float(target[rows].max()), float(target[rows].min())
         margin = 3 * float(sigma[rows][np.argmax(target[rows])])
         base_peak = base_runs[:, rows].max(axis=1)
-        if (peak < base_peak.min() - margin and peak - lowest > 0.5 * peak
-                and base_peak.min() / 3 <= peak / c.L_i <= 3 * base_peak.max()):
+        if (
+            peak < base_peak.min() - margin
+            and peak - lowest > 0.5 * peak
+            and base_peak.min() / 3 <= peak / c.L_i <= 3 * base_peak.max()
+        ):
             metres_like.setdefault(c.source, []).append(
                 f"{c.name!r} ({c.source}) peaks at L* = {peak:g}, every base-model run at {base_peak.min():.3g} "
-                f"to {base_peak.max():.3g}; divided by L_i = {c.L_i:g} m it would be {peak / c.L_i:.3g}")
+                f"to {base_peak.max():.3g}; divided by L_i = {c.L_i:g} m it would be {peak / c.L_i:.3g}"
+            )
         elif peak > observed[:, rows].max() + margin:
-            wrong.append(f"{c.name!r} ({c.source}) peaks at L* = {peak:g}, above every run of every candidate "
-                         f"model (at most {observed[:, rows].max():.3g}): check the units of L*")
+            wrong.append(
+                f"{c.name!r} ({c.source}) peaks at L* = {peak:g}, above every run of every candidate "
+                f"model (at most {observed[:, rows].max():.3g}): check the units of L*"
+            )
     notes = []
     for source, why in metres_like.items():
         n_columns = sum(c.source == source for c in observables.columns)
         if len(why) == n_columns:
             wrong.append("; ".join(why) + ": it looks like metres (L - L_i), not L* = (L - L_i)/L_i")
         else:
-            notes += [f"{w}: read as a column that barely moved (other columns of {source} are not that low)"
-                      for w in why]
+            notes += [
+                f"{w}: read as a column that barely moved (other columns of {source} are not that low)" for w in why
+            ]
     if wrong:
         raise DiagnosisError("measured runout the simulator cannot have produced: " + "; ".join(wrong))
     low, high = observed.min(axis=0), observed.max(axis=0)
     outside = (target < low - 3 * sigma) | (target > high + 3 * sigma)
     if np.any(outside):
         k = np.flatnonzero(outside)
-        notes.append(f"{len(k)} measured value(s) lie outside the range of every simulated model "
-                     f"({[observables.labels[j] for j in k[:4]]}...): no candidate can reach them")
+        notes.append(
+            f"{len(k)} measured value(s) lie outside the range of every simulated model "
+            f"({[observables.labels[j] for j in k[:4]]}...): no candidate can reach them"
+        )
     return notes
 
 
@@ -173,8 +203,10 @@ def held_out_folds(observables: Observables) -> list[Fold]:
     cover a single phase. The deposit profile, if any, stays in the fit of a one-column fold."""
     index, kind, x = observables.column_index, observables.kind, observables.x
     if len(observables.columns) > 1:
-        return [Fold(f"column {c.name} (a = {c.aspect_ratio:g})", index == j, (j,))
-                for j, c in enumerate(observables.columns)]
+        return [
+            Fold(f"column {c.name} (a = {c.aspect_ratio:g})", index == j, (j,))
+            for j, c in enumerate(observables.columns)
+        ]
     runout = kind == "runout"
     folds = []
     for label, low, high in PHASES:
@@ -201,7 +233,7 @@ def runs_test(signs) -> float:
         return float(2.0 ** (1 - n))
     runs = 1 + int(np.sum(signs[1:] != signs[:-1]))
     mean = 2.0 * n_plus * n_minus / n + 1
-    variance = 2.0 * n_plus * n_minus * (2.0 * n_plus * n_minus - n) / (n ** 2 * (n - 1))
+    variance = 2.0 * n_plus * n_minus * (2.0 * n_plus * n_minus - n) / (n**2 * (n - 1))
     return float(norm.cdf((runs - mean) / math.sqrt(variance))) if variance > 0 else 1.0
 
 
@@ -210,7 +242,7 @@ def residual_structure(observables: Observables, predicted, sigma, n_parameters:
     target = observables.measured
     residual = predicted - target
     z = residual / sigma
-    chi2 = float(np.sum(z ** 2))
+    chi2 = float(np.sum(z**2))
     dof = max(observables.size - n_parameters, 1)
     p_value = float(chi2_distribution.sf(chi2, dof))
     groups, runs = [], []
@@ -218,41 +250,67 @@ def residual_structure(observables: Observables, predicted, sigma, n_parameters:
         in_column = observables.column_index == j
         runout = in_column & (observables.kind == "runout")
         for label, low, high in PHASES:
-            rows = runout & (observables.x > low) & (observables.x <= high) if low > 0 else \
-                runout & (observables.x <= high)
+            rows = (
+                runout & (observables.x > low) & (observables.x <= high)
+                if low > 0
+                else runout & (observables.x <= high)
+            )
             if rows.any():
                 groups.append(_group(c, "runout", label, rows, residual, z))
         profile = in_column & (observables.kind == "profile")
         if profile.any():
             near = profile & (observables.x <= c.L_i)
             far = profile & (observables.x > c.L_i)
-            for rows, label in ((near, "deposit behind the gate (x <= L_i)"), (far, "deposit beyond the gate (x > L_i)")):
+            for rows, label in (
+                (near, "deposit behind the gate (x <= L_i)"),
+                (far, "deposit beyond the gate (x > L_i)"),
+            ):
                 if rows.any():
                     groups.append(_group(c, "profile", label, rows, residual, z))
         runs.append({"column": c.name, "p_value": runs_test(np.sign(residual[runout]))})
     words = _plain_words(observables, groups, runs, chi2, dof, p_value)
-    return {"chi2": chi2, "dof": dof, "p_value": p_value, "groups": groups, "runs_test": runs,
-            "residual": residual.tolist(), "z": z.tolist(), "summary": words}
+    return {
+        "chi2": chi2,
+        "dof": dof,
+        "p_value": p_value,
+        "groups": groups,
+        "runs_test": runs,
+        "residual": residual.tolist(),
+        "z": z.tolist(),
+        "summary": words,
+    }
 
 
 def _group(column: MeasuredColumn, kind: str, label: str, rows, residual, z) -> dict:
     n = int(rows.sum())
     bias_z = float(np.sum(z[rows]) / math.sqrt(n))
-    return {"column": column.name, "aspect_ratio": column.aspect_ratio, "kind": kind, "group": label, "n": n,
-            "mean_residual": float(np.mean(residual[rows])), "chi2": float(np.sum(z[rows] ** 2)),
-            "p_value": float(chi2_distribution.sf(np.sum(z[rows] ** 2), n)), "bias_z": bias_z,
-            "biased": abs(bias_z) > BIAS_Z}
+    return {
+        "column": column.name,
+        "aspect_ratio": column.aspect_ratio,
+        "kind": kind,
+        "group": label,
+        "n": n,
+        "mean_residual": float(np.mean(residual[rows])),
+        "chi2": float(np.sum(z[rows] ** 2)),
+        "p_value": float(chi2_distribution.sf(np.sum(z[rows] ** 2), n)),
+        "bias_z": bias_z,
+        "biased": abs(bias_z) > BIAS_Z,
+    }
 
 
 def _plain_words(observables, groups, runs, chi2, dof, p_value) -> str:
     """Sentences such as "runout overshoots in the stopping phase in every column, more for a = 2"."""
     sentences = []
     verdict = "within" if p_value >= 0.01 else "beyond"
-    sentences.append(f"The residuals of the calibrated model are {verdict} the stated noise "
-                     f"(chi^2 = {chi2:.1f} for {dof} degrees of freedom, p = {p_value:.2g}).")
+    sentences.append(
+        f"The residuals of the calibrated model are {verdict} the stated noise "
+        f"(chi^2 = {chi2:.1f} for {dof} degrees of freedom, p = {p_value:.2g})."
+    )
     n_columns = len(observables.columns)
-    labels = [label for label, _, _ in PHASES] + ["deposit behind the gate (x <= L_i)",
-                                                  "deposit beyond the gate (x > L_i)"]
+    labels = [label for label, _, _ in PHASES] + [
+        "deposit behind the gate (x <= L_i)",
+        "deposit beyond the gate (x > L_i)",
+    ]
     for label in labels:
         rows = [g for g in groups if g["group"] == label]
         biased = [g for g in rows if g["biased"]]
@@ -266,10 +324,15 @@ def _plain_words(observables, groups, runs, chi2, dof, p_value) -> str:
         where = label.split(" (")[0] if is_runout else label
         if len(signs) == 1:
             word = words[0] if signs.pop() > 0 else words[1]
-            scope = "in every column" if len(biased) == n_columns and n_columns > 1 else \
-                "in column " + ", ".join(f"{g['column']}" for g in biased)
-            detail = ", ".join(f"a = {g['aspect_ratio']:g}: {unit(g['mean_residual'])}" for g in
-                               sorted(biased, key=lambda g: g["aspect_ratio"]))
+            scope = (
+                "in every column"
+                if len(biased) == n_columns and n_columns > 1
+                else "in column " + ", ".join(f"{g['column']}" for g in biased)
+            )
+            detail = ", ".join(
+                f"a = {g['aspect_ratio']:g}: {unit(g['mean_residual'])}"
+                for g in sorted(biased, key=lambda g: g["aspect_ratio"])
+            )
             if n_columns == 1:
                 scope, detail = "", f"by {unit(biased[0]['mean_residual'])} on average"
             trend = ""
@@ -286,8 +349,11 @@ def _plain_words(observables, groups, runs, chi2, dof, p_value) -> str:
             sentences.append(f"In the {where} {subject} misses with opposite signs in different columns ({detail}).")
     structured = [r for r in runs if r["p_value"] < 0.05]
     if structured:
-        sentences.append("The runout residuals come in long runs of one sign (runs test p < 0.05) in "
-                         + ", ".join(r["column"] for r in structured) + ": a systematic, not random, misfit.")
+        sentences.append(
+            "The runout residuals come in long runs of one sign (runs test p < 0.05) in "
+            + ", ".join(r["column"] for r in structured)
+            + ": a systematic, not random, misfit."
+        )
     if len(sentences) == 1 and p_value < 0.01:
         sentences.append("No single phase or deposit region stands out: the misfit is spread over the curve.")
     return " ".join(sentences)

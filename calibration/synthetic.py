@@ -6,6 +6,7 @@ seed that the diagnosis' own runs never use, observed like a measurement (runout
 deposit height at x points) and perturbed by Gaussian measurement noise of a stated std. The
 diagnosis is then given the data and the noise level, never the truth.
 """
+
 from __future__ import annotations
 
 import csv
@@ -29,7 +30,7 @@ SYNTHETIC_PROFILE_X_OVER_L_I = (0.25, 0.75, 1.25, 2.0, 3.0)
 # Inner part of the base box the hidden (mu, e) are drawn from: away from the edges, so that a
 # base-model truth is inside what the calibration can reach.
 TRUTH_BOX = ((0.4, 0.8), (0.4, 0.8))
-SEED_OFFSET = 10_000     # hidden packing seeds start here, far from the library's packing seeds
+SEED_OFFSET = 10_000  # hidden packing seeds start here, far from the library's packing seeds
 
 
 @dataclass(frozen=True)
@@ -51,24 +52,52 @@ def draw_truth(rng: np.random.Generator, mechanism: Mechanism | None) -> HiddenT
     """A random truth with `mechanism` (None: the null case) at a magnitude in its hidden_range."""
     friction, restitution = (float(rng.uniform(*box)) for box in TRUTH_BOX)
     magnitude = None if mechanism is None else float(rng.uniform(*mechanism.hidden_range))
-    return HiddenTruth(friction, restitution, None if mechanism is None else mechanism.name, magnitude,
-                       SEED_OFFSET + int(rng.integers(0, 10_000)))
+    return HiddenTruth(
+        friction,
+        restitution,
+        None if mechanism is None else mechanism.name,
+        magnitude,
+        SEED_OFFSET + int(rng.integers(0, 10_000)),
+    )
 
 
-def synthetic_columns(material: str = "quartz", L_i: float = 0.02, aspect_ratios=(1.0, 2.0),
-                 times=SYNTHETIC_TIMES, profile_x_over_L_i=SYNTHETIC_PROFILE_X_OVER_L_I) -> list[MeasuredColumn]:
+def synthetic_columns(
+    material: str = "quartz",
+    L_i: float = 0.02,
+    aspect_ratios=(1.0, 2.0),
+    times=SYNTHETIC_TIMES,
+    profile_x_over_L_i=SYNTHETIC_PROFILE_X_OVER_L_I,
+) -> list[MeasuredColumn]:
     """Columns to be "measured" (values still zero): one per aspect ratio."""
     times = np.asarray(times, float)
     profile_x = np.asarray(profile_x_over_L_i, float) * L_i
-    return [MeasuredColumn(name=f"{material}_a{a:g}", material=material, aspect_ratio=float(a), L_i=L_i,
-                           t_over_tstar=times, runout=np.zeros_like(times), runout_std=None,
-                           profile_x=profile_x if len(profile_x) else None,
-                           profile_height=np.zeros_like(profile_x) if len(profile_x) else None,
-                           source="synthetic") for a in aspect_ratios]
+    return [
+        MeasuredColumn(
+            name=f"{material}_a{a:g}",
+            material=material,
+            aspect_ratio=float(a),
+            L_i=L_i,
+            t_over_tstar=times,
+            runout=np.zeros_like(times),
+            runout_std=None,
+            profile_x=profile_x if len(profile_x) else None,
+            profile_height=np.zeros_like(profile_x) if len(profile_x) else None,
+            source="synthetic",
+        )
+        for a in aspect_ratios
+    ]
 
 
-def synthetic_measurement(truth: HiddenTruth, columns, mechanisms, settings: SimulationSettings,
-                          runout_noise: float, profile_noise: float, rng: np.random.Generator, runout=None):
+def synthetic_measurement(
+    truth: HiddenTruth,
+    columns,
+    mechanisms,
+    settings: SimulationSettings,
+    runout_noise: float,
+    profile_noise: float,
+    rng: np.random.Generator,
+    runout=None,
+):
     """The columns "measured" under `truth`: DEM observables plus Gaussian noise; runout: how its
     L* is read (dem.runout.RunoutMethod; None: the default).
 
@@ -83,15 +112,16 @@ def synthetic_measurement(truth: HiddenTruth, columns, mechanisms, settings: Sim
     # the truth settles its own packing with its own contact law, as a real column would
     trajectories = [simulate_case(model.case(c, theta, settings, truth.seed), BUILTIN) for c in observables.columns]
     clean = observables.from_trajectories(trajectories)
-    noisy = clean + rng.normal(0.0, 1.0, clean.shape) * np.where(observables.kind == "runout", runout_noise,
-                                                                  profile_noise)
+    noisy = clean + rng.normal(0.0, 1.0, clean.shape) * np.where(
+        observables.kind == "runout", runout_noise, profile_noise
+    )
     out, k = [], 0
     for c in observables.columns:
         n_t = len(c.t_over_tstar)
-        runout, k = noisy[k:k + n_t], k + n_t
+        runout, k = noisy[k : k + n_t], k + n_t
         profile = None
         if c.profile_x is not None:
-            profile, k = np.maximum(noisy[k:k + len(c.profile_x)], 0.0), k + len(c.profile_x)
+            profile, k = np.maximum(noisy[k : k + len(c.profile_x)], 0.0), k + len(c.profile_x)
         out.append(replace(c, runout=runout, runout_std=np.full(n_t, runout_noise), profile_height=profile))
     return out, clean
 
@@ -107,12 +137,23 @@ def write_measured_csv(columns, path, comment: str = "") -> None:
             for c in columns:
                 std = c.runout_std if c.runout_std is not None else [None] * len(c.runout)
                 for t, value, s in zip(c.t_over_tstar, c.runout, std):
-                    writer.writerow([c.name, c.material, c.aspect_ratio, c.L_i, "runout", f"{t:g}", f"{value:.6g}",
-                                     "" if s is None else f"{s:.6g}"])
+                    writer.writerow(
+                        [
+                            c.name,
+                            c.material,
+                            c.aspect_ratio,
+                            c.L_i,
+                            "runout",
+                            f"{t:g}",
+                            f"{value:.6g}",
+                            "" if s is None else f"{s:.6g}",
+                        ]
+                    )
                 if c.profile_x is not None:
                     for x, height in zip(c.profile_x, c.profile_height):
-                        writer.writerow([c.name, c.material, c.aspect_ratio, c.L_i, "profile", f"{x:.6g}",
-                                         f"{height:.6g}", ""])
+                        writer.writerow(
+                            [c.name, c.material, c.aspect_ratio, c.L_i, "profile", f"{x:.6g}", f"{height:.6g}", ""]
+                        )
 
 
 def evidence_margins(result: dict) -> dict:
@@ -130,17 +171,30 @@ def evidence_margins(result: dict) -> dict:
     base_final = result["base"]["emulator_final"]["bic"]
     ranked = sorted(scored, key=lambda n: scored[n]["bic"])
     best = scored[ranked[0]]
-    return {"delta_bic_dem": {n: round(base_dem["bic"] - d["bic"], 2) for n, d in scored.items()},
-            "delta_bic_emulator": {n: round(base_final - c["emulator_final"]["bic"], 2)
-                                   for n, c in result["candidates"].items()},
-            "margins": {"dem_best": ranked[0], "bic_vs_base": round(base_dem["bic"] - best["bic"], 2),
-                        "bic_vs_runner_up": (round(scored[ranked[1]]["bic"] - best["bic"], 2)
-                                             if len(ranked) > 1 else None),
-                        "heldout_gain": round(1 - best["heldout_chi2"] / base_dem["heldout_chi2"], 3)}}
+    return {
+        "delta_bic_dem": {n: round(base_dem["bic"] - d["bic"], 2) for n, d in scored.items()},
+        "delta_bic_emulator": {
+            n: round(base_final - c["emulator_final"]["bic"], 2) for n, c in result["candidates"].items()
+        },
+        "margins": {
+            "dem_best": ranked[0],
+            "bic_vs_base": round(base_dem["bic"] - best["bic"], 2),
+            "bic_vs_runner_up": (round(scored[ranked[1]]["bic"] - best["bic"], 2) if len(ranked) > 1 else None),
+            "heldout_gain": round(1 - best["heldout_chi2"] / base_dem["heldout_chi2"], 3),
+        },
+    }
 
 
-def diagnose_hidden_cases(truths, settings, columns=None, runout_noise: float = 0.05,
-                          profile_noise: float = 0.5e-3, seed: int = 0, library=None, progress=None) -> dict:
+def diagnose_hidden_cases(
+    truths,
+    settings,
+    columns=None,
+    runout_noise: float = 0.05,
+    profile_noise: float = 0.5e-3,
+    seed: int = 0,
+    library=None,
+    progress=None,
+) -> dict:
     """Generate data for each HiddenTruth, diagnose it without the truth, and score the verdicts.
 
     settings: a calibration.diagnosis.DiagnosisSettings (its profile_noise is set to the stated
@@ -148,8 +202,9 @@ def diagnose_hidden_cases(truths, settings, columns=None, runout_noise: float = 
     columns to measure (default `synthetic_columns()`); library: their design runs (built here
     when None). Returns {"cases": [...], "hit_rate", "null_correct", "library_seconds"}.
     """
-    from calibration.diagnosis import diagnose  # here: diagnosis does not depend on this module
     from calibration.design_runs import DEMRunner
+    from calibration.diagnosis import diagnose  # here: diagnosis does not depend on this module
+
     columns = synthetic_columns() if columns is None else columns
     observables = Observables(columns, settings.runout)
     settings = replace(settings, profile_noise=profile_noise)
@@ -160,8 +215,9 @@ def diagnose_hidden_cases(truths, settings, columns=None, runout_noise: float = 
     rng = np.random.default_rng(seed)
     cases = []
     for k, truth in enumerate(truths):
-        data, _ = synthetic_measurement(truth, columns, mechanisms, settings.simulation, runout_noise, profile_noise, rng,
-                                        runout=settings.runout)
+        data, _ = synthetic_measurement(
+            truth, columns, mechanisms, settings.simulation, runout_noise, profile_noise, rng, runout=settings.runout
+        )
         result = diagnose(data, settings, library=library, runner=runner, name=f"hidden_{k}")
         expected = truth.mechanism or "none"
         fitted = None
@@ -169,18 +225,32 @@ def diagnose_hidden_cases(truths, settings, columns=None, runout_noise: float = 
             evidence = result["candidates"][truth.mechanism]
             fitted = (evidence["dem"] or evidence["emulator"])["parameters"]
         errors = result["errors"]
-        cases.append({"truth": truth.to_dict(), "cause": result["cause"], "hit": result["cause"] == expected,
-                      "checks": result["checks"], "compared_model": errors["compared_model"],
-                      "fit_mse": errors["fit_mse"], "heldout_mse": errors["heldout_mse"],
-                      "fit_chi2": errors["fit_chi2"], "heldout_chi2": errors["heldout_chi2"],
-                      **evidence_margins(result),
-                      "fitted_parameters_of_true_mechanism": fitted, "seconds": result["seconds"],
-                      "result": result})
+        cases.append(
+            {
+                "truth": truth.to_dict(),
+                "cause": result["cause"],
+                "hit": result["cause"] == expected,
+                "checks": result["checks"],
+                "compared_model": errors["compared_model"],
+                "fit_mse": errors["fit_mse"],
+                "heldout_mse": errors["heldout_mse"],
+                "fit_chi2": errors["fit_chi2"],
+                "heldout_chi2": errors["heldout_chi2"],
+                **evidence_margins(result),
+                "fitted_parameters_of_true_mechanism": fitted,
+                "seconds": result["seconds"],
+                "result": result,
+            }
+        )
         if progress is not None:
             progress((k + 1) / len(truths))
     hidden = [c for c in cases if c["truth"]["mechanism"] is not None]
     nulls = [c for c in cases if c["truth"]["mechanism"] is None]
-    return {"cases": cases, "hits": sum(c["hit"] for c in hidden), "n_hidden": len(hidden),
-            "hit_rate": sum(c["hit"] for c in hidden) / len(hidden) if hidden else None,
-            "null_correct": all(c["hit"] for c in nulls) if nulls else None,
-            "library_seconds": float(sum(r.seconds.sum() for r in library.runs.values()))}
+    return {
+        "cases": cases,
+        "hits": sum(c["hit"] for c in hidden),
+        "n_hidden": len(hidden),
+        "hit_rate": sum(c["hit"] for c in hidden) / len(hidden) if hidden else None,
+        "null_correct": all(c["hit"] for c in nulls) if nulls else None,
+        "library_seconds": float(sum(r.seconds.sum() for r in library.runs.values())),
+    }

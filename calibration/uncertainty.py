@@ -9,6 +9,7 @@ sigma^2 = SSE / (K - p) (and said so).
 A parameter the data cannot pin down (its 95% interval is wider than the bounds, or the data hardly
 move with it) is flagged `identifiable = False`: its optimum is then a guess, not a measurement.
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
@@ -21,26 +22,30 @@ Z95 = 1.959963984540054
 @dataclass
 class ParameterInterval:
     name: str
-    value: float          # optimum
-    std: float            # posterior standard deviation
-    low: float            # 95% credible interval, clipped to the bounds
+    value: float  # optimum
+    std: float  # posterior standard deviation
+    low: float  # 95% credible interval, clipped to the bounds
     high: float
     identifiable: bool
-    why: str              # plain words when not identifiable
+    why: str  # plain words when not identifiable
 
 
 @dataclass
 class LaplacePosterior:
     parameters: list[ParameterInterval]
-    covariance: np.ndarray        # [p, p]
-    correlation: np.ndarray       # [p, p]
-    sigma: np.ndarray             # [K] noise std used
-    sigma_source: str             # "measured" or "estimated from residuals"
+    covariance: np.ndarray  # [p, p]
+    correlation: np.ndarray  # [p, p]
+    sigma: np.ndarray  # [K] noise std used
+    sigma_source: str  # "measured" or "estimated from residuals"
 
     def to_dict(self) -> dict:
-        return {"parameters": [asdict(p) for p in self.parameters], "covariance": self.covariance.tolist(),
-                "correlation": self.correlation.tolist(), "sigma": self.sigma.tolist(),
-                "sigma_source": self.sigma_source}
+        return {
+            "parameters": [asdict(p) for p in self.parameters],
+            "covariance": self.covariance.tolist(),
+            "correlation": self.correlation.tolist(),
+            "sigma": self.sigma.tolist(),
+            "sigma_source": self.sigma_source,
+        }
 
 
 def laplace_posterior(names, optimum, jacobian, residuals, bounds, sigma=None) -> LaplacePosterior:
@@ -54,13 +59,15 @@ def laplace_posterior(names, optimum, jacobian, residuals, bounds, sigma=None) -
     optimum = np.asarray(optimum, float)
     n_points, n_params = jacobian.shape
     if residuals.shape != (n_points,) or optimum.shape != (n_params,) or len(names) != n_params:
-        raise ValueError(f"shapes disagree: jacobian {jacobian.shape}, residuals {residuals.shape}, "
-                         f"optimum {optimum.shape}, names {len(names)}")
+        raise ValueError(
+            f"shapes disagree: jacobian {jacobian.shape}, residuals {residuals.shape}, "
+            f"optimum {optimum.shape}, names {len(names)}"
+        )
     if not (np.all(np.isfinite(jacobian)) and np.all(np.isfinite(residuals))):
         raise ValueError("non-finite jacobian or residuals: no posterior")
     if sigma is None:
         dof = max(n_points - n_params, 1)
-        sigma = np.full(n_points, max(np.sqrt(np.sum(residuals ** 2) / dof), 1e-12))
+        sigma = np.full(n_points, max(np.sqrt(np.sum(residuals**2) / dof), 1e-12))
         source = f"estimated from residuals (SSE / (K - p), K = {n_points}, p = {n_params})"
     else:
         sigma = np.broadcast_to(np.asarray(sigma, float), (n_points,)).copy()
@@ -82,12 +89,21 @@ def laplace_posterior(names, optimum, jacobian, residuals, bounds, sigma=None) -
         half = Z95 * std[j]
         why = ""
         if 2 * half > width:
-            why = (f"its 95% interval ({2 * half:.3g} wide) is wider than the bounds ({width:.3g}): "
-                   "the measured runout hardly changes with it")
-        parameters.append(ParameterInterval(
-            name=name, value=float(optimum[j]), std=float(std[j]),
-            low=float(max(low_bound, optimum[j] - half)), high=float(min(high_bound, optimum[j] + half)),
-            identifiable=not why, why=why))
+            why = (
+                f"its 95% interval ({2 * half:.3g} wide) is wider than the bounds ({width:.3g}): "
+                "the measured runout hardly changes with it"
+            )
+        parameters.append(
+            ParameterInterval(
+                name=name,
+                value=float(optimum[j]),
+                std=float(std[j]),
+                low=float(max(low_bound, optimum[j] - half)),
+                high=float(min(high_bound, optimum[j] + half)),
+                identifiable=not why,
+                why=why,
+            )
+        )
     return LaplacePosterior(parameters, covariance, correlation, sigma, source)
 
 

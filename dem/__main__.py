@@ -3,6 +3,7 @@
     python -m dem --material quartz --column-length 0.02 --aspect-ratio 2 --friction 0.5 \
         --restitution 0.65 --size-scale 3 --out results/one_case/case.h5
 """
+
 import argparse
 import logging
 import sys
@@ -27,14 +28,26 @@ def main(argv=None):
     parser.add_argument("--restitution", type=float, default=0.65)
     parser.add_argument("--size-scale", type=float, default=3.0, help="coarse-graining factor on the diameter")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--runout", choices=METHODS, default=RunoutMethod().method,
-                        help="how L* is read off the run (dem.runout; default parameters)")
+    parser.add_argument(
+        "--runout",
+        choices=METHODS,
+        default=RunoutMethod().method,
+        help="how L* is read off the run (dem.runout; default parameters)",
+    )
     parser.add_argument("--out", type=Path, default=Path("results/one_case/case.h5"))
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     try:
-        case = CollapseCase(args.material, args.column_length, args.aspect_ratio, args.friction,
-                            args.restitution, seed=args.seed, size_scale=args.size_scale, name=args.out.stem)
+        case = CollapseCase(
+            args.material,
+            args.column_length,
+            args.aspect_ratio,
+            args.friction,
+            args.restitution,
+            seed=args.seed,
+            size_scale=args.size_scale,
+            name=args.out.stem,
+        )
     except CaseError as exc:
         parser.error(str(exc))
     log.info("case %s: %d grains, dt = %.3g s, t* = %.3g s", case.name, case.n_particles, case.time_step, case.t_star)
@@ -43,8 +56,9 @@ def main(argv=None):
     runout_method = RunoutMethod(args.runout)
     plot_case(traj, args.out.with_suffix(".png"), runout_method)
     t, runout = runout_method.curve(traj)
-    log.info("wrote %s and %s; final L* = %.3f at t/t* = %.2f", args.out, args.out.with_suffix(".png"),
-             runout[-1], t[-1])
+    log.info(
+        "wrote %s and %s; final L* = %.3f at t/t* = %.2f", args.out, args.out.with_suffix(".png"), runout[-1], t[-1]
+    )
     return 0
 
 

@@ -3,6 +3,7 @@
 A crash mid-write leaves the temporary file (removed on error) and never a half-written target
 that a later stage or Snakemake could take as complete.
 """
+
 from __future__ import annotations
 
 import contextlib

@@ -6,6 +6,7 @@ of L_i x H_i grains held against the left wall by a gate at x = L_i, removed at 
 
 Units are SI throughout: metres, kilograms, seconds.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -50,8 +51,10 @@ def get_material(spec) -> Material:
         return spec
     if isinstance(spec, str):
         if spec not in MATERIALS:
-            raise CaseError(f"material: unknown material {spec!r}; known: {sorted(MATERIALS)} "
-                            "(or give a mapping with name, diameter, density, solid_fraction)")
+            raise CaseError(
+                f"material: unknown material {spec!r}; known: {sorted(MATERIALS)} "
+                "(or give a mapping with name, diameter, density, solid_fraction)"
+            )
         return MATERIALS[spec]
     if isinstance(spec, dict):
         missing = {"name", "diameter", "density", "solid_fraction"} - set(spec)
@@ -72,43 +75,60 @@ class CollapseCase:
     """
 
     material: Material
-    column_length: float                 # L_i (m)
-    aspect_ratio: float                  # a = H_i / L_i
-    friction: float                      # mu, particle-particle
-    restitution: float                   # e, particle-particle
-    friction_wall: float | None = None   # mu_w; None: follows `friction` (see wall_friction)
+    column_length: float  # L_i (m)
+    aspect_ratio: float  # a = H_i / L_i
+    friction: float  # mu, particle-particle
+    restitution: float  # e, particle-particle
+    friction_wall: float | None = None  # mu_w; None: follows `friction` (see wall_friction)
     restitution_wall: float | None = None
     seed: int = 0
-    size_scale: float = 1.0              # coarse-graining factor on the grain diameter
-    polydispersity: float = 0.10         # diameters uniform in d (1 +- polydispersity)
-    box_width: float = 0.500             # m
-    box_height: float = 0.350            # m
-    normal_stiffness: float = 1000.0     # kn (N/m)
+    size_scale: float = 1.0  # coarse-graining factor on the grain diameter
+    polydispersity: float = 0.10  # diameters uniform in d (1 +- polydispersity)
+    box_width: float = 0.500  # m
+    box_height: float = 0.350  # m
+    normal_stiffness: float = 1000.0  # kn (N/m)
     tangential_stiffness_ratio: float = 2.0 / 7.0
     tangential_damping_ratio: float = 0.5
     dt_over_contact_time: float = 1.0 / 50.0
     # Candidate mechanisms beyond the paper's model, each off by default (see README):
-    rolling_friction: float = 0.0        # mu_r of a type-C (EPSD2) rolling resistance
-    cohesion_energy: float = 0.0         # w (J/m^2): pull-off force 1.5 pi w R* while in contact
-    friction_base: float | None = None   # floor friction; None: follows wall_friction
-    sidewall_friction: float = 0.0       # mu of the front/back walls of a quasi-2D channel
-    channel_width: float = 0.01          # m, width of that channel (used when sidewall_friction > 0)
-    gate_lift_speed: float = 0.0         # m/s of the gate's lower edge; 0: the gate vanishes at t = 0
-    duration_over_tstar: float = 4.0     # simulated collapse time in units of t*
-    output_interval: float | None = None # s between output frames; None: t* / 25
+    rolling_friction: float = 0.0  # mu_r of a type-C (EPSD2) rolling resistance
+    cohesion_energy: float = 0.0  # w (J/m^2): pull-off force 1.5 pi w R* while in contact
+    friction_base: float | None = None  # floor friction; None: follows wall_friction
+    sidewall_friction: float = 0.0  # mu of the front/back walls of a quasi-2D channel
+    channel_width: float = 0.01  # m, width of that channel (used when sidewall_friction > 0)
+    gate_lift_speed: float = 0.0  # m/s of the gate's lower edge; 0: the gate vanishes at t = 0
+    duration_over_tstar: float = 4.0  # simulated collapse time in units of t*
+    output_interval: float | None = None  # s between output frames; None: t* / 25
     name: str = field(default="", compare=False)
 
     def __post_init__(self):
         object.__setattr__(self, "material", get_material(self.material))
-        positive = ("column_length", "aspect_ratio", "size_scale", "box_width", "box_height",
-                    "normal_stiffness", "tangential_stiffness_ratio", "dt_over_contact_time",
-                    "duration_over_tstar")
+        positive = (
+            "column_length",
+            "aspect_ratio",
+            "size_scale",
+            "box_width",
+            "box_height",
+            "normal_stiffness",
+            "tangential_stiffness_ratio",
+            "dt_over_contact_time",
+            "duration_over_tstar",
+        )
         for key in positive:
             _check_finite(key, getattr(self, key))
             if getattr(self, key) <= 0:
                 raise CaseError(f"{key} must be positive, got {getattr(self, key)}")
-        for key in ("friction", "friction_wall", "friction_base", "tangential_damping_ratio", "polydispersity",
-                    "rolling_friction", "cohesion_energy", "sidewall_friction", "gate_lift_speed"):
+        for key in (
+            "friction",
+            "friction_wall",
+            "friction_base",
+            "tangential_damping_ratio",
+            "polydispersity",
+            "rolling_friction",
+            "cohesion_energy",
+            "sidewall_friction",
+            "gate_lift_speed",
+        ):
             if getattr(self, key) is None:
                 continue
             _check_finite(key, getattr(self, key))
@@ -127,23 +147,33 @@ class CollapseCase:
         if self.polydispersity >= 0.5:
             raise CaseError(f"polydispersity must be below 0.5, got {self.polydispersity}")
         if self.dt_over_contact_time > MAX_DT_OVER_CONTACT_TIME:
-            raise CaseError(f"dt_over_contact_time = {self.dt_over_contact_time} is above the stable bound "
-                            f"{MAX_DT_OVER_CONTACT_TIME} (time step must resolve a contact in >= 10 steps)")
+            raise CaseError(
+                f"dt_over_contact_time = {self.dt_over_contact_time} is above the stable bound "
+                f"{MAX_DT_OVER_CONTACT_TIME} (time step must resolve a contact in >= 10 steps)"
+            )
         if self.output_interval is not None:
             _check_finite("output_interval", self.output_interval)
             if not self.time_step < self.output_interval <= self.t_star * self.duration_over_tstar:
-                raise CaseError(f"output_interval = {self.output_interval} s must exceed the time step "
-                                f"({self.time_step:.3g} s) and not the simulated duration")
+                raise CaseError(
+                    f"output_interval = {self.output_interval} s must exceed the time step "
+                    f"({self.time_step:.3g} s) and not the simulated duration"
+                )
         if not isinstance(self.seed, int) or self.seed < 0:
             raise CaseError(f"seed must be a non-negative integer, got {self.seed!r}")
         if self.column_length > 0.8 * self.box_width:
-            raise CaseError(f"column_length = {self.column_length} m leaves no room to flow in a "
-                            f"{self.box_width} m box (at most 80% of box_width)")
+            raise CaseError(
+                f"column_length = {self.column_length} m leaves no room to flow in a "
+                f"{self.box_width} m box (at most 80% of box_width)"
+            )
         if self.initial_height * FILL_HEIGHT_FACTOR > self.box_height:
-            raise CaseError(f"column of height {self.initial_height:.4g} m (aspect_ratio x column_length) does not "
-                            f"fit the {self.box_height} m box once poured (needs {FILL_HEIGHT_FACTOR} x its height)")
+            raise CaseError(
+                f"column of height {self.initial_height:.4g} m (aspect_ratio x column_length) does not "
+                f"fit the {self.box_height} m box once poured (needs {FILL_HEIGHT_FACTOR} x its height)"
+            )
         if self.column_length < 4 * self.diameter:
-            raise CaseError(f"column_length = {self.column_length} m is under 4 grain diameters ({self.diameter:.3g} m)")
+            raise CaseError(
+                f"column_length = {self.column_length} m is under 4 grain diameters ({self.diameter:.3g} m)"
+            )
 
     # -- resolved wall contact parameters (a wall value left None follows the grain value) -----
     @property
@@ -185,7 +215,7 @@ class CollapseCase:
 
     def sphere_mass(self, diameter: float) -> float:
         """Mass (kg) of a sphere of `diameter`: 2D discs carry sphere mass and inertia."""
-        return self.density * math.pi * diameter ** 3 / 6.0
+        return self.density * math.pi * diameter**3 / 6.0
 
     @property
     def contact_time(self) -> float:
@@ -219,20 +249,27 @@ class CollapseCase:
         solids volume fraction; the settled 2D packing then sets the actual column height.
         """
         volume = self.column_length * self.initial_height * self.diameter
-        return max(1, int(round(self.material.solid_fraction * volume / (math.pi * self.diameter ** 3 / 6.0))))
+        return max(1, int(round(self.material.solid_fraction * volume / (math.pi * self.diameter**3 / 6.0))))
 
     # -- serialisation ------------------------------------------------------------------------
     def physical_parameters(self) -> dict:
         """Flat dict of every physical parameter (for HDF5 attributes, decks and logs)."""
         out = {k: v for k, v in dataclasses.asdict(self).items() if k != "material"}
-        out.update(material=self.material.name, material_diameter=self.material.diameter,
-                   material_density=self.material.density,
-                   material_solid_fraction=self.material.solid_fraction,
-                   L_i=self.column_length, H_i=self.initial_height, t_star=self.t_star,
-                   diameter=self.diameter, time_step=self.time_step,
-                   friction_wall=self.wall_friction, restitution_wall=self.wall_restitution,
-                   friction_base=self.base_friction,
-                   output_interval=self.frame_interval)
+        out.update(
+            material=self.material.name,
+            material_diameter=self.material.diameter,
+            material_density=self.material.density,
+            material_solid_fraction=self.material.solid_fraction,
+            L_i=self.column_length,
+            H_i=self.initial_height,
+            t_star=self.t_star,
+            diameter=self.diameter,
+            time_step=self.time_step,
+            friction_wall=self.wall_friction,
+            restitution_wall=self.wall_restitution,
+            friction_base=self.base_friction,
+            output_interval=self.frame_interval,
+        )
         return out
 
     def to_dict(self) -> dict:
@@ -241,7 +278,7 @@ class CollapseCase:
         return out
 
     @classmethod
-    def from_dict(cls, data: dict) -> "CollapseCase":
+    def from_dict(cls, data: dict) -> CollapseCase:
         """Build from a mapping; unknown keys are an error naming them."""
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = set(data) - known
@@ -249,7 +286,7 @@ class CollapseCase:
             raise CaseError(f"unknown case field(s) {sorted(unknown)}; known: {sorted(known)}")
         return cls(**data)
 
-    def replace(self, **changes) -> "CollapseCase":
+    def replace(self, **changes) -> CollapseCase:
         return dataclasses.replace(self, **changes)
 
 

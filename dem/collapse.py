@@ -1,4 +1,5 @@
 """The builtin engine's collapse run: settle behind the gate, remove it at t = 0, record frames."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -12,8 +13,10 @@ from dem.trajectory import GRAIN, Trajectory, TrajectoryError, engine_attrs
 def state_from_packing(case: CollapseCase, packing: Trajectory) -> State:
     """Grains at rest at the last frame of `packing` (a settled-column trajectory)."""
     if packing.n_particles != case.n_particles:
-        raise TrajectoryError(f"packing has {packing.n_particles} grains, case {case.name or '?'} "
-                              f"needs {case.n_particles}: it was settled for another case")
+        raise TrajectoryError(
+            f"packing has {packing.n_particles} grains, case {case.name or '?'} "
+            f"needs {case.n_particles}: it was settled for another case"
+        )
     return State.at_rest(packing.positions[-1], packing.radius, case.density)
 
 
@@ -26,12 +29,28 @@ def simulate_collapse(case: CollapseCase, packing: Trajectory | None = None, pro
     if packing is None:
         packing = settle_column(case)
     state = state_from_packing(case, packing)
-    frames, stats = record(state, ContactLaw.from_case(case), walls_open(case), blowup_box(case),
-                           case.time_step, case.frame_interval, case.n_frames,
-                           label=f"case {case.name or '?'}", progress=progress)
+    frames, stats = record(
+        state,
+        ContactLaw.from_case(case),
+        walls_open(case),
+        blowup_box(case),
+        case.time_step,
+        case.frame_interval,
+        case.n_frames,
+        label=f"case {case.name or '?'}",
+        progress=progress,
+    )
     attrs = engine_attrs(case, "builtin", ENGINE_VERSION)
-    attrs.update(dt=stats.extra["dt"], steps=stats.steps, wall_time_s=stats.wall_time,
-                 particle_steps_per_second=stats.particle_steps_per_second,
-                 settled_height=packing.attrs.get("settled_height", np.nan))
-    return Trajectory(positions=frames, radius=packing.radius.copy(),
-                      particle_type=np.full(packing.n_particles, GRAIN, np.int32), attrs=attrs)
+    attrs.update(
+        dt=stats.extra["dt"],
+        steps=stats.steps,
+        wall_time_s=stats.wall_time,
+        particle_steps_per_second=stats.particle_steps_per_second,
+        settled_height=packing.attrs.get("settled_height", np.nan),
+    )
+    return Trajectory(
+        positions=frames,
+        radius=packing.radius.copy(),
+        particle_type=np.full(packing.n_particles, GRAIN, np.int32),
+        attrs=attrs,
+    )

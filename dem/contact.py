@@ -8,6 +8,7 @@ tangential damping = ratio * normal damping, Coulomb friction mu |Fn|.
 Sign conventions: `overlap` > 0 in contact (m); `normal_speed` > 0 when approaching (m/s);
 `tangential_speed` is the slip speed of the contact point along the tangent (m/s).
 """
+
 from __future__ import annotations
 
 import math
@@ -21,7 +22,7 @@ FAST_MATH = {"nsz", "arcp", "contract", "afn", "reassoc"}
 def restitution_factor(restitution: float) -> float:
     """|ln e| / sqrt(pi^2 + ln^2 e): normal damping is 2 sqrt(m_eff kn) times this."""
     log_e = math.log(restitution)
-    return abs(log_e) / math.sqrt(math.pi ** 2 + log_e ** 2)
+    return abs(log_e) / math.sqrt(math.pi**2 + log_e**2)
 
 
 @nb.njit(inline="always", fastmath=FAST_MATH, cache=True)

@@ -16,6 +16,7 @@ Metadata JSON (written by `build_dataset`, read by `load_dataset_metadata`):
   n_cases               {"train", "valid", "test"}; materials, engines: sorted lists
 Trajectories are read one at a time, so the dataset never has to fit in memory.
 """
+
 from __future__ import annotations
 
 import json
@@ -29,9 +30,21 @@ from dem.trajectory import TrajectoryError, read_trajectory
 
 SPLITS = ("train", "valid", "test")
 PARAMETERS = ("friction", "restitution", "L_i", "H_i", "aspect_ratio")
-REQUIRED_KEYS = ("name", "splits", "dt_frame", "dim", "bounds", "n_particles", "velocity_mean", "velocity_std",
-                 "acceleration_mean", "acceleration_std", "parameter_ranges", "material_diameter",
-                 "sequence_length")
+REQUIRED_KEYS = (
+    "name",
+    "splits",
+    "dt_frame",
+    "dim",
+    "bounds",
+    "n_particles",
+    "velocity_mean",
+    "velocity_std",
+    "acceleration_mean",
+    "acceleration_std",
+    "parameter_ranges",
+    "material_diameter",
+    "sequence_length",
+)
 DT_RTOL = 1e-9
 
 
@@ -57,7 +70,7 @@ class _RunningMoments:
         total = self.count + n
         delta = mean - self.mean
         self.mean = self.mean + delta * n / total
-        self.m2 = self.m2 + m2 + delta ** 2 * self.count * n / total
+        self.m2 = self.m2 + m2 + delta**2 * self.count * n / total
         self.count = total
 
     @property
@@ -90,8 +103,10 @@ def build_dataset(splits: dict[str, list[str]], out_path, name: str) -> dict:
             if dt_frame is None:
                 dt_frame, dt_source = float(a["dt_frame"]), path
             elif not math.isclose(float(a["dt_frame"]), dt_frame, rel_tol=DT_RTOL):
-                raise DatasetError(f"{path}: dt_frame = {a['dt_frame']} s differs from {dt_frame} s of {dt_source}; "
-                                   f"every trajectory of dataset {name} must share one output_interval")
+                raise DatasetError(
+                    f"{path}: dt_frame = {a['dt_frame']} s differs from {dt_frame} s of {dt_source}; "
+                    f"every trajectory of dataset {name} must share one output_interval"
+                )
             bounds[:, 0] = np.minimum(bounds[:, 0], [a["x_min"], a["y_min"]])
             bounds[:, 1] = np.maximum(bounds[:, 1], [a["x_max"], a["y_max"]])
             n_particles.append(traj.n_particles)
@@ -112,8 +127,11 @@ def build_dataset(splits: dict[str, list[str]], out_path, name: str) -> dict:
         "dt_frame": dt_frame,
         "dim": 2,
         "bounds": bounds.tolist(),
-        "n_particles": {"min": int(min(n_particles)), "max": int(max(n_particles)),
-                        "mean": float(np.mean(n_particles))},
+        "n_particles": {
+            "min": int(min(n_particles)),
+            "max": int(max(n_particles)),
+            "mean": float(np.mean(n_particles)),
+        },
         "velocity_mean": velocity.mean.tolist(),
         "velocity_std": velocity.std.tolist(),
         "acceleration_mean": acceleration.mean.tolist(),
@@ -151,13 +169,18 @@ def load_dataset_metadata(path) -> dict:
         raise DatasetError(f"{path}: key 'splits' must map exactly {list(SPLITS)} to lists of trajectory files")
     for key in ("velocity_mean", "velocity_std", "acceleration_mean", "acceleration_std"):
         value = metadata[key]
-        if not (isinstance(value, list) and len(value) == metadata["dim"]
-                and all(isinstance(v, (int, float)) and math.isfinite(v) for v in value)):
+        if not (
+            isinstance(value, list)
+            and len(value) == metadata["dim"]
+            and all(isinstance(v, (int, float)) and math.isfinite(v) for v in value)
+        ):
             raise DatasetError(f"{path}: key {key!r} must be {metadata['dim']} finite numbers, got {value!r}")
     for key in ("velocity_std", "acceleration_std"):
         if min(metadata[key]) <= 0:
-            raise DatasetError(f"{path}: key {key!r} has a zero component {metadata[key]}; "
-                               "normalising by it would divide by zero (grains never moved?)")
+            raise DatasetError(
+                f"{path}: key {key!r} has a zero component {metadata[key]}; "
+                "normalising by it would divide by zero (grains never moved?)"
+            )
     if not (isinstance(metadata["dt_frame"], (int, float)) and metadata["dt_frame"] > 0):
         raise DatasetError(f"{path}: key 'dt_frame' must be a positive number (s), got {metadata['dt_frame']!r}")
     return metadata
@@ -199,9 +222,17 @@ def plot_dataset(metadata: dict, path, runout) -> dict:
         traj = read_trajectory(traj_path)
         a = traj.attrs
         aspect = float(a["aspect_ratio"])
-        marker = "o" if "aspect_ratio" in (x_key, y_key) else markers.setdefault(aspect, "os^Dv<>ph*"[len(markers) % 10])
-        ax_p.scatter(float(a[x_key]), float(a[y_key]), s=22, color=colours[split], marker=marker,
-                     label=split if split not in seen else None)
+        marker = (
+            "o" if "aspect_ratio" in (x_key, y_key) else markers.setdefault(aspect, "os^Dv<>ph*"[len(markers) % 10])
+        )
+        ax_p.scatter(
+            float(a[x_key]),
+            float(a[y_key]),
+            s=22,
+            color=colours[split],
+            marker=marker,
+            label=split if split not in seen else None,
+        )
         seen.add(split)
         t, curve = runout.curve(traj)
         final[traj_path] = float(curve[-1])

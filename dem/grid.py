@@ -18,6 +18,7 @@ Deterministic for a given config. A row is a flat dict: dataset, case_id, split,
 aspect_ratio, friction, restitution, seed, size_scale, output_interval, and any other CollapseCase
 field the dataset sets. `case_from_row` turns it into a `dem.case.CollapseCase`.
 """
+
 from __future__ import annotations
 
 import itertools
@@ -33,9 +34,17 @@ from dem.case import CaseError, CollapseCase
 # Parameters that may vary over a dataset, in the order cases are sorted for the splits.
 VARIED = ("aspect_ratio", "L_i", "friction", "restitution", "friction_wall", "restitution_wall")
 # Dataset keys passed straight to CollapseCase (same value for every case).
-FIXED = ("size_scale", "polydispersity", "duration_over_tstar", "normal_stiffness",
-         "tangential_stiffness_ratio", "tangential_damping_ratio", "dt_over_contact_time",
-         "box_width", "box_height")
+FIXED = (
+    "size_scale",
+    "polydispersity",
+    "duration_over_tstar",
+    "normal_stiffness",
+    "tangential_stiffness_ratio",
+    "tangential_damping_ratio",
+    "dt_over_contact_time",
+    "box_width",
+    "box_height",
+)
 SPLITS = ("train", "valid", "test")
 SIGNIFICANT_DIGITS = 8  # sampled parameters are rounded so the table reads cleanly and reproduces exactly
 
@@ -114,8 +123,14 @@ def sample_dataset(name: str, spec: dict) -> list[dict]:
     rows = []
     for index, (varied, split) in enumerate(zip(samples, splits)):
         case_id = case_id_of(index, n_cases)
-        row = {"dataset": name, "case_id": case_id, "split": split, "material": spec["material"],
-               "output_interval": spec["output_interval"], "seed": int(case_seeds[index])}
+        row = {
+            "dataset": name,
+            "case_id": case_id,
+            "split": split,
+            "material": spec["material"],
+            "output_interval": spec["output_interval"],
+            "seed": int(case_seeds[index]),
+        }
         row.update(fixed)
         row.update({k: float(f"{float(v):.{SIGNIFICANT_DIGITS}g}") for k, v in varied.items()})
         row.update(overrides.get(index, {}))
@@ -137,8 +152,9 @@ def case_table(config: dict) -> dict[str, dict]:
                 case_from_row(row)
             except CaseError as exc:
                 varied = {k: row[k] for k in VARIED if k in row}
-                raise ConfigError(f"datasets.{name}: case {row['case_id']} {varied} is not a valid DEM case: "
-                                  f"{exc}") from exc
+                raise ConfigError(
+                    f"datasets.{name}: case {row['case_id']} {varied} is not a valid DEM case: {exc}"
+                ) from exc
             table[key] = row
     return table
 
@@ -171,6 +187,7 @@ def write_case_table(rows, path) -> None:
     """The case table as CSV (one row per case, columns in first-seen order), atomically."""
     rows = list(rows)
     columns = list(dict.fromkeys(k for row in rows for k in row))
-    lines = [",".join(columns)] + [",".join("" if row.get(c) is None else str(row.get(c, "")) for c in columns)
-                                   for row in rows]
+    lines = [",".join(columns)] + [
+        ",".join("" if row.get(c) is None else str(row.get(c, "")) for c in columns) for row in rows
+    ]
     write_text(path, "\n".join(lines) + "\n")

@@ -8,6 +8,7 @@ Grains move in 2D but carry sphere mass m = rho pi d^3 / 6 and inertia 2/5 m r^2
 DEM (spheres in a one-diameter-deep domain). LIGGGHTS `enforce2d` would give disc inertia, so the
 LIGGGHTS engine runs one layer of spheres instead (dem/engines/liggghts.py).
 """
+
 from __future__ import annotations
 
 import math
@@ -18,16 +19,23 @@ import numba as nb
 import numpy as np
 
 from dem.case import GRAVITY, CollapseCase
-from dem.contact import (FAST_MATH, cohesion_force, normal_damping, normal_force, restitution_factor,
-                         rolling_torque, tangential_force)
+from dem.contact import (
+    FAST_MATH,
+    cohesion_force,
+    normal_damping,
+    normal_force,
+    restitution_factor,
+    rolling_torque,
+    tangential_force,
+)
 from dem.neighbours import build_pairs, default_skin, empty_pairs
 
-ENGINE_VERSION = "builtin-1"     # the builtin engine's version, recorded in every trajectory it writes
+ENGINE_VERSION = "builtin-1"  # the builtin engine's version, recorded in every trajectory it writes
 
 # status codes from `advance`
 OK, NON_FINITE, OVERLAP, LEFT_BOX = 0, 1, 2, 3
 MAX_OVERLAP_RATIO = 0.25  # overlap / smaller diameter beyond which the run has blown up
-N_WALLS = 4               # left, right, floor, gate
+N_WALLS = 4  # left, right, floor, gate
 
 
 class SimulationError(RuntimeError):
@@ -45,30 +53,48 @@ class ContactLaw:
     kn: float
     kt: float
     tangential_damping_ratio: float
-    restitution_factor: float        # particle-particle, see dem.contact.restitution_factor
+    restitution_factor: float  # particle-particle, see dem.contact.restitution_factor
     restitution_factor_wall: float
     friction: float
-    friction_wall: float             # left, right walls and gate
-    friction_base: float = -1.0      # floor; < 0: same as friction_wall
-    rolling_friction: float = 0.0    # EPSD2 mu_r, pairs and walls
-    cohesion_energy: float = 0.0     # work of adhesion w (J/m^2)
+    friction_wall: float  # left, right walls and gate
+    friction_base: float = -1.0  # floor; < 0: same as friction_wall
+    rolling_friction: float = 0.0  # EPSD2 mu_r, pairs and walls
+    cohesion_energy: float = 0.0  # work of adhesion w (J/m^2)
     sidewall_friction_per_width: float = 0.0  # mu_sw / channel width (1/m)
 
     @classmethod
-    def from_case(cls, case: CollapseCase) -> "ContactLaw":
-        return cls(kn=case.normal_stiffness, kt=case.tangential_stiffness_ratio * case.normal_stiffness,
-                   tangential_damping_ratio=case.tangential_damping_ratio,
-                   restitution_factor=restitution_factor(case.restitution),
-                   restitution_factor_wall=restitution_factor(case.wall_restitution),
-                   friction=case.friction, friction_wall=case.wall_friction, friction_base=case.base_friction,
-                   rolling_friction=case.rolling_friction, cohesion_energy=case.cohesion_energy,
-                   sidewall_friction_per_width=case.sidewall_friction / case.channel_width)
+    def from_case(cls, case: CollapseCase) -> ContactLaw:
+        return cls(
+            kn=case.normal_stiffness,
+            kt=case.tangential_stiffness_ratio * case.normal_stiffness,
+            tangential_damping_ratio=case.tangential_damping_ratio,
+            restitution_factor=restitution_factor(case.restitution),
+            restitution_factor_wall=restitution_factor(case.wall_restitution),
+            friction=case.friction,
+            friction_wall=case.wall_friction,
+            friction_base=case.base_friction,
+            rolling_friction=case.rolling_friction,
+            cohesion_energy=case.cohesion_energy,
+            sidewall_friction_per_width=case.sidewall_friction / case.channel_width,
+        )
 
     def as_array(self) -> np.ndarray:
         base = self.friction_wall if self.friction_base < 0 else self.friction_base
-        return np.array([self.kn, self.kt, self.tangential_damping_ratio, self.restitution_factor,
-                         self.restitution_factor_wall, self.friction, self.friction_wall, base,
-                         self.rolling_friction, self.cohesion_energy, self.sidewall_friction_per_width])
+        return np.array(
+            [
+                self.kn,
+                self.kt,
+                self.tangential_damping_ratio,
+                self.restitution_factor,
+                self.restitution_factor_wall,
+                self.friction,
+                self.friction_wall,
+                base,
+                self.rolling_friction,
+                self.cohesion_energy,
+                self.sidewall_friction_per_width,
+            ]
+        )
 
 
 @dataclass
@@ -94,25 +120,50 @@ class State:
     rebuilds: int = 0
 
     @classmethod
-    def at_rest(cls, positions, radius, density) -> "State":
+    def at_rest(cls, positions, radius, density) -> State:
         positions = np.ascontiguousarray(positions, np.float64)
         radius = np.ascontiguousarray(radius, np.float64)
         n = len(radius)
-        return cls(x=positions.copy(), v=np.zeros((n, 2)), spin=np.zeros(n), radius=radius,
-                   mass=density * math.pi * (2 * radius) ** 3 / 6.0, skin=default_skin(radius),
-                   wall_history=np.zeros((n, N_WALLS, 2)))
+        return cls(
+            x=positions.copy(),
+            v=np.zeros((n, 2)),
+            spin=np.zeros(n),
+            radius=radius,
+            mass=density * math.pi * (2 * radius) ** 3 / 6.0,
+            skin=default_skin(radius),
+            wall_history=np.zeros((n, N_WALLS, 2)),
+        )
 
     @property
     def inertia(self) -> np.ndarray:
-        return 0.4 * self.mass * self.radius ** 2
+        return 0.4 * self.mass * self.radius**2
 
     def kinetic_energy(self) -> float:
-        return float(0.5 * np.sum(self.mass[:, None] * self.v ** 2) + 0.5 * np.sum(self.inertia * self.spin ** 2))
+        return float(0.5 * np.sum(self.mass[:, None] * self.v**2) + 0.5 * np.sum(self.inertia * self.spin**2))
 
 
 @nb.njit(inline="always", fastmath=FAST_MATH, cache=True)
-def _contact(overlap, nx, ny, rvx, rvy, slip, spin_rel, r_eff, m_eff, spring, roll, dt,
-             kn, kt, eta_ratio, ce, mu, mu_roll, adhesion):
+def _contact(
+    overlap,
+    nx,
+    ny,
+    rvx,
+    rvy,
+    slip,
+    spin_rel,
+    r_eff,
+    m_eff,
+    spring,
+    roll,
+    dt,
+    kn,
+    kt,
+    eta_ratio,
+    ce,
+    mu,
+    mu_roll,
+    adhesion,
+):
     """One contact with unit normal (nx, ny) from the first body to the second.
 
     Returns force (fx, fy) on the first body, its tangential force, the rolling torque on it,
@@ -128,8 +179,9 @@ def _contact(overlap, nx, ny, rvx, rvy, slip, spin_rel, r_eff, m_eff, spring, ro
 
 
 @nb.njit(fastmath=FAST_MATH, cache=True)
-def _forces(x, v, spin, radius, mass, start, partner, history, wall_history, law, walls, time, dt, gravity,
-            force, torque, load):
+def _forces(
+    x, v, spin, radius, mass, start, partner, history, wall_history, law, walls, time, dt, gravity, force, torque, load
+):
     """Fill force [N, 2] (N), torque [N] (N m) and contact load [N] (sum of |Fn|, N); update the
     contact history. walls = (x_left, x_right, y_floor, x_gate, gate_lift_speed).
     Returns the largest overlap / diameter."""
@@ -159,16 +211,33 @@ def _forces(x, v, spin, radius, mass, start, partner, history, wall_history, law
                 history[k, 1] = 0.0
                 continue
             dist = math.sqrt(dist2)
-            nx, ny = dx / dist, dy / dist            # unit normal from i to j
+            nx, ny = dx / dist, dy / dist  # unit normal from i to j
             overlap = reach - dist
             worst = max(worst, overlap / (2.0 * min(ri, radius[j])))
             rvx = v[i, 0] - v[j, 0]
             rvy = v[i, 1] - v[j, 1]
             slip = rvx * (-ny) + rvy * nx + spin[i] * ri + spin[j] * radius[j]
             fx, fy, ft, roll, fn, history[k, 0] = _contact(
-                overlap, nx, ny, rvx, rvy, slip, spin[i] - spin[j], ri * radius[j] / reach,
-                mass[i] * mass[j] / (mass[i] + mass[j]), history[k, 0], history[k, 1], dt,
-                kn, kt, eta_ratio, ce, mu, mu_roll, adhesion)
+                overlap,
+                nx,
+                ny,
+                rvx,
+                rvy,
+                slip,
+                spin[i] - spin[j],
+                ri * radius[j] / reach,
+                mass[i] * mass[j] / (mass[i] + mass[j]),
+                history[k, 0],
+                history[k, 1],
+                dt,
+                kn,
+                kt,
+                eta_ratio,
+                ce,
+                mu,
+                mu_roll,
+                adhesion,
+            )
             history[k, 1] = roll
             force[i, 0] += fx
             force[i, 1] += fy
@@ -199,8 +268,26 @@ def _forces(x, v, spin, radius, mass, start, partner, history, wall_history, law
             worst = max(worst, overlap / (2.0 * ri))
             slip = v[i, 0] * (-ny) + v[i, 1] * nx + spin[i] * ri
             fx, fy, ft, roll, fn, wall_history[i, w, 0] = _contact(
-                overlap, nx, ny, v[i, 0], v[i, 1], slip, spin[i], ri, mass[i], wall_history[i, w, 0],
-                wall_history[i, w, 1], dt, kn, kt, eta_ratio, ce_wall, mu_w, mu_roll, adhesion)
+                overlap,
+                nx,
+                ny,
+                v[i, 0],
+                v[i, 1],
+                slip,
+                spin[i],
+                ri,
+                mass[i],
+                wall_history[i, w, 0],
+                wall_history[i, w, 1],
+                dt,
+                kn,
+                kt,
+                eta_ratio,
+                ce_wall,
+                mu_w,
+                mu_roll,
+                adhesion,
+            )
             wall_history[i, w, 1] = roll
             force[i, 0] += fx
             force[i, 1] += fy
@@ -219,8 +306,26 @@ def _forces(x, v, spin, radius, mass, start, partner, history, wall_history, law
 
 
 @nb.njit(fastmath=FAST_MATH, cache=True)
-def advance(x, v, spin, radius, mass, x_built, skin, start, partner, history, wall_history, law, walls,
-            box, time, dt, n_steps, gravity):
+def advance(
+    x,
+    v,
+    spin,
+    radius,
+    mass,
+    x_built,
+    skin,
+    start,
+    partner,
+    history,
+    wall_history,
+    law,
+    walls,
+    box,
+    time,
+    dt,
+    n_steps,
+    gravity,
+):
     """Run up to n_steps symplectic Euler steps (kick, then drift) from `time` (s).
 
     Returns (status, steps_done, start, partner, history, rebuilds, worst_overlap_ratio); the pair
@@ -236,8 +341,25 @@ def advance(x, v, spin, radius, mass, x_built, skin, start, partner, history, wa
     worst_all = 0.0
     half_skin2 = 0.25 * skin * skin
     for step in range(n_steps):
-        worst = _forces(x, v, spin, radius, mass, start, partner, history, wall_history, law, walls,
-                        time + step * dt, dt, gravity, force, torque, load)
+        worst = _forces(
+            x,
+            v,
+            spin,
+            radius,
+            mass,
+            start,
+            partner,
+            history,
+            wall_history,
+            law,
+            walls,
+            time + step * dt,
+            dt,
+            gravity,
+            force,
+            torque,
+            load,
+        )
         worst_all = max(worst_all, worst)
         if worst > MAX_OVERLAP_RATIO:
             return 2, step, start, partner, history, rebuilds, worst_all
@@ -256,7 +378,7 @@ def advance(x, v, spin, radius, mass, x_built, skin, start, partner, history, wa
             for i in range(n):
                 if not (math.isfinite(x[i, 0]) and math.isfinite(x[i, 1])):
                     return 1, step + 1, start, partner, history, rebuilds, worst_all
-                if (x[i, 0] < box[0] or x[i, 0] > box[1] or x[i, 1] < box[2] or x[i, 1] > box[3]):
+                if x[i, 0] < box[0] or x[i, 0] > box[1] or x[i, 1] < box[2] or x[i, 1] > box[3]:
                     return 3, step + 1, start, partner, history, rebuilds, worst_all
             start, partner, history = build_pairs(x, radius, skin, start, partner, history)
             x_built[:, :] = x
@@ -264,12 +386,16 @@ def advance(x, v, spin, radius, mass, x_built, skin, start, partner, history, wa
     return 0, n_steps, start, partner, history, rebuilds, worst_all
 
 
-STATUS_TEXT = {NON_FINITE: "non-finite position", OVERLAP: f"overlap beyond {MAX_OVERLAP_RATIO} of a diameter",
-               LEFT_BOX: "a grain left the box"}
+STATUS_TEXT = {
+    NON_FINITE: "non-finite position",
+    OVERLAP: f"overlap beyond {MAX_OVERLAP_RATIO} of a diameter",
+    LEFT_BOX: "a grain left the box",
+}
 
 
-def run(state: State, law: ContactLaw, walls, box, dt: float, n_steps: int, label: str = "",
-        gravity: float = GRAVITY) -> None:
+def run(
+    state: State, law: ContactLaw, walls, box, dt: float, n_steps: int, label: str = "", gravity: float = GRAVITY
+) -> None:
     """Advance `state` by n_steps of dt (s). walls = (x_left, x_right, y_floor, x_gate (m)
     [, gate_lift_speed (m/s), 0 when absent]);
     box = (x_min, x_max, y_min, y_max) (m) outside which a grain means blow-up.
@@ -279,16 +405,32 @@ def run(state: State, law: ContactLaw, walls, box, dt: float, n_steps: int, labe
         state.x_built = state.x.copy()
     walls = np.array(tuple(walls) + (0.0,) * (5 - len(walls)), np.float64)
     status, done, start, partner, history, rebuilds, worst = advance(
-        state.x, state.v, state.spin, state.radius, state.mass, state.x_built, state.skin, *state.pairs,
-        state.wall_history, law.as_array(), walls, np.asarray(box, np.float64), float(state.time),
-        float(dt), int(n_steps), float(gravity))
+        state.x,
+        state.v,
+        state.spin,
+        state.radius,
+        state.mass,
+        state.x_built,
+        state.skin,
+        *state.pairs,
+        state.wall_history,
+        law.as_array(),
+        walls,
+        np.asarray(box, np.float64),
+        float(state.time),
+        float(dt),
+        int(n_steps),
+        float(gravity),
+    )
     state.pairs = (start, partner, history)
     state.steps += done
     state.time += done * dt
     state.rebuilds += rebuilds
     if status != OK:
-        raise SimulationError(f"{label or 'simulation'}: blew up at step {state.steps} "
-                              f"(t = {state.steps * dt:.6g} s): {STATUS_TEXT[status]}")
+        raise SimulationError(
+            f"{label or 'simulation'}: blew up at step {state.steps} "
+            f"(t = {state.steps * dt:.6g} s): {STATUS_TEXT[status]}"
+        )
 
 
 def frame_steps(interval: float, max_dt: float) -> tuple[int, float]:
@@ -305,8 +447,17 @@ class RunStats:
     extra: dict = field(default_factory=dict)
 
 
-def record(state: State, law: ContactLaw, walls, box, dt_max: float, interval: float, n_frames: int,
-           label: str = "", progress=None):
+def record(
+    state: State,
+    law: ContactLaw,
+    walls,
+    box,
+    dt_max: float,
+    interval: float,
+    n_frames: int,
+    label: str = "",
+    progress=None,
+):
     """Frames [n_frames, N, 2] (float32, m) every `interval` s, the first at the current state."""
     steps, dt = frame_steps(interval, dt_max)
     frames = np.empty((n_frames, len(state.radius), 2), np.float32)
@@ -319,9 +470,12 @@ def record(state: State, law: ContactLaw, walls, box, dt_max: float, interval: f
             progress(k / (n_frames - 1))
     elapsed = time.perf_counter() - t0
     done = state.steps - s0
-    stats = RunStats(steps=done, wall_time=elapsed,
-                     particle_steps_per_second=done * len(state.radius) / max(elapsed, 1e-12),
-                     extra={"dt": dt})
+    stats = RunStats(
+        steps=done,
+        wall_time=elapsed,
+        particle_steps_per_second=done * len(state.radius) / max(elapsed, 1e-12),
+        extra={"dt": dt},
+    )
     return frames, stats
 
 

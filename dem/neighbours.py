@@ -5,8 +5,8 @@ partners of i are partner[start[i]:start[i + 1]]. It stays valid until some grai
 than skin / 2 since the build. Building costs O(N) (counting sort into cells of side
 2 r_max + skin over the grains' bounding box), so the whole engine is linear in N.
 """
-from __future__ import annotations
 
+from __future__ import annotations
 
 import numba as nb
 import numpy as np
@@ -90,5 +90,3 @@ def empty_pairs():
 def default_skin(radius) -> float:
     """Skin (m): 0.2 mean diameters keeps rebuilds rare without bloating the list."""
     return 0.4 * float(np.mean(radius))
-
-

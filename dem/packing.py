@@ -8,6 +8,7 @@ wall and the gate at x = L_i, with the case's own contact law. Deterministic for
 The settled column is a one-frame trajectory (engine "builtin", stage "settled"), so every
 engine can start from the same packing and it is stored and read like any other trajectory.
 """
+
 from __future__ import annotations
 
 import math
@@ -18,10 +19,10 @@ from dem.case import FILL_HEIGHT_FACTOR, CaseError, CollapseCase
 from dem.integrate import ENGINE_VERSION, ContactLaw, SimulationError, State, run
 from dem.trajectory import GRAIN, Trajectory, engine_attrs
 
-LATTICE_CLEARANCE = 1.02     # lattice pitch / largest diameter
-REST_SPEED = 1e-3            # settled when the RMS grain speed is below this fraction of sqrt(g H_i)
-SETTLE_CHECK_TSTAR = 0.05    # check for rest every this many t*
-MAX_SETTLE_TSTAR = 20.0      # give up (error) after this many t*
+LATTICE_CLEARANCE = 1.02  # lattice pitch / largest diameter
+REST_SPEED = 1e-3  # settled when the RMS grain speed is below this fraction of sqrt(g H_i)
+SETTLE_CHECK_TSTAR = 0.05  # check for rest every this many t*
+MAX_SETTLE_TSTAR = 20.0  # give up (error) after this many t*
 
 
 def grain_radii(case: CollapseCase, rng: np.random.Generator) -> np.ndarray:
@@ -49,8 +50,10 @@ def pour_column(case: CollapseCase) -> tuple[np.ndarray, np.ndarray]:
     positions = np.array(sites[: case.n_particles])
     top = positions[:, 1].max() + 0.5 * d_max
     if top > FILL_HEIGHT_FACTOR * case.initial_height:
-        raise CaseError(f"solid_fraction: {case.n_particles} grains of {case.material.name} need a pour of "
-                        f"{top:.4g} m, over {FILL_HEIGHT_FACTOR} x H_i; lower solid_fraction or polydispersity")
+        raise CaseError(
+            f"solid_fraction: {case.n_particles} grains of {case.material.name} need a pour of "
+            f"{top:.4g} m, over {FILL_HEIGHT_FACTOR} x H_i; lower solid_fraction or polydispersity"
+        )
     # jitter within the clearance left by each grain's own size
     slack = np.maximum(0.5 * pitch - radius, 0.0)[:, None]
     positions = positions + rng.uniform(-1, 1, positions.shape) * slack * 0.5
@@ -85,17 +88,26 @@ def settle_state(case: CollapseCase, progress=None) -> State:
     steps = max(1, math.ceil(chunk / case.time_step))
     rest_speed = REST_SPEED * math.sqrt(9.81 * case.initial_height)
     for k in range(int(MAX_SETTLE_TSTAR / SETTLE_CHECK_TSTAR)):
-        run(state, law, walls_with_gate(case), blowup_box(case), case.time_step, steps,
-            label=f"case {case.name or '?'} settling")
+        run(
+            state,
+            law,
+            walls_with_gate(case),
+            blowup_box(case),
+            case.time_step,
+            steps,
+            label=f"case {case.name or '?'} settling",
+        )
         # RMS, not max: a lone rattler in a pore can keep bouncing long after the column is at rest
-        speed = float(np.sqrt(np.mean(np.sum(state.v ** 2, axis=1) + (state.spin * state.radius) ** 2)))
+        speed = float(np.sqrt(np.mean(np.sum(state.v**2, axis=1) + (state.spin * state.radius) ** 2)))
         if progress is not None:
             progress(min(1.0, rest_speed / max(speed, 1e-30)))
         if k >= 2 and speed < rest_speed:
             break
     else:
-        raise SimulationError(f"case {case.name or '?'}: column not at rest after {MAX_SETTLE_TSTAR} t* of "
-                              f"settling (RMS speed {speed:.3g} m/s)")
+        raise SimulationError(
+            f"case {case.name or '?'}: column not at rest after {MAX_SETTLE_TSTAR} t* of "
+            f"settling (RMS speed {speed:.3g} m/s)"
+        )
     state.v[:] = 0.0
     state.spin[:] = 0.0
     return state
@@ -105,7 +117,10 @@ def settle_column(case: CollapseCase, progress=None) -> Trajectory:
     """The settled column as a one-frame Trajectory (engine "builtin", stage "settled")."""
     state = settle_state(case, progress)
     attrs = engine_attrs(case, "builtin", ENGINE_VERSION)
-    attrs.update(stage="settled", settled_height=float(np.max(state.x[:, 1] + state.radius)),
-                 settle_steps=state.steps)
-    return Trajectory(positions=state.x[None].astype(np.float32), radius=state.radius.copy(),
-                      particle_type=np.full(len(state.radius), GRAIN, np.int32), attrs=attrs)
+    attrs.update(stage="settled", settled_height=float(np.max(state.x[:, 1] + state.radius)), settle_steps=state.steps)
+    return Trajectory(
+        positions=state.x[None].astype(np.float32),
+        radius=state.radius.copy(),
+        particle_type=np.full(len(state.radius), GRAIN, np.int32),
+        attrs=attrs,
+    )

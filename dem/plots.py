@@ -1,4 +1,5 @@
 """Figures of a collapse: snapshots at chosen t/t* and the runout curve (DEM and GNS alike)."""
+
 from __future__ import annotations
 
 import matplotlib
@@ -18,9 +19,19 @@ SNAPSHOT_TSTAR = (0.0, 1.0, 1.5, 2.0, 4.0)
 def draw_grains(ax, positions, radius, color="tab:orange", alpha=1.0):
     """Discs at their true size (data units) on `ax`. positions [N, 2] (m), radius [N] (m)."""
     diameters = 2 * np.asarray(radius)
-    ax.add_collection(EllipseCollection(diameters, diameters, np.zeros_like(diameters), units="xy",
-                                        offsets=np.asarray(positions), offset_transform=ax.transData,
-                                        facecolors=color, edgecolors="none", alpha=alpha))
+    ax.add_collection(
+        EllipseCollection(
+            diameters,
+            diameters,
+            np.zeros_like(diameters),
+            units="xy",
+            offsets=np.asarray(positions),
+            offset_transform=ax.transData,
+            facecolors=color,
+            edgecolors="none",
+            alpha=alpha,
+        )
+    )
 
 
 def save_figure(fig, path):
@@ -64,7 +75,10 @@ def plot_case(trajectory, path, runout, compare=None, snapshots=SNAPSHOT_TSTAR):
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     a = trajectory.attrs
-    fig.suptitle(f"{a.get('material')} a = {float(a['aspect_ratio']):.3g}, L_i = {float(a['L_i']) * 1e3:.3g} mm, "
-                 f"mu = {float(a['friction']):.3g}, e = {float(a['restitution']):.3g}", fontsize=10)
+    fig.suptitle(
+        f"{a.get('material')} a = {float(a['aspect_ratio']):.3g}, L_i = {float(a['L_i']) * 1e3:.3g} mm, "
+        f"mu = {float(a['friction']):.3g}, e = {float(a['restitution']):.3g}",
+        fontsize=10,
+    )
     fig.tight_layout()
     save_figure(fig, path)

@@ -1,4 +1,5 @@
 """One progress reporter for every long job: a line in the log at every tenth of the work."""
+
 from __future__ import annotations
 
 import logging

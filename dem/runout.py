@@ -18,6 +18,7 @@ Methods (every length in mean grain diameters d, so a method means the same at e
   reached up to t (running maximum). A measured runout read off images never moves back; the
   instantaneous front does when leading grains detach or a chain breaks.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -67,7 +68,7 @@ class RunoutMethod:
             raise RunoutError("; ".join(problems))
 
     @classmethod
-    def from_config(cls, section: "dict | RunoutMethod | str | None") -> "RunoutMethod":
+    def from_config(cls, section: dict | RunoutMethod | str | None) -> RunoutMethod:
         """From the config's `runout` section (a dict), a method name, or an instance; None: the default."""
         if isinstance(section, RunoutMethod):
             return section
@@ -99,7 +100,9 @@ class RunoutMethod:
         if self.front_rule == "connected_front":
             rule = f"connected front (mean of {self.n_leading} leading grains, gaps < {self.gap_tolerance:g} d)"
         else:
-            rule = f"dense front (farthest grain with >= {self.n_neighbours} centres within {self.neighbour_radius:g} d)"
+            rule = (
+                f"dense front (farthest grain with >= {self.n_neighbours} centres within {self.neighbour_radius:g} d)"
+            )
         return rule + (", farthest reached" if self.reached else ", instantaneous")
 
     # -- one frame --------------------------------------------------------------------------------
@@ -115,10 +118,15 @@ class RunoutMethod:
         radius = np.asarray(radius, np.float64)
         mask = self.front_mask(positions, radius)
         if not mask.any():
-            rule = (f"no grain has {self.n_neighbours} grain centres within {self.neighbour_radius:g} mean diameters"
-                    if self.front_rule == "dense_front" else "no grain is connected to the column foot")
-            raise RunoutError(f"{where}: {rule}, so the {self.front_rule} rule finds no front; the grains are "
-                              "too sparse for this runout method")
+            rule = (
+                f"no grain has {self.n_neighbours} grain centres within {self.neighbour_radius:g} mean diameters"
+                if self.front_rule == "dense_front"
+                else "no grain is connected to the column foot"
+            )
+            raise RunoutError(
+                f"{where}: {rule}, so the {self.front_rule} rule finds no front; the grains are "
+                "too sparse for this runout method"
+            )
         front = np.asarray(positions, np.float64)[mask, 0] + radius[mask]
         if self.front_rule == "dense_front":
             return float(front.max())
@@ -130,8 +138,12 @@ class RunoutMethod:
         """(t/t* [T], L* [T]) of a dem.trajectory.Trajectory (DEM run or GNS rollout)."""
         L_i = float(trajectory.attrs["L_i"])
         source = getattr(trajectory, "source", "") or "trajectory"
-        front = np.array([self.front_position(frame, trajectory.radius, where=f"{source}, frame {k}")
-                          for k, frame in enumerate(trajectory.positions)])
+        front = np.array(
+            [
+                self.front_position(frame, trajectory.radius, where=f"{source}, frame {k}")
+                for k, frame in enumerate(trajectory.positions)
+            ]
+        )
         if self.reached:
             front = np.maximum.accumulate(front)
         return trajectory.t_over_tstar, (front - L_i) / L_i
@@ -141,17 +153,18 @@ class RunoutMethod:
         t, runout = self.curve(trajectory)
         t_query = np.asarray(t_over_tstar, float)
         if t_query.min() < t[0] - 1e-9 or t_query.max() > t[-1] + 1e-9:
-            raise ValueError(f"t/t* points {t_query.tolist()} fall outside the simulated window "
-                             f"[{t[0]:.3g}, {t[-1]:.3g}]")
+            raise ValueError(
+                f"t/t* points {t_query.tolist()} fall outside the simulated window [{t[0]:.3g}, {t[-1]:.3g}]"
+            )
         return np.interp(t_query, t, runout)
 
 
-def runout_curve(trajectory, method: "RunoutMethod | dict | str") -> tuple[np.ndarray, np.ndarray]:
+def runout_curve(trajectory, method: RunoutMethod | dict | str) -> tuple[np.ndarray, np.ndarray]:
     """(t/t* [T], L* [T]) of a trajectory by the named runout method (RunoutMethod, config dict or name)."""
     return RunoutMethod.from_config(method).curve(trajectory)
 
 
-def runout_at(trajectory, t_over_tstar, method: "RunoutMethod | dict | str") -> np.ndarray:
+def runout_at(trajectory, t_over_tstar, method: RunoutMethod | dict | str) -> np.ndarray:
     """L* [K] at t/t* points [K] by the named runout method; outside the simulated window is an error."""
     return RunoutMethod.from_config(method).at(trajectory, t_over_tstar)
 
@@ -160,11 +173,15 @@ def check_same_method(found, expected: RunoutMethod, where: str) -> None:
     """RunoutError when numbers read with runout method `found` (a config dict, or None when the
     file says nothing) would be mixed with ones read by `expected`."""
     if found is None:
-        raise RunoutError(f"{where}: states no runout method (it was scored before runout methods were "
-                          f"recorded); rerun it with runout {expected.to_config()}")
+        raise RunoutError(
+            f"{where}: states no runout method (it was scored before runout methods were "
+            f"recorded); rerun it with runout {expected.to_config()}"
+        )
     if RunoutMethod.from_config(found) != expected:
-        raise RunoutError(f"{where}: scored with runout {dict(found)}, not the configured {expected.to_config()}; "
-                          "rerun it (scores read two ways are never mixed)")
+        raise RunoutError(
+            f"{where}: scored with runout {dict(found)}, not the configured {expected.to_config()}; "
+            "rerun it (scores read two ways are never mixed)"
+        )
 
 
 # -- the grain sets a front is read from -----------------------------------------------------------
@@ -180,8 +197,11 @@ def deposit_mask(positions, radius, gap_tolerance: float = 2.0) -> np.ndarray:
     reach = 2.0 * float(np.max(radius)) + gap_tolerance * diameter
     pairs = cKDTree(positions).query_pairs(reach, output_type="ndarray")
     if len(pairs):
-        gap = (np.linalg.norm(positions[pairs[:, 0]] - positions[pairs[:, 1]], axis=1)
-               - radius[pairs[:, 0]] - radius[pairs[:, 1]])
+        gap = (
+            np.linalg.norm(positions[pairs[:, 0]] - positions[pairs[:, 1]], axis=1)
+            - radius[pairs[:, 0]]
+            - radius[pairs[:, 1]]
+        )
         pairs = pairs[gap <= gap_tolerance * diameter]
     n = len(positions)
     graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
@@ -195,7 +215,7 @@ def dense_mask(positions, radius, n_neighbours: int = 8, neighbour_radius: float
     diameters of their own centre. positions [N, 2] (m), radius [N] (m)."""
     positions = np.asarray(positions, np.float64)
     reach = neighbour_radius * 2.0 * float(np.mean(radius))
-    count = cKDTree(positions).query_ball_point(positions, reach, return_length=True) - 1   # not itself
+    count = cKDTree(positions).query_ball_point(positions, reach, return_length=True) - 1  # not itself
     return count >= n_neighbours
 
 

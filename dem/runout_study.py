@@ -13,6 +13,7 @@ A runout method is judged by what it does with the chaos of a collapse, not by i
 Used by the DAG's `runout_methods` rule (pipeline/runout.py: report table) and
 benchmarks/runout_methods.py (JSON).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -23,10 +24,10 @@ import numpy as np
 from dem.runout import METHODS, RunoutMethod
 
 log = logging.getLogger(__name__)
-PHASES = {"free_fall": (0.0, 1.0), "spreading": (1.0, 2.5), "stopping": (2.5, np.inf)}   # t/t*, paper section 3
-PACKINGS = 8          # packings per case for the scatter (the issue asks for at least 8)
-RERUNS = 8            # perturbed reruns per case for the chaos floor
-PERTURBATION = 1e-3   # mean grain diameters (the chaos floor's perturbation)
+PHASES = {"free_fall": (0.0, 1.0), "spreading": (1.0, 2.5), "stopping": (2.5, np.inf)}  # t/t*, paper section 3
+PACKINGS = 8  # packings per case for the scatter (the issue asks for at least 8)
+RERUNS = 8  # perturbed reruns per case for the chaos floor
+PERTURBATION = 1e-3  # mean grain diameters (the chaos floor's perturbation)
 
 
 def case_of(trajectory):
@@ -41,8 +42,11 @@ def case_of(trajectory):
 
 def phase_means(t, values) -> dict:
     """Mean of values [T] over each phase of t/t* [T] (phases with no frame are left out)."""
-    return {name: float(np.mean(values[(t > lo) & (t <= hi)])) for name, (lo, hi) in PHASES.items()
-            if np.any((t > lo) & (t <= hi))}
+    return {
+        name: float(np.mean(values[(t > lo) & (t <= hi)]))
+        for name, (lo, hi) in PHASES.items()
+        if np.any((t > lo) & (t <= hi))
+    }
 
 
 def packing_runs(case, n_packings: int = PACKINGS, progress=None) -> list:
@@ -57,11 +61,12 @@ def packing_runs(case, n_packings: int = PACKINGS, progress=None) -> list:
     return runs
 
 
-def perturbed_reruns(trajectory, n_reruns: int = RERUNS, perturbation: float = PERTURBATION, seed: int = 0,
-                     progress=None) -> list:
+def perturbed_reruns(
+    trajectory, n_reruns: int = RERUNS, perturbation: float = PERTURBATION, seed: int = 0, progress=None
+) -> list:
     """n_reruns builtin reruns of a builtin trajectory from its own first frame, every grain moved
     by a normal of std `perturbation` mean diameters (seeded)."""
-    from dem.engines import BUILTIN, simulate_case     # reruns of builtin runs, moved by 0.001 d
+    from dem.engines import BUILTIN, simulate_case  # reruns of builtin runs, moved by 0.001 d
     from dem.trajectory import Trajectory
 
     case = case_of(trajectory)
@@ -70,8 +75,9 @@ def perturbed_reruns(trajectory, n_reruns: int = RERUNS, perturbation: float = P
     runs = []
     for j in range(n_reruns):
         moved = trajectory.positions[:1] + rng.normal(0.0, perturbation * diameter, trajectory.positions[:1].shape)
-        packing = Trajectory(moved.astype(np.float32), trajectory.radius, trajectory.particle_type,
-                             dict(trajectory.attrs))
+        packing = Trajectory(
+            moved.astype(np.float32), trajectory.radius, trajectory.particle_type, dict(trajectory.attrs)
+        )
         runs.append(simulate_case(case, BUILTIN, packing=packing))
         if progress:
             progress(f"{case.name}: rerun {j + 1}/{n_reruns}")
@@ -88,9 +94,14 @@ def method_statistics(runs, method: RunoutMethod) -> dict:
     t = runs[0].t_over_tstar
     curves = np.array([method.curve(r)[1] for r in runs])
     std = np.std(curves, axis=0, ddof=1)
-    return {"packings": len(runs), "scatter_by_phase": phase_means(t, std), "scatter_mean": float(np.mean(std)),
-            "flicker": float(max(0.0, np.max(-np.diff(curves, axis=1)))),
-            "final_mean": float(curves[:, -1].mean()), "final_std": float(curves[:, -1].std(ddof=1))}
+    return {
+        "packings": len(runs),
+        "scatter_by_phase": phase_means(t, std),
+        "scatter_mean": float(np.mean(std)),
+        "flicker": float(max(0.0, np.max(-np.diff(curves, axis=1)))),
+        "final_mean": float(curves[:, -1].mean()),
+        "final_std": float(curves[:, -1].std(ddof=1)),
+    }
 
 
 def chaos_floor(original, reruns, method: RunoutMethod, rollout=None) -> dict:
@@ -100,17 +111,29 @@ def chaos_floor(original, reruns, method: RunoutMethod, rollout=None) -> dict:
     others = np.array([method.curve(r)[1] for r in reruns])
     runs = np.vstack([first, others])
     variance = np.var(runs, axis=0, ddof=1)
-    out = {"rerun_mse": float(np.mean((others - first) ** 2)), "ideal_mse": float(np.mean(variance)),
-           "ideal_mse_by_phase": phase_means(t, variance)}
+    out = {
+        "rerun_mse": float(np.mean((others - first) ** 2)),
+        "ideal_mse": float(np.mean(variance)),
+        "ideal_mse_by_phase": phase_means(t, variance),
+    }
     if rollout is not None and rollout.n_frames == original.n_frames:
         gns = method.curve(rollout)[1]
-        out.update(gns_mse=float(np.mean((gns - first) ** 2)), gns_mse_to_mean=float(np.mean((gns - runs.mean(0)) ** 2)))
+        out.update(
+            gns_mse=float(np.mean((gns - first) ** 2)), gns_mse_to_mean=float(np.mean((gns - runs.mean(0)) ** 2))
+        )
     return out
 
 
-def compare_methods(cases: dict, methods=METHODS, n_packings: int = PACKINGS, n_reruns: int = RERUNS,
-                    perturbation: float = PERTURBATION, rollouts: dict | None = None, seed: int = 0,
-                    progress=None) -> tuple[dict, dict]:
+def compare_methods(
+    cases: dict,
+    methods=METHODS,
+    n_packings: int = PACKINGS,
+    n_reruns: int = RERUNS,
+    perturbation: float = PERTURBATION,
+    rollouts: dict | None = None,
+    seed: int = 0,
+    progress=None,
+) -> tuple[dict, dict]:
     """Every method on every case: (study, runs). study: {"cases": {label: {method: statistics
     (+ floor)}}, "mean": {method: ...}, settings}; runs: {label: [packing runs]} (for the figure).
 
@@ -132,8 +155,14 @@ def compare_methods(cases: dict, methods=METHODS, n_packings: int = PACKINGS, n_
                 row["floor"] = chaos_floor(trajectory, reruns, method, rollout)
             out[label][method.method] = row
         log.info("%s: %s", label, {m: round(r["scatter_mean"], 3) for m, r in out[label].items()})
-    return {"methods": [m.to_config() for m in methods], "n_packings": n_packings, "n_reruns": n_reruns,
-            "perturbation_diameters": perturbation, "cases": out, "mean": _means(out, methods)}, runs
+    return {
+        "methods": [m.to_config() for m in methods],
+        "n_packings": n_packings,
+        "n_reruns": n_reruns,
+        "perturbation_diameters": perturbation,
+        "cases": out,
+        "mean": _means(out, methods),
+    }, runs
 
 
 def _means(cases: dict, methods) -> dict:
@@ -141,13 +170,17 @@ def _means(cases: dict, methods) -> dict:
     means = {}
     for method in methods:
         rows = [c[method.method] for c in cases.values()]
-        mean = {"scatter_mean": float(np.mean([r["scatter_mean"] for r in rows])),
-                "flicker": float(np.max([r["flicker"] for r in rows])),
-                "scatter_by_phase": {p: float(np.mean([r["scatter_by_phase"][p] for r in rows if p in r["scatter_by_phase"]]))
-                                     for p in PHASES}}
+        mean = {
+            "scatter_mean": float(np.mean([r["scatter_mean"] for r in rows])),
+            "flicker": float(np.max([r["flicker"] for r in rows])),
+            "scatter_by_phase": {
+                p: float(np.mean([r["scatter_by_phase"][p] for r in rows if p in r["scatter_by_phase"]]))
+                for p in PHASES
+            },
+        }
         floors = [r["floor"] for r in rows if "floor" in r]
         for key in ("rerun_mse", "ideal_mse", "gns_mse", "gns_mse_to_mean"):
-            values = [f[key] for f in floors if key in f]      # the GNS's: the cases with a rollout
+            values = [f[key] for f in floors if key in f]  # the GNS's: the cases with a rollout
             if values:
                 mean[key] = float(np.mean(values))
         mean["gns_cases"] = sum("gns_mse" in f for f in floors)
@@ -157,14 +190,15 @@ def _means(cases: dict, methods) -> dict:
 
 def markdown_table(study: dict) -> str:
     """The per-method table of compare_methods (means over its cases)."""
-    lines = ["| method | L* scatter between packings: free fall / spreading / stopping | largest backward jump "
-             "(L*) | chaos floor: rerun MSE / ideal MSE | GNS MSE: against the run / against the mean of runs |",
-             "|---|---|---|---|---|"]
+    lines = [
+        "| method | L* scatter between packings: free fall / spreading / stopping | largest backward jump "
+        "(L*) | chaos floor: rerun MSE / ideal MSE | GNS MSE: against the run / against the mean of runs |",
+        "|---|---|---|---|---|",
+    ]
     for name, m in study["mean"].items():
         phases = " / ".join(f"{m['scatter_by_phase'][p]:.3f}" for p in PHASES)
         floor = f"{m['rerun_mse']:.3f} / {m['ideal_mse']:.3f}" if "rerun_mse" in m else "-"
-        gns = (f"{m['gns_mse']:.3f} / {m['gns_mse_to_mean']:.3f} ({m['gns_cases']} cases)" if "gns_mse" in m
-               else "-")
+        gns = f"{m['gns_mse']:.3f} / {m['gns_mse_to_mean']:.3f} ({m['gns_cases']} cases)" if "gns_mse" in m else "-"
         lines.append(f"| {name} | {phases} | {m['flicker']:.3f} | {floor} | {gns} |")
     return "\n".join(lines)
 
@@ -181,8 +215,9 @@ def plot_methods(runs: dict, study: dict, path) -> None:
             method = RunoutMethod.from_config(config)
             for j, run in enumerate(packings):
                 t, curve = method.curve(run)
-                ax.plot(t, curve, color=colours[method.method], lw=0.7, alpha=0.6,
-                        label=method.method if j == 0 else None)
+                ax.plot(
+                    t, curve, color=colours[method.method], lw=0.7, alpha=0.6, label=method.method if j == 0 else None
+                )
         ax.set(title=label, xlabel="t / t*", ylabel="L*")
         ax.grid(alpha=0.3)
     axes[0, 0].legend(fontsize=7)

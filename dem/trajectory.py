@@ -8,6 +8,7 @@ Layout (see ARCHITECTURE.md, "Trajectory HDF5"):
   .physical_parameters(): L_i, H_i, aspect_ratio, material, friction, restitution, ...),
   dt_frame (s), t_star (s), domain bounds (x_min, x_max, y_min, y_max in m), seed.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -18,8 +19,23 @@ import numpy as np
 
 from dem.atomic import atomic_path
 
-REQUIRED_ATTRS = ("engine", "engine_version", "L_i", "H_i", "aspect_ratio", "material", "dt_frame",
-                  "t_star", "x_min", "x_max", "y_min", "y_max", "seed", "friction", "restitution")
+REQUIRED_ATTRS = (
+    "engine",
+    "engine_version",
+    "L_i",
+    "H_i",
+    "aspect_ratio",
+    "material",
+    "dt_frame",
+    "t_star",
+    "x_min",
+    "x_max",
+    "y_min",
+    "y_max",
+    "seed",
+    "friction",
+    "restitution",
+)
 GRAIN = 0
 
 
@@ -29,11 +45,11 @@ class TrajectoryError(ValueError):
 
 @dataclass
 class Trajectory:
-    positions: np.ndarray                 # [T, N, 2] float32 (m)
-    radius: np.ndarray                    # [N] (m)
-    particle_type: np.ndarray             # [N] int32
+    positions: np.ndarray  # [T, N, 2] float32 (m)
+    radius: np.ndarray  # [N] (m)
+    particle_type: np.ndarray  # [N] int32
     attrs: dict = field(default_factory=dict)
-    source: str = ""                      # the file it was read from, for error messages (not written)
+    source: str = ""  # the file it was read from, for error messages (not written)
 
     @property
     def n_frames(self) -> int:
@@ -53,14 +69,15 @@ class Trajectory:
         """[T] frame times in units of t* = sqrt(H_i / g)."""
         return self.times / float(self.attrs["t_star"])
 
-    def validate(self, where: str = "trajectory") -> "Trajectory":
+    def validate(self, where: str = "trajectory") -> Trajectory:
         pos = self.positions
         if pos.ndim != 3 or pos.shape[2] != 2:
             raise TrajectoryError(f"{where}: positions must be [T, N, 2], got {pos.shape}")
         n = pos.shape[1]
         if self.radius.shape != (n,) or self.particle_type.shape != (n,):
-            raise TrajectoryError(f"{where}: radius {self.radius.shape} and particle_type "
-                                  f"{self.particle_type.shape} must both be [{n}]")
+            raise TrajectoryError(
+                f"{where}: radius {self.radius.shape} and particle_type {self.particle_type.shape} must both be [{n}]"
+            )
         missing = [k for k in REQUIRED_ATTRS if k not in self.attrs]
         if missing:
             raise TrajectoryError(f"{where}: missing attribute(s) {missing}")
@@ -72,8 +89,15 @@ class Trajectory:
 def engine_attrs(case, engine: str, engine_version: str) -> dict:
     """Trajectory attributes every engine writes for a dem.case.CollapseCase (the contract above)."""
     attrs = case.physical_parameters()
-    attrs.update(engine=engine, engine_version=engine_version, dt_frame=case.frame_interval,
-                 x_min=0.0, x_max=case.box_width, y_min=0.0, y_max=case.box_height)
+    attrs.update(
+        engine=engine,
+        engine_version=engine_version,
+        dt_frame=case.frame_interval,
+        x_min=0.0,
+        x_max=case.box_width,
+        y_min=0.0,
+        y_max=case.box_height,
+    )
     return attrs
 
 
@@ -83,9 +107,14 @@ def write_trajectory(path, trajectory: Trajectory) -> Path:
     trajectory.validate(str(path))
     with atomic_path(path) as tmp:
         with h5py.File(tmp, "w") as f:
-            f.create_dataset("positions", data=np.asarray(trajectory.positions, np.float32),
-                             compression="gzip", compression_opts=4, shuffle=True,
-                             chunks=(1,) + trajectory.positions.shape[1:])
+            f.create_dataset(
+                "positions",
+                data=np.asarray(trajectory.positions, np.float32),
+                compression="gzip",
+                compression_opts=4,
+                shuffle=True,
+                chunks=(1,) + trajectory.positions.shape[1:],
+            )
             f.create_dataset("radius", data=np.asarray(trajectory.radius, np.float64))
             f.create_dataset("particle_type", data=np.asarray(trajectory.particle_type, np.int32))
             for key, value in trajectory.attrs.items():
@@ -104,9 +133,13 @@ def read_trajectory(path, frames=None) -> Trajectory:
                 if key not in f:
                     raise TrajectoryError(f"{path}: missing dataset {key!r}")
             positions = f["positions"][frames if frames is not None else slice(None)]
-            traj = Trajectory(positions=np.asarray(positions, np.float32), radius=f["radius"][()],
-                              particle_type=f["particle_type"][()], attrs=_plain_attrs(f.attrs),
-                              source=str(path))
+            traj = Trajectory(
+                positions=np.asarray(positions, np.float32),
+                radius=f["radius"][()],
+                particle_type=f["particle_type"][()],
+                attrs=_plain_attrs(f.attrs),
+                source=str(path),
+            )
     except OSError as exc:
         raise TrajectoryError(f"{path}: not a readable HDF5 file ({exc})") from exc
     return traj.validate(str(path))

@@ -8,6 +8,7 @@ replicated centre measures how much a different packing moves the response (pure
 
 Factors are coded x = (value - centre) / half_range, in [-1, 1] (paper: (mu - 0.6) / 0.3).
 """
+
 from __future__ import annotations
 
 import itertools
@@ -62,8 +63,12 @@ def factors_from_config(doe_config: dict) -> tuple[Factor, ...]:
 
 def design_from_config(doe_config: dict) -> pd.DataFrame:
     """The design table from the config's doe section (levels, centre_replicates, seed, bounds)."""
-    return full_factorial(factors_from_config(doe_config), doe_config.get("levels", 7),
-                          doe_config.get("centre_replicates", 1), doe_config.get("seed", 0))
+    return full_factorial(
+        factors_from_config(doe_config),
+        doe_config.get("levels", 7),
+        doe_config.get("centre_replicates", 1),
+        doe_config.get("seed", 0),
+    )
 
 
 def centre_run_id(design: pd.DataFrame) -> str:

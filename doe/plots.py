@@ -1,5 +1,6 @@
 """DoE figures: fitted response surfaces with the design points and optimum, and runout curves
 before/after calibration against the measured points (the paper's Fig. 11)."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -30,13 +31,35 @@ def plot_response_surfaces(fits: dict, responses, path, response: str = "mse", m
     for ax, (model, fit) in zip(axes[0], fits.items()):
         shading = ax.contourf(fx.decode(gx), fy.decode(gy), surfaces[model], levels=levels, cmap="viridis")
         ax.contour(fx.decode(gx), fy.decode(gy), surfaces[model], levels=levels[::2], colors="w", linewidths=0.4)
-        ax.scatter(responses[fx.name], responses[fy.name], c=observed, cmap="viridis", vmin=low, vmax=high,
-                   edgecolors="k", s=36, zorder=3, label="DEM runs (observed)")
+        ax.scatter(
+            responses[fx.name],
+            responses[fy.name],
+            c=observed,
+            cmap="viridis",
+            vmin=low,
+            vmax=high,
+            edgecolors="k",
+            s=36,
+            zorder=3,
+            label="DEM runs (observed)",
+        )
         best = fit.optimum()["natural"]
-        ax.plot(best[fx.name], best[fy.name], "r*", ms=16, mec="w", zorder=4,
-                label=f"optimum ({best[fx.name]:.2f}, {best[fy.name]:.2f})")
-        ax.set(xlabel=f"{fx.name}", ylabel=f"{fy.name}", xlim=(fx.low, fx.high), ylim=(fy.low, fy.high),
-               title=f"{model}: R$^2$ = {fit.r_squared:.2f}")
+        ax.plot(
+            best[fx.name],
+            best[fy.name],
+            "r*",
+            ms=16,
+            mec="w",
+            zorder=4,
+            label=f"optimum ({best[fx.name]:.2f}, {best[fy.name]:.2f})",
+        )
+        ax.set(
+            xlabel=f"{fx.name}",
+            ylabel=f"{fy.name}",
+            xlim=(fx.low, fx.high),
+            ylim=(fy.low, fy.high),
+            title=f"{model}: R$^2$ = {fit.r_squared:.2f}",
+        )
         ax.legend(fontsize=7, loc="upper right")
     fig.colorbar(shading, ax=axes[0].tolist(), label=f"{response} (fitted surface and runs)")
     fig.suptitle(f"DoE response surfaces{' - ' + measured_name if measured_name else ''}", fontsize=10)
@@ -52,12 +75,21 @@ def plot_runout_comparison(measured, curves: dict, path, title: str = "") -> Non
     fig, ax = plt.subplots(figsize=(6.4, 4.4))
     for label, (t, runout) in curves.items():
         ax.plot(t, runout, lw=1.6, label=label)
-    ax.errorbar(measured.t_over_tstar, measured.runout, yerr=measured.runout_std, fmt="ko", ms=6, capsize=3,
-                label=f"measured ({measured.name})", zorder=5)
+    ax.errorbar(
+        measured.t_over_tstar,
+        measured.runout,
+        yerr=measured.runout_std,
+        fmt="ko",
+        ms=6,
+        capsize=3,
+        label=f"measured ({measured.name})",
+        zorder=5,
+    )
     ax.set(xlabel="t / t*", ylabel="L* = (L - L_i) / L_i", xlim=(0, None), ylim=(0, None))
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
-    ax.set_title(title or f"{measured.material}, a = {measured.aspect_ratio:g}, L_i = {measured.L_i * 1e3:g} mm",
-                 fontsize=10)
+    ax.set_title(
+        title or f"{measured.material}, a = {measured.aspect_ratio:g}, L_i = {measured.L_i * 1e3:g} mm", fontsize=10
+    )
     fig.tight_layout()
     save_figure(fig, path)

@@ -9,6 +9,7 @@ with LogWorth = -log10(p). Replicated design points (the centre run with another
 give the pure error and a lack-of-fit test. The optimum of each model is the minimum of the fitted
 surface within the factor bounds.
 """
+
 from __future__ import annotations
 
 import math
@@ -19,7 +20,6 @@ import pandas as pd
 import statsmodels.formula.api as smf
 from scipy import optimize, stats
 from statsmodels.stats.anova import anova_lm
-
 
 MODELS = ("eq9", "quadratic")
 SYMBOLS = {"friction": "mu", "restitution": "e"}
@@ -69,16 +69,30 @@ class SurfaceFit:
     def coefficients(self) -> pd.DataFrame:
         """Coded-unit coefficients: term, estimate, std_error, t, p_value."""
         r = self.result
-        return pd.DataFrame({"term": r.params.index, "estimate": r.params.values, "std_error": r.bse.values,
-                             "t": r.tvalues.values, "p_value": r.pvalues.values})
+        return pd.DataFrame(
+            {
+                "term": r.params.index,
+                "estimate": r.params.values,
+                "std_error": r.bse.values,
+                "t": r.tvalues.values,
+                "p_value": r.pvalues.values,
+            }
+        )
 
     def effect_table(self) -> pd.DataFrame:
         """statsmodels' ANOVA (type III) per model term: source, sum_sq, df, F, p_value, logworth;
         sorted by LogWorth, largest first, as the paper's Table 4 (intercept and residual left out)."""
         anova = anova_lm(self.result, typ=3).drop(index=["Intercept", "Residual"])
-        table = pd.DataFrame({"source": [term_label(t, self.factors) for t in anova.index], "term": anova.index,
-                              "sum_sq": anova["sum_sq"].values, "df": anova["df"].values, "F": anova["F"].values,
-                              "p_value": anova["PR(>F)"].values})
+        table = pd.DataFrame(
+            {
+                "source": [term_label(t, self.factors) for t in anova.index],
+                "term": anova.index,
+                "sum_sq": anova["sum_sq"].values,
+                "df": anova["df"].values,
+                "F": anova["F"].values,
+                "p_value": anova["PR(>F)"].values,
+            }
+        )
         table["logworth"] = -np.log10(table["p_value"])
         return table.sort_values("logworth", ascending=False, ignore_index=True)
 
@@ -102,16 +116,20 @@ class SurfaceFit:
         axes = np.linspace(-1, 1, GRID_POINTS)
         grid = np.stack([g.ravel() for g in np.meshgrid(*[axes] * len(self.factors), indexing="ij")], axis=1)
         start = grid[int(np.argmin(self.predict(grid)))]
-        polished = optimize.minimize(lambda z: float(self.predict(z)[0]), start, method="L-BFGS-B",
-                                     bounds=[(-1.0, 1.0)] * len(self.factors))
+        polished = optimize.minimize(
+            lambda z: float(self.predict(z)[0]), start, method="L-BFGS-B", bounds=[(-1.0, 1.0)] * len(self.factors)
+        )
         best = polished.x if polished.fun <= self.predict(start)[0] else start
         interval = self.result.get_prediction(self.frame(best)).summary_frame(alpha=0.05).iloc[0]
-        return {"coded": {f.name: float(best[k]) for k, f in enumerate(self.factors)},
-                "natural": {f.name: float(f.decode(best[k])) for k, f in enumerate(self.factors)},
-                "predicted": float(interval["mean"]), "ci_low": float(interval["mean_ci_lower"]),
-                "ci_high": float(interval["mean_ci_upper"]),
-                # an optimum on a bound says the best setting may lie outside the design region
-                "on_bound": [f.name for k, f in enumerate(self.factors) if abs(best[k]) > 1 - 1e-6]}
+        return {
+            "coded": {f.name: float(best[k]) for k, f in enumerate(self.factors)},
+            "natural": {f.name: float(f.decode(best[k])) for k, f in enumerate(self.factors)},
+            "predicted": float(interval["mean"]),
+            "ci_low": float(interval["mean_ci_lower"]),
+            "ci_high": float(interval["mean_ci_upper"]),
+            # an optimum on a bound says the best setting may lie outside the design region
+            "on_bound": [f.name for k, f in enumerate(self.factors) if abs(best[k]) > 1 - 1e-6],
+        }
 
 
 def coded_frame(responses: pd.DataFrame, factors, response: str) -> pd.DataFrame:
@@ -121,8 +139,9 @@ def coded_frame(responses: pd.DataFrame, factors, response: str) -> pd.DataFrame
         raise RegressionError(f"responses lack column(s) {missing}")
     y = responses[response].to_numpy(float)
     if not np.all(np.isfinite(y)):
-        raise RegressionError(f"response {response!r} has non-finite values in rows "
-                              f"{np.flatnonzero(~np.isfinite(y)).tolist()}")
+        raise RegressionError(
+            f"response {response!r} has non-finite values in rows {np.flatnonzero(~np.isfinite(y)).tolist()}"
+        )
     frame = pd.DataFrame({f"x_{f.name}": f.code(responses[f.name].to_numpy(float)) for f in factors})
     frame["response"] = y
     return frame
@@ -134,8 +153,9 @@ def fit_surface(responses: pd.DataFrame, model: str, factors, response: str = "m
     n_terms = 4 if model == "eq9" else 6
     if len(frame) <= n_terms:
         raise RegressionError(f"{len(frame)} runs cannot fit the {model} model ({n_terms} coefficients)")
-    return SurfaceFit(model=model, factors=tuple(factors), result=smf.ols(formula(model, factors), frame).fit(),
-                      response=response)
+    return SurfaceFit(
+        model=model, factors=tuple(factors), result=smf.ols(formula(model, factors), frame).fit(), response=response
+    )
 
 
 def pure_error(responses: pd.DataFrame, factors, response: str = "mse") -> dict:
@@ -148,9 +168,13 @@ def pure_error(responses: pd.DataFrame, factors, response: str = "mse") -> dict:
     groups = responses.groupby(names)[response]
     deviation = responses[response] - groups.transform("mean")
     df = int((groups.size() - 1).sum())
-    sum_sq = float((deviation ** 2).sum())
-    return {"sum_sq": sum_sq, "df": df, "std": math.sqrt(sum_sq / df) if df else math.nan,
-            "replicated": int((groups.size() > 1).sum())}
+    sum_sq = float((deviation**2).sum())
+    return {
+        "sum_sq": sum_sq,
+        "df": df,
+        "std": math.sqrt(sum_sq / df) if df else math.nan,
+        "replicated": int((groups.size() > 1).sum()),
+    }
 
 
 def lack_of_fit(fit: SurfaceFit, pure: dict) -> dict:
@@ -172,25 +196,35 @@ def analyse(responses: pd.DataFrame, factors, response: str = "mse", models=MODE
     fits = {model: fit_surface(responses, model, factors, response) for model in models}
     pure = pure_error(responses, factors, response)
     best = responses.loc[responses[response].idxmin()]
-    summary = {"response": response, "n_runs": int(len(responses)), "pure_error": pure,
-               "factors": {f.name: [f.low, f.high] for f in factors},
-               "best_run": {"run_id": str(best.get("run_id", best.name)), response: float(best[response]),
-                            **{f.name: float(best[f.name]) for f in factors}},
-               "models": {}}
+    summary = {
+        "response": response,
+        "n_runs": int(len(responses)),
+        "pure_error": pure,
+        "factors": {f.name: [f.low, f.high] for f in factors},
+        "best_run": {
+            "run_id": str(best.get("run_id", best.name)),
+            response: float(best[response]),
+            **{f.name: float(best[f.name]) for f in factors},
+        },
+        "models": {},
+    }
     for model, fit in fits.items():
         summary["models"][model] = {
-            "formula": formula(model, factors), "r_squared": fit.r_squared,
-            "r_squared_adj": float(fit.result.rsquared_adj), "rmse": float(math.sqrt(fit.result.mse_resid)),
+            "formula": formula(model, factors),
+            "r_squared": fit.r_squared,
+            "r_squared_adj": float(fit.result.rsquared_adj),
+            "rmse": float(math.sqrt(fit.result.mse_resid)),
             "coefficients": fit.coefficients().to_dict(orient="records"),
             "effects": fit.effect_table().to_dict(orient="records"),
-            "lack_of_fit": lack_of_fit(fit, pure), "optimum": fit.optimum()}
+            "lack_of_fit": lack_of_fit(fit, pure),
+            "optimum": fit.optimum(),
+        }
     return fits, summary
 
 
 def prediction_expression(fit: SurfaceFit, digits: int = 3) -> str:
     """The fitted model written out like the paper's eq. (9), with coded factors spelled out."""
-    names = {f"x_{f.name}": f"(({SYMBOLS.get(f.name, f.name)} - {f.centre:g})/{f.half_range:g})"
-             for f in fit.factors}
+    names = {f"x_{f.name}": f"(({SYMBOLS.get(f.name, f.name)} - {f.centre:g})/{f.half_range:g})" for f in fit.factors}
     parts = []
     for term, value in fit.result.params.items():
         if term == "Intercept":

@@ -3,6 +3,7 @@ the DEM runs, the analysis, and the validation case at each model's optimum.
 
 The stage layer (pipeline/doe.py) calls these for the Snakemake jobs and writes the report section.
 """
+
 from __future__ import annotations
 
 import json
@@ -19,7 +20,7 @@ from doe.design import design_cases
 from doe.regression import analyse, prediction_expression
 
 RUNOUT_PREFIX = "L_star_t"  # response columns L_star_t0.5, ... : simulated L* at the measured t/t*
-RUNOUT_METHOD_COLUMN = "runout_method"   # the runout method (JSON) every response was read by
+RUNOUT_METHOD_COLUMN = "runout_method"  # the runout method (JSON) every response was read by
 
 
 def case_rows(design: pd.DataFrame, measured, dataset: str, **case_fields) -> list[dict]:
@@ -31,9 +32,18 @@ def case_rows(design: pd.DataFrame, measured, dataset: str, **case_fields) -> li
     """
     rows = []
     for run_id, case in design_cases(design, measured, **case_fields).items():
-        row = {"dataset": dataset, "case_id": run_id, "split": "doe", "material": case.material.name,
-               "L_i": case.column_length, "aspect_ratio": case.aspect_ratio, "friction": case.friction,
-               "restitution": case.restitution, "seed": case.seed, "output_interval": case.output_interval}
+        row = {
+            "dataset": dataset,
+            "case_id": run_id,
+            "split": "doe",
+            "material": case.material.name,
+            "L_i": case.column_length,
+            "aspect_ratio": case.aspect_ratio,
+            "friction": case.friction,
+            "restitution": case.restitution,
+            "seed": case.seed,
+            "output_interval": case.output_interval,
+        }
         row.update(case_fields)
         rows.append(row)
     return rows
@@ -55,9 +65,12 @@ def collect_responses(design: pd.DataFrame, trajectory_paths: dict, measured, ru
         trajectory = read_trajectory(trajectory_paths[run_id])
         check_same_column(trajectory.attrs, measured, str(trajectory_paths[run_id]))
         values = runout_at(trajectory, measured.t_over_tstar, runout)
-        record = {"run_id": run_id, "mse": runout_mse(values, measured.runout),
-                  "dem_wall_time_s": float(trajectory.attrs.get("wall_time_s", math.nan)),
-                  RUNOUT_METHOD_COLUMN: json.dumps(runout.to_config(), sort_keys=True)}
+        record = {
+            "run_id": run_id,
+            "mse": runout_mse(values, measured.runout),
+            "dem_wall_time_s": float(trajectory.attrs.get("wall_time_s", math.nan)),
+            RUNOUT_METHOD_COLUMN: json.dumps(runout.to_config(), sort_keys=True),
+        }
         record.update({f"{RUNOUT_PREFIX}{t:g}": float(v) for t, v in zip(measured.t_over_tstar, values)})
         records.append(record)
     return design.merge(pd.DataFrame(records), on="run_id")

@@ -4,6 +4,7 @@ Nothing but the small per-file arrays (radius, particle_type) and attributes sta
 sample reads its C + 1 frames with one h5py slice, so memory is bounded by one batch whatever the
 dataset's size.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -23,8 +24,11 @@ STATISTICS = ("velocity_mean", "velocity_std", "acceleration_mean", "acceleratio
 def read_metadata(path) -> dict:
     """A dataset's metadata (dem.dataset's JSON), checked for what the GNS needs."""
     metadata = load_dataset_metadata(path)
-    missing = [k for k in STATISTICS + ("parameter_ranges", "dt_frame", "bounds", "material_diameter", "splits")
-               if k not in metadata]
+    missing = [
+        k
+        for k in STATISTICS + ("parameter_ranges", "dt_frame", "bounds", "material_diameter", "splits")
+        if k not in metadata
+    ]
     if missing:
         raise DatasetError(f"{path}: dataset metadata lacks {missing}; rebuild it with dem.dataset.build_dataset")
     for key in STATISTICS:
@@ -40,8 +44,10 @@ def split_paths(metadata: dict, split: str) -> list[str]:
     """Trajectory files of one split ("train", "valid", "test"); an empty split is an error."""
     paths = metadata["splits"].get(split) or []
     if not paths:
-        raise DatasetError(f"dataset {metadata.get('name', '?')}: the {split} split is empty; "
-                           "the GNS needs train, valid and test cases")
+        raise DatasetError(
+            f"dataset {metadata.get('name', '?')}: the {split} split is empty; "
+            "the GNS needs train, valid and test cases"
+        )
     return list(paths)
 
 
@@ -59,7 +65,7 @@ class Batch:
     next_position: torch.Tensor
     context: Context
 
-    def to(self, device) -> "Batch":
+    def to(self, device) -> Batch:
         return Batch(self.position_sequence.to(device), self.next_position.to(device), self.context.to(device))
 
 
@@ -85,11 +91,16 @@ class TrajectoryWindows:
                 particle_type = f["particle_type"][()]
             if n_frames < n_input_frames + 1:
                 raise DatasetError(f"{path}: {n_frames} frames, fewer than C + 1 = {n_input_frames + 1}")
-            self.files.append({
-                "path": path, "n_windows": n_frames - n_input_frames, "radius": radius,
-                "particle_type": particle_type.astype(np.int64),
-                "parameters": np.array([float(attrs[k]) for k in self.parameter_names]),
-                "layout": np.array([float(attrs[k]) for k in LAYOUT_KEYS])})
+            self.files.append(
+                {
+                    "path": path,
+                    "n_windows": n_frames - n_input_frames,
+                    "radius": radius,
+                    "particle_type": particle_type.astype(np.int64),
+                    "parameters": np.array([float(attrs[k]) for k in self.parameter_names]),
+                    "layout": np.array([float(attrs[k]) for k in LAYOUT_KEYS]),
+                }
+            )
         if not self.files:
             raise DatasetError("no trajectory files given")
         self.offsets = np.cumsum([0] + [f["n_windows"] for f in self.files])
@@ -107,9 +118,11 @@ class TrajectoryWindows:
         i, start = self.locate(k)
         entry = self.files[i]
         with h5py.File(entry["path"], "r") as f:
-            positions = f["positions"][start: start + self.n_input_frames + 1]
+            positions = f["positions"][start : start + self.n_input_frames + 1]
         if not np.all(np.isfinite(positions)):
-            raise TrajectoryError(f"{entry['path']}: non-finite positions in frames {start}..{start + self.n_input_frames}")
+            raise TrajectoryError(
+                f"{entry['path']}: non-finite positions in frames {start}..{start + self.n_input_frames}"
+            )
         return positions, entry
 
     def batch(self, indices) -> Batch:
@@ -125,8 +138,11 @@ class TrajectoryWindows:
             layouts.append(entry["layout"])
             graph.append(np.full(len(entry["radius"]), g))
         as_float = lambda arrays: torch.from_numpy(np.concatenate(arrays).astype(np.float32))  # noqa: E731
-        context = Context(torch.from_numpy(np.concatenate(types)), as_float(radii),
-                          torch.from_numpy(np.stack(params).astype(np.float32)),
-                          torch.from_numpy(np.stack(layouts).astype(np.float32)),
-                          torch.from_numpy(np.concatenate(graph).astype(np.int64)))
+        context = Context(
+            torch.from_numpy(np.concatenate(types)),
+            as_float(radii),
+            torch.from_numpy(np.stack(params).astype(np.float32)),
+            torch.from_numpy(np.stack(layouts).astype(np.float32)),
+            torch.from_numpy(np.concatenate(graph).astype(np.int64)),
+        )
         return Batch(as_float(sequences), as_float(targets), context)

@@ -5,6 +5,7 @@ Runout MSE (the paper's metric, 0.172 quartz / 0.167 copper): mean over every fr
 distance between GNS and DEM grain centres over the predicted frames, in m^2 and in mean grain
 diameters^2 (comparable across coarse-graining).
 """
+
 from __future__ import annotations
 
 import json
@@ -23,8 +24,10 @@ SNAPSHOT_TSTAR = (0.0, 1.0, 1.5, 2.0, 4.0)
 def rollout_runout_mse(dem: Trajectory, gns: Trajectory, runout: RunoutMethod) -> float:
     """Mean over frames of (L*_gns - L*_dem)^2, both read by `runout`; both must cover the same frames."""
     if gns.n_frames != dem.n_frames:
-        raise ValueError(f"GNS rollout has {gns.n_frames} frames, DEM {dem.n_frames}: a rollout that stopped "
-                         f"early ({gns.attrs.get('rollout_problem', '')}) has no full runout curve")
+        raise ValueError(
+            f"GNS rollout has {gns.n_frames} frames, DEM {dem.n_frames}: a rollout that stopped "
+            f"early ({gns.attrs.get('rollout_problem', '')}) has no full runout curve"
+        )
     return float(np.mean((runout_curve(gns, runout)[1] - runout_curve(dem, runout)[1]) ** 2))
 
 
@@ -32,7 +35,7 @@ def position_mse(dem: Trajectory, gns: Trajectory, n_input_frames: int) -> float
     """Mean squared centre distance (m^2) over the predicted frames n_input_frames.. of the rollout."""
     frames = slice(n_input_frames, gns.n_frames)
     difference = gns.positions[frames].astype(np.float64) - dem.positions[frames].astype(np.float64)
-    return float(np.mean(np.sum(difference ** 2, axis=-1)))
+    return float(np.mean(np.sum(difference**2, axis=-1)))
 
 
 def evaluate_rollouts(pairs, out_dir, runout: RunoutMethod | dict | str, n_input_frames: int | None = None) -> dict:
@@ -52,35 +55,51 @@ def evaluate_rollouts(pairs, out_dir, runout: RunoutMethod | dict | str, n_input
         valid = bool(gns.attrs.get("rollout_valid", 1))
         diameter = 2 * float(np.mean(dem.radius))
         name = Path(dem_path).stem
-        row = {"case": name, "dem": str(dem_path), "gns": str(gns_path), "valid": int(valid),
-               "problem": gns.attrs.get("rollout_problem", ""), "friction": float(dem.attrs["friction"]),
-               "restitution": float(dem.attrs["restitution"]), "aspect_ratio": float(dem.attrs["aspect_ratio"]),
-               "L_i": float(dem.attrs["L_i"]), "n_particles": dem.n_particles, "frames": dem.n_frames,
-               "gns_rollout_s": float(gns.attrs.get("wall_time_s", math.nan)),
-               "dem_run_s": float(dem.attrs.get("wall_time_s", math.nan))}
+        row = {
+            "case": name,
+            "dem": str(dem_path),
+            "gns": str(gns_path),
+            "valid": int(valid),
+            "problem": gns.attrs.get("rollout_problem", ""),
+            "friction": float(dem.attrs["friction"]),
+            "restitution": float(dem.attrs["restitution"]),
+            "aspect_ratio": float(dem.attrs["aspect_ratio"]),
+            "L_i": float(dem.attrs["L_i"]),
+            "n_particles": dem.n_particles,
+            "frames": dem.n_frames,
+            "gns_rollout_s": float(gns.attrs.get("wall_time_s", math.nan)),
+            "dem_run_s": float(dem.attrs.get("wall_time_s", math.nan)),
+        }
         position = position_mse(dem, gns, c)
-        row.update(position_mse_m2=position, position_mse_d2=position / diameter ** 2)
+        row.update(position_mse_m2=position, position_mse_d2=position / diameter**2)
         t_dem, runout_dem = runout_curve(dem, runout)
         try:
             t_gns, runout_gns = runout_curve(gns, runout)
-        except RunoutError as exc:     # a rollout spread too thin for the rule: failed, said why
+        except RunoutError as exc:  # a rollout spread too thin for the rule: failed, said why
             valid = False
             row.update(valid=0, problem=f"{row['problem']}; no runout: {exc}".lstrip("; "))
             t_gns, runout_gns = t_dem[:1], np.full(1, math.nan)
-        row.update(runout_mse=rollout_runout_mse(dem, gns, runout) if valid else math.nan,
-                   final_runout_dem=float(runout_dem[-1]), final_runout_gns=float(runout_gns[-1]) if valid else math.nan)
+        row.update(
+            runout_mse=rollout_runout_mse(dem, gns, runout) if valid else math.nan,
+            final_runout_dem=float(runout_dem[-1]),
+            final_runout_gns=float(runout_gns[-1]) if valid else math.nan,
+        )
         rows.append(row)
         curves.append((name, dem.attrs, t_dem, runout_dem, t_gns, runout_gns))
         plot_side_by_side(dem, gns, out_dir / "snapshots" / f"{name}.png")
     plot_runout_curves(curves, out_dir / "runout_curves.png", runout.label)
     ok = [r for r in rows if r["valid"]]
-    summary = {"runout": runout.to_config(), "n_cases": len(rows), "n_failed": len(rows) - len(ok),
-               "runout_mse": float(np.mean([r["runout_mse"] for r in ok])) if ok else math.nan,
-               "runout_mse_max": float(np.max([r["runout_mse"] for r in ok])) if ok else math.nan,
-               "position_mse_m2": float(np.mean([r["position_mse_m2"] for r in rows])) if rows else math.nan,
-               "position_mse_d2": float(np.mean([r["position_mse_d2"] for r in rows])) if rows else math.nan,
-               "gns_rollout_s_mean": float(np.mean([r["gns_rollout_s"] for r in rows])) if rows else math.nan,
-               "cases": rows}
+    summary = {
+        "runout": runout.to_config(),
+        "n_cases": len(rows),
+        "n_failed": len(rows) - len(ok),
+        "runout_mse": float(np.mean([r["runout_mse"] for r in ok])) if ok else math.nan,
+        "runout_mse_max": float(np.max([r["runout_mse"] for r in ok])) if ok else math.nan,
+        "position_mse_m2": float(np.mean([r["position_mse_m2"] for r in rows])) if rows else math.nan,
+        "position_mse_d2": float(np.mean([r["position_mse_d2"] for r in rows])) if rows else math.nan,
+        "gns_rollout_s_mean": float(np.mean([r["gns_rollout_s"] for r in rows])) if rows else math.nan,
+        "cases": rows,
+    }
     _write_csv(rows, out_dir / "metrics.csv")
     write_text(out_dir / "summary.json", json.dumps(summary, indent=1, default=float) + "\n")
     return summary
@@ -110,8 +129,9 @@ def plot_side_by_side(dem: Trajectory, gns: Trajectory, path, snapshots=SNAPSHOT
     shown = [s for s in snapshots if s <= t[-1] + 1e-9]
     extent = max(float(dem.positions[:, :, 0].max()), float(gns.positions[:, :, 0].max())) * 1.1
     height = float(dem.positions[0, :, 1].max()) * 1.15
-    fig, axes = plt.subplots(len(shown), 2, figsize=(10, 1.1 + len(shown) * max(1.0, 5 * height / extent)),
-                             squeeze=False)
+    fig, axes = plt.subplots(
+        len(shown), 2, figsize=(10, 1.1 + len(shown) * max(1.0, 5 * height / extent)), squeeze=False
+    )
     for row, s in enumerate(shown):
         k = int(np.argmin(np.abs(t - s)))
         for col, (traj, colour) in enumerate(((dem, "tab:orange"), (gns, "tab:blue"))):
@@ -125,8 +145,11 @@ def plot_side_by_side(dem: Trajectory, gns: Trajectory, path, snapshots=SNAPSHOT
             ax.set_title(f"{'DEM' if col == 0 else 'GNS'}  t/t* = {t[k]:.2f}", fontsize=8, loc="left")
             ax.tick_params(labelsize=6)
     a = dem.attrs
-    fig.suptitle(f"{a.get('material')} a = {float(a['aspect_ratio']):.3g}, mu = {float(a['friction']):.3g}, "
-                 f"e = {float(a['restitution']):.3g}", fontsize=10)
+    fig.suptitle(
+        f"{a.get('material')} a = {float(a['aspect_ratio']):.3g}, mu = {float(a['friction']):.3g}, "
+        f"e = {float(a['restitution']):.3g}",
+        fontsize=10,
+    )
     fig.tight_layout()
     save_figure(fig, path)
 
@@ -146,8 +169,11 @@ def plot_runout_curves(curves, path, runout_label: str = ""):
         label = f"{name} (mu {float(attrs['friction']):.2f}, a {float(attrs['aspect_ratio']):.2g})"
         ax.plot(t_dem, runout_dem, "-", color=colour, label=f"DEM {label}")
         ax.plot(t_gns, runout_gns, "--", color=colour, label="GNS")
-    ax.set(xlabel="t / t*", ylabel="L* = (L - L_i) / L_i", title="runout: DEM (solid) and GNS (dashed)"
-           + (f"\n{runout_label}" if runout_label else ""))
+    ax.set(
+        xlabel="t / t*",
+        ylabel="L* = (L - L_i) / L_i",
+        title="runout: DEM (solid) and GNS (dashed)" + (f"\n{runout_label}" if runout_label else ""),
+    )
     ax.grid(alpha=0.3)
     ax.legend(fontsize=6, ncol=2)
     fig.tight_layout()

@@ -25,6 +25,7 @@ Where this differs from the paper, and why:
     distance and both sizes, which took many more training steps.
   - degenerate ranges (a parameter fixed across the dataset) give a constant 0 feature.
 """
+
 from __future__ import annotations
 
 import torch
@@ -35,8 +36,14 @@ EDGE_BLOCKS = ("displacement", "distance", "gap")
 
 def node_layout(n_input_frames: int, type_embedding_size: int, n_parameters: int) -> list[tuple[str, int]]:
     """[(block name, width)] of the node features in the order they are concatenated."""
-    widths = {"velocity": 2 * (n_input_frames - 1), "walls": 4, "particle_type": type_embedding_size,
-              "parameters": n_parameters, "layout": 2, "size": 1}
+    widths = {
+        "velocity": 2 * (n_input_frames - 1),
+        "walls": 4,
+        "particle_type": type_embedding_size,
+        "parameters": n_parameters,
+        "layout": 2,
+        "size": 1,
+    }
     return [(name, widths[name]) for name in NODE_BLOCKS]
 
 
@@ -46,7 +53,7 @@ def edge_layout() -> list[tuple[str, int]]:
 
 def velocity_features(position_sequence, velocity_mean, velocity_std):
     """position_sequence [N, C, 2] (m) -> normalised velocities [N, 2 (C-1)]."""
-    velocity = position_sequence[:, 1:] - position_sequence[:, :-1]          # m per frame
+    velocity = position_sequence[:, 1:] - position_sequence[:, :-1]  # m per frame
     return ((velocity - velocity_mean) / velocity_std).flatten(1)
 
 
@@ -76,6 +83,6 @@ def edge_features(position, grain_radius, senders, receivers, connectivity_radiu
     its norm, and the surface gap |d| - r_s - r_r, all / connectivity radius."""
     displacement = (position[senders] - position[receivers]) / connectivity_radius
     # the norm's gradient is undefined at 0; no self edges, but coincident grains must not give NaN
-    distance = torch.sqrt(torch.sum(displacement ** 2, dim=-1, keepdim=True) + 1e-12)
+    distance = torch.sqrt(torch.sum(displacement**2, dim=-1, keepdim=True) + 1e-12)
     gap = distance - ((grain_radius[senders] + grain_radius[receivers]) / connectivity_radius)[:, None]
     return torch.cat([displacement, distance, gap.to(distance.dtype)], dim=-1)

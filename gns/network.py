@@ -12,6 +12,7 @@ directed graph (senders -> receivers) to per-node outputs [N, out].
 Every MLP has `mlp_hidden_layers` hidden layers of width `mlp_hidden_size` with ReLU, and all but
 the decoder end in LayerNorm (Table 3 of the paper: 2 hidden layers of 128).
 """
+
 from __future__ import annotations
 
 import torch
@@ -21,7 +22,7 @@ from torch import nn
 def mlp(in_size: int, hidden_size: int, hidden_layers: int, out_size: int, layer_norm: bool = True) -> nn.Sequential:
     layers, size = [], in_size
     for _ in range(hidden_layers):
-        layers += [nn.Linear(size, hidden_size), nn.ReLU(inplace=True)]   # in place: one E x H buffer less per layer
+        layers += [nn.Linear(size, hidden_size), nn.ReLU(inplace=True)]  # in place: one E x H buffer less per layer
         size = hidden_size
     layers.append(nn.Linear(size, out_size))
     if layer_norm:
@@ -61,13 +62,22 @@ class GNBlock(nn.Module):
 
 
 class EncodeProcessDecode(nn.Module):
-    def __init__(self, node_in: int, edge_in: int, out_size: int, latent_size: int = 128,
-                 mlp_hidden_size: int = 128, mlp_hidden_layers: int = 2, n_message_passing: int = 5):
+    def __init__(
+        self,
+        node_in: int,
+        edge_in: int,
+        out_size: int,
+        latent_size: int = 128,
+        mlp_hidden_size: int = 128,
+        mlp_hidden_layers: int = 2,
+        n_message_passing: int = 5,
+    ):
         super().__init__()
         self.node_encoder = mlp(node_in, mlp_hidden_size, mlp_hidden_layers, latent_size)
         self.edge_encoder = mlp(edge_in, mlp_hidden_size, mlp_hidden_layers, latent_size)
-        self.processor = nn.ModuleList(GNBlock(latent_size, mlp_hidden_size, mlp_hidden_layers)
-                                       for _ in range(n_message_passing))
+        self.processor = nn.ModuleList(
+            GNBlock(latent_size, mlp_hidden_size, mlp_hidden_layers) for _ in range(n_message_passing)
+        )
         self.decoder = mlp(latent_size, mlp_hidden_size, mlp_hidden_layers, out_size, layer_norm=False)
 
     def encode(self, node_features, edge_features):

@@ -14,6 +14,7 @@ A rollout whose positions turn non-finite or leave the box (by more than one mea
 diameter, as the builtin engine's blow-up check) raises RolloutError, or with on_invalid="flag"
 stops there and says so in the result.
 """
+
 from __future__ import annotations
 
 import time
@@ -36,28 +37,39 @@ class RolloutError(RuntimeError):
 
 @dataclass
 class Rollout:
-    positions: torch.Tensor      # [C + steps_done, N, 2] (m)
+    positions: torch.Tensor  # [C + steps_done, N, 2] (m)
     valid: bool
-    problem: str | None          # why it stopped early, None when valid
+    problem: str | None  # why it stopped early, None when valid
 
 
 def check_parameters(simulator: LearnedSimulator, parameters, layout) -> None:
     """ValueError when a parameter or L_i/H_i lies outside the range the model was trained on."""
     c = simulator.config
     names = c.parameter_names + ["L_i", "H_i"]
-    values = torch.cat([parameters.detach().reshape(-1, len(c.parameter_names)),
-                        layout.detach().reshape(-1, 2)], dim=1).cpu().double()
+    values = (
+        torch.cat([parameters.detach().reshape(-1, len(c.parameter_names)), layout.detach().reshape(-1, 2)], dim=1)
+        .cpu()
+        .double()
+    )
     for k, name in enumerate(names):
         low, high = c.parameter_ranges[name]
         tolerance = 1e-6 * max(abs(low), abs(high), 1e-12)
         bad = (values[:, k] < low - tolerance) | (values[:, k] > high + tolerance)
         if bool(bad.any()):
-            raise ValueError(f"{name} = {values[bad, k][0].item():.6g} lies outside the range [{low}, {high}] "
-                             "the model was trained on")
+            raise ValueError(
+                f"{name} = {values[bad, k][0].item():.6g} lies outside the range [{low}, {high}] "
+                "the model was trained on"
+            )
 
 
-def rollout(simulator: LearnedSimulator, initial_positions: torch.Tensor, context: Context, n_steps: int,
-            checkpoint: bool = True, on_invalid: str = "raise") -> Rollout:
+def rollout(
+    simulator: LearnedSimulator,
+    initial_positions: torch.Tensor,
+    context: Context,
+    n_steps: int,
+    checkpoint: bool = True,
+    on_invalid: str = "raise",
+) -> Rollout:
     """initial_positions [C, N, 2] (m) -> Rollout with positions [C + n_steps, N, 2].
 
     Gradients reach initial_positions, context.parameters and context.layout when they require
@@ -67,12 +79,14 @@ def rollout(simulator: LearnedSimulator, initial_positions: torch.Tensor, contex
         raise ValueError(f"on_invalid must be 'raise' or 'flag', got {on_invalid!r}")
     c = simulator.config
     if initial_positions.shape[0] != c.n_input_frames:
-        raise ValueError(f"initial_positions has {initial_positions.shape[0]} frames, the model needs C = {c.n_input_frames}")
+        raise ValueError(
+            f"initial_positions has {initial_positions.shape[0]} frames, the model needs C = {c.n_input_frames}"
+        )
     check_parameters(simulator, context.parameters, context.layout)
     margin = 2.0 * c.mean_radius
     low = simulator.bounds[:, 0] - margin
     high = simulator.bounds[:, 1] + margin
-    sequence = initial_positions.transpose(0, 1)                      # [N, C, 2]
+    sequence = initial_positions.transpose(0, 1)  # [N, C, 2]
     frames = list(initial_positions)
 
     def step(sequence, parameters, layout, radius):
@@ -100,13 +114,20 @@ def _problem(position, low, high) -> str | None:
         return f"{int((~finite).sum())} particle(s) have non-finite positions"
     outside = ((position < low) | (position > high)).any(dim=1)
     if bool(outside.any()):
-        return (f"{int(outside.sum())} particle(s) left the box {low.tolist()}..{high.tolist()} m "
-                f"(e.g. at {position[outside][0].tolist()})")
+        return (
+            f"{int(outside.sum())} particle(s) left the box {low.tolist()}..{high.tolist()} m "
+            f"(e.g. at {position[outside][0].tolist()})"
+        )
     return None
 
 
-def context_from_trajectory(simulator: LearnedSimulator, trajectory: Trajectory, parameters: dict | None = None,
-                            device=None, dtype=torch.float32) -> Context:
+def context_from_trajectory(
+    simulator: LearnedSimulator,
+    trajectory: Trajectory,
+    parameters: dict | None = None,
+    device=None,
+    dtype=torch.float32,
+) -> Context:
     """The rollout context of a trajectory's case; `parameters` overrides DEM parameters by name."""
     names = simulator.config.parameter_names
     values = {name: float(trajectory.attrs[name]) for name in names}
@@ -118,11 +139,18 @@ def context_from_trajectory(simulator: LearnedSimulator, trajectory: Trajectory,
         torch.as_tensor(trajectory.particle_type, dtype=torch.long, device=device),
         torch.as_tensor(trajectory.radius, dtype=dtype, device=device),
         torch.tensor([values[n] for n in names], dtype=dtype, device=device),
-        torch.tensor([float(trajectory.attrs["L_i"]), float(trajectory.attrs["H_i"])], dtype=dtype, device=device))
+        torch.tensor([float(trajectory.attrs["L_i"]), float(trajectory.attrs["H_i"])], dtype=dtype, device=device),
+    )
 
 
-def rollout_trajectory(simulator: LearnedSimulator, trajectory: Trajectory, n_steps: int | None = None,
-                       parameters: dict | None = None, on_invalid: str = "flag", model_name: str = "") -> Trajectory:
+def rollout_trajectory(
+    simulator: LearnedSimulator,
+    trajectory: Trajectory,
+    n_steps: int | None = None,
+    parameters: dict | None = None,
+    on_invalid: str = "flag",
+    model_name: str = "",
+) -> Trajectory:
     """GNS rollout of `trajectory`'s case from its first C frames (no gradient), as a Trajectory.
 
     n_steps: default runs to the trajectory's last frame. parameters: override DEM parameters by
@@ -131,8 +159,10 @@ def rollout_trajectory(simulator: LearnedSimulator, trajectory: Trajectory, n_st
     """
     c = simulator.config
     if abs(float(trajectory.attrs["dt_frame"]) - c.dt_frame) > 1e-9 * c.dt_frame:
-        raise ValueError(f"trajectory dt_frame {trajectory.attrs['dt_frame']} s differs from the model's "
-                         f"{c.dt_frame} s (one GNS step is one frame)")
+        raise ValueError(
+            f"trajectory dt_frame {trajectory.attrs['dt_frame']} s differs from the model's "
+            f"{c.dt_frame} s (one GNS step is one frame)"
+        )
     n_steps = trajectory.n_frames - c.n_input_frames if n_steps is None else n_steps
     device = simulator.bounds.device
     context = context_from_trajectory(simulator, trajectory, parameters, device)
@@ -143,13 +173,21 @@ def rollout_trajectory(simulator: LearnedSimulator, trajectory: Trajectory, n_st
     elapsed = time.perf_counter() - start
     attrs = {k: v for k, v in trajectory.attrs.items() if k not in RUN_ATTRS}
     for name, value in (parameters or {}).items():
-        for wall_key in (f"{name}_wall",):   # a wall value that followed the grain value keeps following it
+        for wall_key in (f"{name}_wall",):  # a wall value that followed the grain value keeps following it
             if wall_key in attrs and attrs[wall_key] == trajectory.attrs[name] and wall_key not in c.parameter_names:
                 attrs[wall_key] = float(value)
         attrs[name] = float(value)
-    attrs.update(engine="gns", engine_version=model_name or "gns", wall_time_s=elapsed,
-                 rollout_valid=int(result.valid), rollout_problem=result.problem or "",
-                 rollout_steps=int(result.positions.shape[0] - c.n_input_frames))
-    return Trajectory(positions=result.positions.cpu().numpy().astype(np.float32),
-                      radius=np.asarray(trajectory.radius), particle_type=np.asarray(trajectory.particle_type),
-                      attrs=attrs)
+    attrs.update(
+        engine="gns",
+        engine_version=model_name or "gns",
+        wall_time_s=elapsed,
+        rollout_valid=int(result.valid),
+        rollout_problem=result.problem or "",
+        rollout_steps=int(result.positions.shape[0] - c.n_input_frames),
+    )
+    return Trajectory(
+        positions=result.positions.cpu().numpy().astype(np.float32),
+        radius=np.asarray(trajectory.radius),
+        particle_type=np.asarray(trajectory.particle_type),
+        attrs=attrs,
+    )

@@ -11,6 +11,7 @@ only where a gradient has to pass:
   the frame that set the maximum.
 tests/test_inverse.py checks every method against dem.runout on DEM trajectories (within 0.25 d).
 """
+
 from __future__ import annotations
 
 import math
@@ -22,7 +23,7 @@ from scipy.special import expit
 
 from dem.runout import RunoutError, RunoutMethod
 
-SOFT_TEMPERATURE = 0.25               # soft top-k width, in mean grain diameters (connected front)
+SOFT_TEMPERATURE = 0.25  # soft top-k width, in mean grain diameters (connected front)
 # The dense front is one grain: its soft top-1 must be narrower to stay within 0.25 d of the max.
 SOFT_TEMPERATURE_TOP1 = 0.05
 
@@ -47,8 +48,13 @@ def soft_top_k_mean(values: torch.Tensor, k: int, temperature: float) -> torch.T
     return torch.sum(weights * values) / torch.sum(weights)
 
 
-def soft_front_position(positions: torch.Tensor, radius: torch.Tensor, method: RunoutMethod,
-                        temperature: float | None = None, where: str = "frame") -> torch.Tensor:
+def soft_front_position(
+    positions: torch.Tensor,
+    radius: torch.Tensor,
+    method: RunoutMethod,
+    temperature: float | None = None,
+    where: str = "frame",
+) -> torch.Tensor:
     """Differentiable L (m) of one frame by `method`'s instantaneous rule.
 
     positions [N, 2] (m), radius [N] (m); temperature in mean grain diameters (None: the rule's
@@ -80,17 +86,29 @@ def frame_weights(t_points, t_star: float, dt_frame: float, n_frames: int) -> li
 
 def frames_needed(t_points, t_star: float, dt_frame: float) -> int:
     """How many frames (from frame 0) a runout at the t/t* points reads."""
-    return max(k for k, _ in frame_weights(t_points, t_star, dt_frame, 10 ** 9)) + 2
+    return max(k for k, _ in frame_weights(t_points, t_star, dt_frame, 10**9)) + 2
 
 
-def soft_runout_at(positions: torch.Tensor, radius: torch.Tensor, L_i: float, t_star: float, dt_frame: float,
-                   t_points, method: RunoutMethod, temperature: float | None = None) -> torch.Tensor:
+def soft_runout_at(
+    positions: torch.Tensor,
+    radius: torch.Tensor,
+    L_i: float,
+    t_star: float,
+    dt_frame: float,
+    t_points,
+    method: RunoutMethod,
+    temperature: float | None = None,
+) -> torch.Tensor:
     """Differentiable L* [K] at t/t* points from frames positions [T, N, 2] (m), frame j at j dt_frame."""
     pairs = frame_weights(t_points, t_star, dt_frame, positions.shape[0])
-    if method.reached:      # every frame up to the last point sets the running maximum
+    if method.reached:  # every frame up to the last point sets the running maximum
         last = max(k + (w > 0) for k, w in pairs)
-        fronts = torch.stack([soft_front_position(positions[k], radius, method, temperature, where=f"frame {k}")
-                              for k in range(last + 1)])
+        fronts = torch.stack(
+            [
+                soft_front_position(positions[k], radius, method, temperature, where=f"frame {k}")
+                for k in range(last + 1)
+            ]
+        )
         runout = (torch.cummax(fronts, dim=0).values - L_i) / L_i
         return torch.stack([(1.0 - w) * runout[k] + w * runout[k + 1] if w > 0 else runout[k] for k, w in pairs])
     cache = {}

@@ -9,6 +9,7 @@ Everything that depends on the physical setting (bounds, parameter ranges, stati
 lives in `SimulatorConfig`, saved in every checkpoint, so a checkpoint rebuilds its own model and
 refuses data it was not trained for (`check_compatible`).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -25,7 +26,7 @@ LAYOUT_KEYS = ("L_i", "H_i")
 # entries of a dataset's parameter_ranges that are not DEM parameters: the layout, and the
 # aspect ratio H_i / L_i that the layout already gives
 NOT_PARAMETERS = LAYOUT_KEYS + ("aspect_ratio",)
-WALL_CLAMP_DEPTH = 0.5   # grain radii: the deepest a rollout lets a grain centre sink into a wall
+WALL_CLAMP_DEPTH = 0.5  # grain radii: the deepest a rollout lets a grain centre sink into a wall
 
 
 class CheckpointError(ValueError):
@@ -36,45 +37,53 @@ class CheckpointError(ValueError):
 class SimulatorConfig:
     """Everything needed to rebuild a simulator (stored in checkpoints as a plain dict)."""
 
-    connectivity_radius: float                 # m
-    bounds: list                               # [[x_min, x_max], [y_min, y_max]] (m)
-    parameter_ranges: dict                     # name -> [min, max]: DEM parameters and L_i, H_i
-    mean_radius: float                         # m, mean grain radius of the dataset
-    dt_frame: float                            # s per GNS step
-    velocity_mean: list                        # [2] m/frame
-    velocity_std: list                         # [2] m/frame
-    acceleration_mean: list                    # [2] m/frame^2
-    acceleration_std: list                     # [2] m/frame^2
-    noise_std: float = 0.0                     # m/frame, training input noise (combined into stats)
-    n_input_frames: int = 6                    # C
+    connectivity_radius: float  # m
+    bounds: list  # [[x_min, x_max], [y_min, y_max]] (m)
+    parameter_ranges: dict  # name -> [min, max]: DEM parameters and L_i, H_i
+    mean_radius: float  # m, mean grain radius of the dataset
+    dt_frame: float  # s per GNS step
+    velocity_mean: list  # [2] m/frame
+    velocity_std: list  # [2] m/frame
+    acceleration_mean: list  # [2] m/frame^2
+    acceleration_std: list  # [2] m/frame^2
+    noise_std: float = 0.0  # m/frame, training input noise (combined into stats)
+    n_input_frames: int = 6  # C
     latent_size: int = 128
     mlp_hidden_layers: int = 2
-    n_message_passing: int = 5                 # M
+    n_message_passing: int = 5  # M
     n_particle_types: int = 1
     type_embedding_size: int = 16
     max_neighbours: int | None = None
-    wall_clamp: bool = True                    # rollouts: project grains back out of the walls (see keep_inside_walls)
-    node_layout: list = field(default_factory=list)   # filled in by __post_init__
+    wall_clamp: bool = True  # rollouts: project grains back out of the walls (see keep_inside_walls)
+    node_layout: list = field(default_factory=list)  # filled in by __post_init__
     edge_layout: list = field(default_factory=list)
 
     def __post_init__(self):
         for key in ("velocity_std", "acceleration_std"):
             if len(getattr(self, key)) != 2 or min(getattr(self, key)) < 0:
-                raise CheckpointError(f"simulator config: {key} must be two non-negative numbers, got {getattr(self, key)}")
+                raise CheckpointError(
+                    f"simulator config: {key} must be two non-negative numbers, got {getattr(self, key)}"
+                )
         missing = [k for k in LAYOUT_KEYS if k not in self.parameter_ranges]
         if missing:
             raise CheckpointError(f"simulator config: parameter_ranges lacks the layout entries {missing}")
         if self.n_input_frames < 2:
             raise CheckpointError(f"simulator config: n_input_frames (C) must be >= 2, got {self.n_input_frames}")
-        layout = [list(b) for b in features.node_layout(self.n_input_frames, self.type_embedding_size,
-                                                         len(self.parameter_names))]
+        layout = [
+            list(b)
+            for b in features.node_layout(self.n_input_frames, self.type_embedding_size, len(self.parameter_names))
+        ]
         edge = [list(b) for b in features.edge_layout()]
         if self.node_layout and [list(b) for b in self.node_layout] != layout:
-            raise CheckpointError(f"feature layout mismatch: checkpoint has node features {self.node_layout}, "
-                                  f"this code builds {layout}; retrain the model")
+            raise CheckpointError(
+                f"feature layout mismatch: checkpoint has node features {self.node_layout}, "
+                f"this code builds {layout}; retrain the model"
+            )
         if self.edge_layout and [list(b) for b in self.edge_layout] != edge:
-            raise CheckpointError(f"feature layout mismatch: checkpoint has edge features {self.edge_layout}, "
-                                  f"this code builds {edge}; retrain the model")
+            raise CheckpointError(
+                f"feature layout mismatch: checkpoint has edge features {self.edge_layout}, "
+                f"this code builds {edge}; retrain the model"
+            )
         self.node_layout, self.edge_layout = layout, edge
 
     @property
@@ -86,7 +95,7 @@ class SimulatorConfig:
         return dataclasses.asdict(self)
 
     @classmethod
-    def from_dict(cls, data: dict) -> "SimulatorConfig":
+    def from_dict(cls, data: dict) -> SimulatorConfig:
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = set(data) - known
         if unknown:
@@ -97,11 +106,15 @@ class SimulatorConfig:
         """Raise CheckpointError when the dataset's parameters, frame interval or bounds differ."""
         names = [k for k in metadata["parameter_ranges"] if k not in NOT_PARAMETERS]
         if names != self.parameter_names:
-            raise CheckpointError(f"{where}: parameter set {names} differs from the checkpoint's "
-                                  f"{self.parameter_names}; retrain for these parameters")
+            raise CheckpointError(
+                f"{where}: parameter set {names} differs from the checkpoint's "
+                f"{self.parameter_names}; retrain for these parameters"
+            )
         if abs(float(metadata["dt_frame"]) - self.dt_frame) > 1e-9 * self.dt_frame:
-            raise CheckpointError(f"{where}: dt_frame {metadata['dt_frame']} s differs from the checkpoint's "
-                                  f"{self.dt_frame} s (one GNS step is one frame)")
+            raise CheckpointError(
+                f"{where}: dt_frame {metadata['dt_frame']} s differs from the checkpoint's "
+                f"{self.dt_frame} s (one GNS step is one frame)"
+            )
         if [[float(v) for v in b] for b in metadata["bounds"]] != [[float(v) for v in b] for b in self.bounds]:
             raise CheckpointError(f"{where}: bounds {metadata['bounds']} differ from the checkpoint's {self.bounds}")
 
@@ -119,12 +132,17 @@ class Context:
     graph_index: torch.Tensor
 
     @classmethod
-    def single(cls, particle_type, radius, parameters, layout) -> "Context":
+    def single(cls, particle_type, radius, parameters, layout) -> Context:
         n = len(radius)
-        return cls(torch.as_tensor(particle_type, dtype=torch.long), radius, parameters.reshape(1, -1),
-                   layout.reshape(1, -1), torch.zeros(n, dtype=torch.long, device=radius.device))
+        return cls(
+            torch.as_tensor(particle_type, dtype=torch.long),
+            radius,
+            parameters.reshape(1, -1),
+            layout.reshape(1, -1),
+            torch.zeros(n, dtype=torch.long, device=radius.device),
+        )
 
-    def to(self, device=None, dtype=None) -> "Context":
+    def to(self, device=None, dtype=None) -> Context:
         floats = {k: getattr(self, k).to(device=device, dtype=dtype) for k in ("radius", "parameters", "layout")}
         return Context(self.particle_type.to(device), graph_index=self.graph_index.to(device), **floats)
 
@@ -136,13 +154,14 @@ class LearnedSimulator(nn.Module):
         c = config
         node_in = sum(width for _, width in c.node_layout)
         edge_in = sum(width for _, width in c.edge_layout)
-        self.network = EncodeProcessDecode(node_in, edge_in, 2, c.latent_size, c.latent_size,
-                                           c.mlp_hidden_layers, c.n_message_passing)
+        self.network = EncodeProcessDecode(
+            node_in, edge_in, 2, c.latent_size, c.latent_size, c.mlp_hidden_layers, c.n_message_passing
+        )
         self.type_embedding = nn.Embedding(c.n_particle_types, c.type_embedding_size)
         # Sanchez-Gonzalez et al.: the input noise widens the statistics the inputs and targets
         # are normalised with, so that noisy inputs stay O(1) after normalisation.
         noise = torch.tensor(c.noise_std, dtype=torch.float64)
-        combine = lambda std: torch.sqrt(torch.tensor(std, dtype=torch.float64) ** 2 + noise ** 2)  # noqa: E731
+        combine = lambda std: torch.sqrt(torch.tensor(std, dtype=torch.float64) ** 2 + noise**2)  # noqa: E731
         self.register_buffer("velocity_mean", torch.tensor(c.velocity_mean, dtype=torch.float32))
         self.register_buffer("velocity_std", combine(c.velocity_std).float())
         self.register_buffer("acceleration_mean", torch.tensor(c.acceleration_mean, dtype=torch.float32))
@@ -161,11 +180,14 @@ class LearnedSimulator(nn.Module):
         senders [E], receivers [E]); blocks in config.node_layout order."""
         c = self.config
         if position_sequence.shape[1] != c.n_input_frames:
-            raise ValueError(f"position_sequence has {position_sequence.shape[1]} frames, the model takes "
-                             f"C = {c.n_input_frames}")
+            raise ValueError(
+                f"position_sequence has {position_sequence.shape[1]} frames, the model takes C = {c.n_input_frames}"
+            )
         if int(context.particle_type.max()) >= c.n_particle_types:
-            raise ValueError(f"particle_type {int(context.particle_type.max())} unknown to this model "
-                             f"(trained with {c.n_particle_types} type(s))")
+            raise ValueError(
+                f"particle_type {int(context.particle_type.max())} unknown to this model "
+                f"(trained with {c.n_particle_types} type(s))"
+            )
         position = position_sequence[:, -1]
         senders, receivers = radius_graph(position, c.connectivity_radius, context.graph_index, c.max_neighbours)
         per_node = context.graph_index
@@ -239,14 +261,17 @@ MODEL_FORMAT = "gns-model-1"
 
 
 def model_payload(simulator: LearnedSimulator) -> dict:
-    return {"format": MODEL_FORMAT, "config": simulator.config.to_dict(),
-            "state_dict": {k: v.detach().cpu() for k, v in simulator.state_dict().items()}}
+    return {
+        "format": MODEL_FORMAT,
+        "config": simulator.config.to_dict(),
+        "state_dict": {k: v.detach().cpu() for k, v in simulator.state_dict().items()},
+    }
 
 
 def simulator_from_payload(payload: dict, where: str) -> LearnedSimulator:
     if not isinstance(payload, dict) or payload.get("format") != MODEL_FORMAT:
-        raise CheckpointError(f"{where}: not a GNS model checkpoint (format {payload.get('format') if isinstance(payload, dict) else type(payload).__name__!r}, "
-                              f"expected {MODEL_FORMAT!r})")
+        found = payload.get("format") if isinstance(payload, dict) else type(payload).__name__
+        raise CheckpointError(f"{where}: not a GNS model checkpoint (format {found!r}, expected {MODEL_FORMAT!r})")
     try:
         config = SimulatorConfig.from_dict(payload["config"])
     except CheckpointError as exc:
@@ -269,7 +294,7 @@ def load_simulator(path, metadata: dict | None = None, device=None) -> LearnedSi
     except Exception as exc:  # noqa: BLE001 - torch raises many kinds for a corrupt file
         raise CheckpointError(f"{path}: not a readable checkpoint ({type(exc).__name__}: {exc})") from None
     if isinstance(payload, dict) and payload.get("format") == "gns-train-1":
-        payload = payload["model"]          # a training checkpoint (gns.train) holds the model payload
+        payload = payload["model"]  # a training checkpoint (gns.train) holds the model payload
     simulator = simulator_from_payload(payload, str(path))
     if metadata is not None:
         simulator.config.check_compatible(metadata, where=f"{path} with dataset {metadata.get('name', '?')}")

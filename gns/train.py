@@ -20,6 +20,7 @@ Outputs in `out_dir`:
 Validation, every `validate_every` steps: the one-step loss on fixed windows of the valid split
 and a full rollout of every valid trajectory, scored by the runout MSE against its DEM curve.
 """
+
 from __future__ import annotations
 
 import copy
@@ -54,40 +55,44 @@ class TrainSettings:
     # A small model, sized by measurement on the quartz a = 6 column (589 grains, one step =
     # 0.005 s; issue 5 note, benchmarks/gns_speed.py): a rollout step costs several times less
     # than the 64-wide, M = 5 model and trains ~4x more steps per CPU second.
-    connectivity_radius: float = 2.0     # in mean grain diameters of the dataset (~10 edges per grain)
-    n_input_frames: int = 6              # C
+    connectivity_radius: float = 2.0  # in mean grain diameters of the dataset (~10 edges per grain)
+    n_input_frames: int = 6  # C
     latent_size: int = 32
     mlp_hidden_layers: int = 2
-    n_message_passing: int = 3           # M
+    n_message_passing: int = 3  # M
     type_embedding_size: int = 16
     max_neighbours: int | None = None
-    wall_clamp: bool = True              # rollouts keep grains out of the walls (LearnedSimulator.keep_inside_walls)
-    noise_std: float = 0.0015            # mean grain diameters per frame, on the last input velocity (0.005: test runout MSE 1.5, 0.0015: 1.07)
-    pushforward_steps: int = 2           # own no-gradient steps before a pushforward step's loss (0: never)
-    pushforward_fraction: float = 0.5    # fraction of training steps that use the pushforward loss
-    steps: int = 12000                   # with pushforward; the validation runout MSE levels off near here
-    batch_size: int = 2                  # windows (graphs) per step
+    wall_clamp: bool = True  # rollouts keep grains out of the walls (LearnedSimulator.keep_inside_walls)
+    noise_std: float = (
+        0.0015  # mean grain diameters per frame, on the last input velocity (0.005: test runout MSE 1.5, 0.0015: 1.07)
+    )
+    pushforward_steps: int = 2  # own no-gradient steps before a pushforward step's loss (0: never)
+    pushforward_fraction: float = 0.5  # fraction of training steps that use the pushforward loss
+    steps: int = 12000  # with pushforward; the validation runout MSE levels off near here
+    batch_size: int = 2  # windows (graphs) per step
     learning_rate: float = 1e-3
     learning_rate_final: float = 1e-5
     learning_rate_decay_steps: int = 10000  # lr falls by 10x over this many steps towards the final (5000 with
-                                            # pushforward: valid runout MSE 8.9 at 8000 steps instead of 0.25)
-    ema_decay: float = 0.99              # validated and saved model: exponential moving average of the
-                                         # weights (0: the raw weights); smooths step-to-step jitter
+    # pushforward: valid runout MSE 8.9 at 8000 steps instead of 0.25)
+    ema_decay: float = 0.99  # validated and saved model: exponential moving average of the
+    # weights (0: the raw weights); smooths step-to-step jitter
     validate_every: int = 1000
     validation_windows: int = 16
-    validation_rollouts: int = 8         # valid trajectories rolled out per validation (evenly picked)
+    validation_rollouts: int = 8  # valid trajectories rolled out per validation (evenly picked)
     checkpoint_every: int = 100
     log_every: int = 50
     seed: int = 0
-    device: str = "auto"                 # "auto": cuda when present, else cpu
+    device: str = "auto"  # "auto": cuda when present, else cpu
 
     def __post_init__(self):
         if self.pushforward_steps < 0 or not 0.0 <= self.pushforward_fraction <= 1.0:
-            raise ValueError(f"config gns: pushforward_steps must be >= 0 and pushforward_fraction in [0, 1], got "
-                             f"{self.pushforward_steps} and {self.pushforward_fraction}")
+            raise ValueError(
+                f"config gns: pushforward_steps must be >= 0 and pushforward_fraction in [0, 1], got "
+                f"{self.pushforward_steps} and {self.pushforward_fraction}"
+            )
 
     @classmethod
-    def from_config(cls, section: dict | None) -> "TrainSettings":
+    def from_config(cls, section: dict | None) -> TrainSettings:
         section = dict(section or {})
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = set(section) - known
@@ -108,14 +113,21 @@ def simulator_config(metadata: dict, settings: TrainSettings) -> SimulatorConfig
         connectivity_radius=settings.connectivity_radius * diameter,
         bounds=[[float(v) for v in b] for b in metadata["bounds"]],
         parameter_ranges={k: [float(v) for v in r] for k, r in metadata["parameter_ranges"].items()},
-        mean_radius=0.5 * diameter, dt_frame=float(metadata["dt_frame"]),
-        velocity_mean=list(map(float, metadata["velocity_mean"])), velocity_std=list(map(float, metadata["velocity_std"])),
+        mean_radius=0.5 * diameter,
+        dt_frame=float(metadata["dt_frame"]),
+        velocity_mean=list(map(float, metadata["velocity_mean"])),
+        velocity_std=list(map(float, metadata["velocity_std"])),
         acceleration_mean=list(map(float, metadata["acceleration_mean"])),
         acceleration_std=list(map(float, metadata["acceleration_std"])),
-        noise_std=settings.noise_std * diameter, n_input_frames=settings.n_input_frames,
-        latent_size=settings.latent_size, mlp_hidden_layers=settings.mlp_hidden_layers,
-        n_message_passing=settings.n_message_passing, type_embedding_size=settings.type_embedding_size,
-        max_neighbours=settings.max_neighbours, wall_clamp=settings.wall_clamp)
+        noise_std=settings.noise_std * diameter,
+        n_input_frames=settings.n_input_frames,
+        latent_size=settings.latent_size,
+        mlp_hidden_layers=settings.mlp_hidden_layers,
+        n_message_passing=settings.n_message_passing,
+        type_embedding_size=settings.type_embedding_size,
+        max_neighbours=settings.max_neighbours,
+        wall_clamp=settings.wall_clamp,
+    )
 
 
 def random_walk_noise(position_sequence: torch.Tensor, noise_std: float, generator: torch.Generator) -> torch.Tensor:
@@ -129,8 +141,9 @@ def random_walk_noise(position_sequence: torch.Tensor, noise_std: float, generat
 
 def one_step_loss(simulator: LearnedSimulator, batch, noise: torch.Tensor) -> torch.Tensor:
     """Mean over particles of the squared error in normalised acceleration (summed over x, y)."""
-    predicted, target = simulator.predict_accelerations(batch.next_position, noise, batch.position_sequence,
-                                                        batch.context)
+    predicted, target = simulator.predict_accelerations(
+        batch.next_position, noise, batch.position_sequence, batch.context
+    )
     return torch.mean(torch.sum((predicted - target) ** 2, dim=-1))
 
 
@@ -159,24 +172,43 @@ def resolve_device(name: str) -> torch.device:
 class Trainer:
     """State of one training run; `run()` trains to settings.steps, resuming when it can."""
 
-    COLUMNS = ("step", "learning_rate", "train_loss", "train_pushforward_loss", "edges_per_node",
-               "particles_per_graph", "steps_per_s", "valid_one_step_loss", "valid_position_mse", "valid_runout_mse", "valid_rollouts_failed")
+    COLUMNS = (
+        "step",
+        "learning_rate",
+        "train_loss",
+        "train_pushforward_loss",
+        "edges_per_node",
+        "particles_per_graph",
+        "steps_per_s",
+        "valid_one_step_loss",
+        "valid_position_mse",
+        "valid_runout_mse",
+        "valid_rollouts_failed",
+    )
 
     def __init__(self, metadata_path, out_dir, settings: TrainSettings, runout: RunoutMethod | None = None):
         self.metadata_path = str(metadata_path)
-        self.runout = RunoutMethod.from_config(runout)     # how the validation runout MSE reads L*
+        self.runout = RunoutMethod.from_config(runout)  # how the validation runout MSE reads L*
         self.metadata = read_metadata(metadata_path)
         self.out_dir = Path(out_dir)
         self.settings = settings
         self.device = resolve_device(settings.device)
         self.config = simulator_config(self.metadata, settings)
         names = self.config.parameter_names
-        self.train_windows = TrajectoryWindows(split_paths(self.metadata, "train"),
-                                               settings.n_input_frames, names, self.config.dt_frame)
+        self.train_windows = TrajectoryWindows(
+            split_paths(self.metadata, "train"), settings.n_input_frames, names, self.config.dt_frame
+        )
         # pushforward steps need p more frames before the target
-        self.pushforward_windows = TrajectoryWindows(split_paths(self.metadata, "train"),
-                                                     settings.n_input_frames + settings.pushforward_steps, names,
-                                                     self.config.dt_frame) if settings.pushforward_steps else None
+        self.pushforward_windows = (
+            TrajectoryWindows(
+                split_paths(self.metadata, "train"),
+                settings.n_input_frames + settings.pushforward_steps,
+                names,
+                self.config.dt_frame,
+            )
+            if settings.pushforward_steps
+            else None
+        )
         valid_paths = split_paths(self.metadata, "valid")
         picked = np.linspace(0, len(valid_paths) - 1, min(settings.validation_rollouts, len(valid_paths)))
         self.valid_paths = [valid_paths[k] for k in sorted(set(picked.round().astype(int)))]
@@ -186,12 +218,12 @@ class Trainer:
         torch.manual_seed(settings.seed)
         self.simulator = LearnedSimulator(self.config).to(self.device)
         self.optimizer = torch.optim.Adam(self.simulator.parameters(), lr=settings.learning_rate)
-        self.averaged = copy.deepcopy(self.simulator)     # the EMA of the weights (ema_decay)
+        self.averaged = copy.deepcopy(self.simulator)  # the EMA of the weights (ema_decay)
         self.sampler = np.random.default_rng(settings.seed)
         self.noise = torch.Generator().manual_seed(settings.seed)
         self.step = 0
         self.best = {"step": None, "valid_runout_mse": math.inf}
-        self.best_payload = None          # model_best.pt's content, kept in the checkpoint too
+        self.best_payload = None  # model_best.pt's content, kept in the checkpoint too
         self.history: list[dict] = []
         self.accumulated = self.empty_accumulator()
         self.resumed_from = None
@@ -202,13 +234,21 @@ class Trainer:
         return self.out_dir / "checkpoint_last.pt"
 
     def save_checkpoint(self):
-        payload = {"format": TRAIN_FORMAT, "model": model_payload(self.simulator),
-                   "averaged_model": model_payload(self.averaged),
-                   "optimizer": self.optimizer.state_dict(), "step": self.step,
-                   "settings": self.saved_settings(), "dataset": self.metadata.get("name"),
-                   "sampler_state": self.sampler.bit_generator.state, "noise_state": self.noise.get_state(),
-                   "best": self.best, "best_model": self.best_payload, "history": self.history,
-                   "accumulated": self.accumulated}
+        payload = {
+            "format": TRAIN_FORMAT,
+            "model": model_payload(self.simulator),
+            "averaged_model": model_payload(self.averaged),
+            "optimizer": self.optimizer.state_dict(),
+            "step": self.step,
+            "settings": self.saved_settings(),
+            "dataset": self.metadata.get("name"),
+            "sampler_state": self.sampler.bit_generator.state,
+            "noise_state": self.noise.get_state(),
+            "best": self.best,
+            "best_model": self.best_payload,
+            "history": self.history,
+            "accumulated": self.accumulated,
+        }
         with atomic_path(self.checkpoint_path) as tmp:
             torch.save(payload, tmp)
 
@@ -220,25 +260,35 @@ class Trainer:
         try:
             payload = torch.load(path, map_location="cpu", weights_only=False)
         except Exception as exc:  # noqa: BLE001
-            raise CheckpointError(f"{path}: not a readable training checkpoint ({exc}); delete it to start afresh") from None
+            raise CheckpointError(
+                f"{path}: not a readable training checkpoint ({exc}); delete it to start afresh"
+            ) from None
         if not isinstance(payload, dict) or payload.get("format") != TRAIN_FORMAT:
             raise CheckpointError(f"{path}: not a GNS training checkpoint; delete it to start afresh")
-        saved_settings = payload["settings"]     # a key the checkpoint lacks counts as changed
-        changed = {k: (saved_settings.get(k, "absent"), v) for k, v in self.saved_settings().items()
-                   if k not in RESUMABLE and saved_settings.get(k, "absent") != v}
+        saved_settings = payload["settings"]  # a key the checkpoint lacks counts as changed
+        changed = {
+            k: (saved_settings.get(k, "absent"), v)
+            for k, v in self.saved_settings().items()
+            if k not in RESUMABLE and saved_settings.get(k, "absent") != v
+        }
         if changed:
-            raise CheckpointError(f"{path}: was trained with other settings {changed} (checkpoint, now); "
-                                  "restore them or delete the output folder to start afresh")
+            raise CheckpointError(
+                f"{path}: was trained with other settings {changed} (checkpoint, now); "
+                "restore them or delete the output folder to start afresh"
+            )
         saved = SimulatorConfig.from_dict(payload["model"]["config"])
         saved.check_compatible(self.metadata, where=f"{path} resumed on dataset {self.metadata.get('name', '?')}")
         if saved.to_dict() != self.config.to_dict():
             diff = {k: v for k, v in saved.to_dict().items() if self.config.to_dict().get(k) != v}
-            raise CheckpointError(f"{path}: model config differs from this dataset's ({sorted(diff)}); "
-                                  "delete the output folder to start afresh")
+            raise CheckpointError(
+                f"{path}: model config differs from this dataset's ({sorted(diff)}); "
+                "delete the output folder to start afresh"
+            )
         if payload.get("best_model") is None and payload["best"]["step"] is not None:
             # older than the kept best model: a lost model_best.pt could not be written again
-            raise CheckpointError(f"{path}: holds no copy of the best model (an older checkpoint); delete it "
-                                  "to start afresh")
+            raise CheckpointError(
+                f"{path}: holds no copy of the best model (an older checkpoint); delete it to start afresh"
+            )
         # every check above comes before any state is loaded: a refused checkpoint leaves a fresh trainer
         self.simulator.load_state_dict(payload["model"]["state_dict"])
         self.averaged.load_state_dict(payload["averaged_model"]["state_dict"])
@@ -285,7 +335,7 @@ class Trainer:
         if not math.isfinite(value):
             raise FloatingPointError(f"training loss turned {value} at step {self.step}; lower learning_rate")
         self.last_batch = batch
-        kind = "pushforward_" if pushforward else ""      # the two losses are logged apart
+        kind = "pushforward_" if pushforward else ""  # the two losses are logged apart
         self.accumulated[kind + "loss"] += value
         self.accumulated[kind + "count"] += 1
         return value
@@ -321,12 +371,16 @@ class Trainer:
             else:
                 try:
                     runout_errors.append(rollout_runout_mse(dem, gns, self.runout))
-                except RunoutError as exc:    # spread too thin for the runout rule: a failed rollout
+                except RunoutError as exc:  # spread too thin for the runout rule: a failed rollout
                     failed += 1
                     log.warning("validation rollout of %s has no runout: %s", path, exc)
                     runout_errors.append(math.inf)
-        return {"valid_one_step_loss": float(np.mean(losses)), "valid_position_mse": float(np.mean(position_errors)),
-                "valid_runout_mse": float(np.mean(runout_errors)), "valid_rollouts_failed": failed}
+        return {
+            "valid_one_step_loss": float(np.mean(losses)),
+            "valid_position_mse": float(np.mean(position_errors)),
+            "valid_runout_mse": float(np.mean(runout_errors)),
+            "valid_rollouts_failed": failed,
+        }
 
     # -- the loop ---------------------------------------------------------------------------------
     def run(self, resume: bool = True, restart_on_mismatch: bool = False) -> dict:
@@ -335,7 +389,7 @@ class Trainer:
         if resume and restart_on_mismatch:
             try:
                 self.resume()
-            except CheckpointError as exc:     # made for other data or settings: set it aside
+            except CheckpointError as exc:  # made for other data or settings: set it aside
                 stale = self.checkpoint_path.with_suffix(".stale.pt")
                 self.checkpoint_path.replace(stale)
                 log.warning("starting afresh; %s (moved to %s)", exc, stale)
@@ -343,9 +397,17 @@ class Trainer:
             self.resume()
         elif self.checkpoint_path.exists():
             raise CheckpointError(f"{self.checkpoint_path} exists and resume=False; delete it to start afresh")
-        log.info("training %s on %s: %d train windows from %d files, %d valid trajectories, device %s, "
-                 "connectivity radius %.3g m", self.out_dir, self.metadata.get("name"), len(self.train_windows),
-                 len(self.train_windows.files), len(self.valid_paths), self.device, self.config.connectivity_radius)
+        log.info(
+            "training %s on %s: %d train windows from %d files, %d valid trajectories, device %s, "
+            "connectivity radius %.3g m",
+            self.out_dir,
+            self.metadata.get("name"),
+            len(self.train_windows),
+            len(self.train_windows.files),
+            len(self.valid_paths),
+            self.device,
+            self.config.connectivity_radius,
+        )
         tick, tick_step = time.perf_counter(), self.step
         while self.step < s.steps:
             loss = self.train_step()
@@ -359,8 +421,13 @@ class Trainer:
                 metrics = self.validate()
                 row = row or self.log_row(0, 0.0)
                 row.update(metrics)
-                log.info("step %d validation: one-step loss %.4g, runout MSE %.4g (%d rollouts failed)", self.step,
-                         metrics["valid_one_step_loss"], metrics["valid_runout_mse"], metrics["valid_rollouts_failed"])
+                log.info(
+                    "step %d validation: one-step loss %.4g, runout MSE %.4g (%d rollouts failed)",
+                    self.step,
+                    metrics["valid_one_step_loss"],
+                    metrics["valid_runout_mse"],
+                    metrics["valid_rollouts_failed"],
+                )
                 if metrics["valid_runout_mse"] < self.best["valid_runout_mse"]:
                     self.best = {"step": self.step, "valid_runout_mse": metrics["valid_runout_mse"]}
                     self.save_best()
@@ -370,35 +437,54 @@ class Trainer:
             if validated or self.step % s.checkpoint_every == 0:
                 self.save_checkpoint()
                 self.write_metrics(figure=validated)
-        if self.best["step"] is None:     # every validation rollout failed: keep the last model, say so
+        if self.best["step"] is None:  # every validation rollout failed: keep the last model, say so
             log.warning("no validation rollout succeeded; model_best.pt holds the last model")
             self.save_best()
         # a finished run resumed (e.g. Snakemake reran the job and removed its outputs) writes them again
         self.write_best()
         self.write_metrics()
-        return {"step": self.step, "resumed_from": self.resumed_from, "best": self.best,
-                "last_train_loss": self.history[-1]["train_loss"] if self.history else None,
-                "out_dir": str(self.out_dir)}
+        return {
+            "step": self.step,
+            "resumed_from": self.resumed_from,
+            "best": self.best,
+            "last_train_loss": self.history[-1]["train_loss"] if self.history else None,
+            "out_dir": str(self.out_dir),
+        }
 
     def log_row(self, steps: int, seconds: float) -> dict:
         acc = self.accumulated
         mean = lambda kind: acc[kind + "loss"] / acc[kind + "count"] if acc[kind + "count"] else math.nan  # noqa: E731
         row = {key: math.nan for key in self.COLUMNS}
-        row.update(step=self.step, learning_rate=self.settings.learning_rate_at(self.step),
-                   train_loss=mean(""), train_pushforward_loss=mean("pushforward_"),
-                   steps_per_s=steps / seconds if seconds > 0 else math.nan)
+        row.update(
+            step=self.step,
+            learning_rate=self.settings.learning_rate_at(self.step),
+            train_loss=mean(""),
+            train_pushforward_loss=mean("pushforward_"),
+            steps_per_s=steps / seconds if seconds > 0 else math.nan,
+        )
         batch = getattr(self, "last_batch", None)
-        if batch is not None:     # the graph of the last training batch, per graph
-            senders, _ = radius_graph(batch.position_sequence[:, -1], self.config.connectivity_radius,
-                                      batch.context.graph_index, self.config.max_neighbours)
+        if batch is not None:  # the graph of the last training batch, per graph
+            senders, _ = radius_graph(
+                batch.position_sequence[:, -1],
+                self.config.connectivity_radius,
+                batch.context.graph_index,
+                self.config.max_neighbours,
+            )
             graphs = int(batch.context.graph_index.max()) + 1
             graph = graph_summary(batch.position_sequence.shape[0], senders)
             row.update(edges_per_node=graph["edges_per_node"], particles_per_graph=graph["particles"] / graphs)
         if steps:
-            log.info("step %d/%d loss %.4g pushforward loss %.4g lr %.3g %.2f steps/s, %d particles/graph, "
-                     "%.1f edges/node", self.step, self.settings.steps, row["train_loss"],
-                     row["train_pushforward_loss"], row["learning_rate"], row["steps_per_s"],
-                     row["particles_per_graph"], row["edges_per_node"])
+            log.info(
+                "step %d/%d loss %.4g pushforward loss %.4g lr %.3g %.2f steps/s, %d particles/graph, %.1f edges/node",
+                self.step,
+                self.settings.steps,
+                row["train_loss"],
+                row["train_pushforward_loss"],
+                row["learning_rate"],
+                row["steps_per_s"],
+                row["particles_per_graph"],
+                row["edges_per_node"],
+            )
         self.accumulated = self.empty_accumulator()
         return row
 
@@ -408,8 +494,12 @@ class Trainer:
         self.best_payload = model_payload(self.averaged)
         # cloned: on the CPU the payload's tensors share memory with the model the EMA keeps updating
         self.best_payload["state_dict"] = {k: v.clone() for k, v in self.best_payload["state_dict"].items()}
-        self.best_payload.update(step=self.step, valid_runout_mse=self.best["valid_runout_mse"],
-                                 dataset=self.metadata.get("name"), settings=dataclasses.asdict(self.settings))
+        self.best_payload.update(
+            step=self.step,
+            valid_runout_mse=self.best["valid_runout_mse"],
+            dataset=self.metadata.get("name"),
+            settings=dataclasses.asdict(self.settings),
+        )
         self.write_best()
 
     def write_best(self):
@@ -462,8 +552,14 @@ def plot_loss_curve(history: list[dict], path, best: dict | None = None):
     save_figure(fig, path)
 
 
-def train(metadata_path, out_dir, settings: TrainSettings | dict | None = None, resume: bool = True,
-          restart_on_mismatch: bool = False, runout: RunoutMethod | dict | None = None) -> dict:
+def train(
+    metadata_path,
+    out_dir,
+    settings: TrainSettings | dict | None = None,
+    resume: bool = True,
+    restart_on_mismatch: bool = False,
+    runout: RunoutMethod | dict | None = None,
+) -> dict:
     """Train (or resume training) a GNS on the dataset at `metadata_path`; outputs in `out_dir`.
 
     resume: continue from out_dir/checkpoint_last.pt when present. A checkpoint made with other

@@ -5,6 +5,7 @@ A benchmark file is a TSV with one row per run of the job (column `s`: wall seco
 peak memory in MB). By convention (workflow/rules/common.smk) it lies at
 results/benchmarks/<stage>/<rule>[/<wildcards>].tsv.
 """
+
 from __future__ import annotations
 
 import csv
@@ -60,7 +61,8 @@ def read_benchmarks(benchmark_dir) -> list[StageTime]:
         for row in read_benchmark(path):  # one row per repeat of a `repeat()` benchmark
             rss = row.get("max_rss", "NA")
             groups.setdefault((parts[0], rule), []).append(
-                (float(row["s"]), None if rss in ("NA", "-", "") else float(rss)))
+                (float(row["s"]), None if rss in ("NA", "-", "") else float(rss))
+            )
     out = []
     for (stage, rule), values in sorted(groups.items()):
         seconds = [s for s, _ in values]

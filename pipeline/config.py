@@ -7,6 +7,7 @@ then checks the keys that name another key's entries (a dataset, a `measured` en
 the validated config and its case table (dem.grid.case_table). workflow/rules/common.smk runs both
 once, so a bad config fails before any job runs; every problem is a ConfigError naming the key.
 """
+
 from __future__ import annotations
 
 import copy
@@ -21,8 +22,16 @@ from calibration.measured import load_column
 from dem.grid import SPLITS, VARIED, ConfigError, case_id_of
 from dem.runout import RunoutError, RunoutMethod
 
-__all__ = ["ConfigError", "validate_config", "check_cross_keys", "check_gns", "check_doe", "check_inverse",
-           "gns_datasets", "inverse_datasets"]
+__all__ = [
+    "ConfigError",
+    "validate_config",
+    "check_cross_keys",
+    "check_gns",
+    "check_doe",
+    "check_inverse",
+    "gns_datasets",
+    "inverse_datasets",
+]
 
 
 # --- the schema ----------------------------------------------------------------------------------
@@ -42,7 +51,7 @@ def validate_config(config: dict, schema_path) -> dict:
     _fill_defaults(config, schema, schema)
     for name, spec in config.get("datasets", {}).items():
         problems += _check_dataset(name, spec)
-    try:     # the schema checks each key; the class is the one definition every stage builds from it
+    try:  # the schema checks each key; the class is the one definition every stage builds from it
         RunoutMethod.from_config(config.get("runout"))
     except RunoutError as exc:
         problems.append(str(exc))
@@ -76,8 +85,11 @@ def _describe(error, schema) -> str:
     if error.validator == "enum":
         return f"{key}: {error.instance!r} is not allowed; allowed values: {error.validator_value}"
     if error.validator in ("minimum", "maximum", "exclusiveMinimum", "exclusiveMaximum"):
-        bounds = {k: error.schema[k] for k in ("minimum", "exclusiveMinimum", "maximum", "exclusiveMaximum")
-                  if k in error.schema}
+        bounds = {
+            k: error.schema[k]
+            for k in ("minimum", "exclusiveMinimum", "maximum", "exclusiveMaximum")
+            if k in error.schema
+        }
         return f"{key}: {error.instance!r} is out of range; allowed: {_bounds_text(bounds)}"
     if error.validator == "type":
         return f"{key}: {error.instance!r} has the wrong type; expected {error.validator_value}"
@@ -85,10 +97,20 @@ def _describe(error, schema) -> str:
 
 
 def _bounds_text(bounds: dict) -> str:
-    low = (f"> {bounds['exclusiveMinimum']}" if "exclusiveMinimum" in bounds
-           else f">= {bounds['minimum']}" if "minimum" in bounds else "")
-    high = (f"< {bounds['exclusiveMaximum']}" if "exclusiveMaximum" in bounds
-            else f"<= {bounds['maximum']}" if "maximum" in bounds else "")
+    low = (
+        f"> {bounds['exclusiveMinimum']}"
+        if "exclusiveMinimum" in bounds
+        else f">= {bounds['minimum']}"
+        if "minimum" in bounds
+        else ""
+    )
+    high = (
+        f"< {bounds['exclusiveMaximum']}"
+        if "exclusiveMaximum" in bounds
+        else f"<= {bounds['maximum']}"
+        if "maximum" in bounds
+        else ""
+    )
     return " and ".join(b for b in (low, high) if b)
 
 
@@ -135,8 +157,10 @@ def _check_dataset(name: str, spec: dict) -> list[str]:
         problems.append(f"datasets.{name}.n_cases: {spec['n_cases']} cases cannot fill {needed} non-empty splits")
     for case_id in spec.get("overrides", {}):
         if int(case_id.split("_")[1]) >= spec["n_cases"]:
-            problems.append(f"datasets.{name}.overrides.{case_id}: no such case; ids run "
-                            f"{case_id_of(0, spec['n_cases'])}..{case_id_of(spec['n_cases'] - 1, spec['n_cases'])}")
+            problems.append(
+                f"datasets.{name}.overrides.{case_id}: no such case; ids run "
+                f"{case_id_of(0, spec['n_cases'])}..{case_id_of(spec['n_cases'] - 1, spec['n_cases'])}"
+            )
     return problems
 
 
@@ -171,8 +195,10 @@ def check_doe(config: dict) -> None:
     """doe.measured names `measured` entries, and no dataset takes the name of one's DoE runs."""
     for name in config["doe"]["measured"]:
         if name not in config["measured"]:
-            raise ConfigError(f"config key doe.measured: {name!r} is not an entry of `measured` "
-                              f"(entries: {sorted(config['measured'])})")
+            raise ConfigError(
+                f"config key doe.measured: {name!r} is not an entry of `measured` "
+                f"(entries: {sorted(config['measured'])})"
+            )
         if f"doe_{name}" in config["datasets"]:
             raise ConfigError(f"config key datasets.doe_{name}: the name is taken by the DoE of measured {name!r}")
 
@@ -183,8 +209,9 @@ def check_inverse(config: dict, cases: dict[str, dict]) -> dict[str, str]:
     with_gns = gns_datasets(config)
     for dataset in config["inverse"]["recovery_datasets"]:
         if dataset not in with_gns:
-            raise ConfigError(f"config key inverse.recovery_datasets: {dataset!r} has no GNS "
-                              f"(gns datasets: {with_gns})")
+            raise ConfigError(
+                f"config key inverse.recovery_datasets: {dataset!r} has no GNS (gns datasets: {with_gns})"
+            )
     return resolved
 
 
@@ -200,22 +227,26 @@ def inverse_datasets(config: dict, cases: dict[str, dict]) -> dict[str, str]:
     resolved = {}
     for name in inverse["measured"]:
         if name not in config["measured"]:
-            raise ConfigError(f"config key inverse.measured: {name!r} is not an entry of `measured` "
-                              f"(entries: {sorted(config['measured'])})")
+            raise ConfigError(
+                f"config key inverse.measured: {name!r} is not an entry of `measured` "
+                f"(entries: {sorted(config['measured'])})"
+            )
         column = load_column(config["measured"][name])
         dataset = inverse["dataset"].get(name)
         if not dataset:
             try:
                 dataset = nearest_dataset(column, rows, with_gns)
             except InverseDesignError as exc:
-                raise ConfigError(f"config key inverse.measured: {name!r} has no GNS dataset to calibrate it: "
-                                  f"{exc}") from exc
+                raise ConfigError(
+                    f"config key inverse.measured: {name!r} has no GNS dataset to calibrate it: {exc}"
+                ) from exc
         if dataset not in with_gns:
             raise ConfigError(f"config key inverse.dataset.{name}: {dataset!r} has no GNS (gns datasets: {with_gns})")
         try:
             check_geometry_of_dataset(column, rows, dataset)
         except InverseDesignError as exc:
-            raise ConfigError(f"config key inverse.measured: {name!r} cannot be calibrated with the GNS of "
-                              f"dataset {dataset!r}: {exc}") from exc
+            raise ConfigError(
+                f"config key inverse.measured: {name!r} cannot be calibrated with the GNS of dataset {dataset!r}: {exc}"
+            ) from exc
         resolved[name] = dataset
     return resolved

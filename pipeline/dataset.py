@@ -2,6 +2,7 @@
 metadata JSON (splits, normalisation statistics; dem.dataset) -> summary figure + case table CSV
 with each case's final L* -> the report section (results/report/dataset.md).
 """
+
 from __future__ import annotations
 
 import logging
@@ -27,14 +28,24 @@ def build(splits: Mapping[str, Sequence[str]], out_path: StrPath, name: str) -> 
     splits = {k: list(v) for k, v in splits.items()}
     log.info("dataset %s: %s cases", name, {k: len(v) for k, v in splits.items()})
     metadata = build_dataset(splits, out_path, name)
-    log.info("dt_frame %.4g s, %d-%d grains, velocity std %s m/frame, acceleration std %s m/frame^2",
-             metadata["dt_frame"], metadata["n_particles"]["min"], metadata["n_particles"]["max"],
-             metadata["velocity_std"], metadata["acceleration_std"])
+    log.info(
+        "dt_frame %.4g s, %d-%d grains, velocity std %s m/frame, acceleration std %s m/frame^2",
+        metadata["dt_frame"],
+        metadata["n_particles"]["min"],
+        metadata["n_particles"]["max"],
+        metadata["velocity_std"],
+        metadata["acceleration_std"],
+    )
     return metadata
 
 
-def summarise(metadata_path: StrPath, figure_path: StrPath, cases_path: StrPath, rows: Sequence[Mapping],
-              runout: RunoutMethod | dict | str) -> list[dict]:
+def summarise(
+    metadata_path: StrPath,
+    figure_path: StrPath,
+    cases_path: StrPath,
+    rows: Sequence[Mapping],
+    runout: RunoutMethod | dict | str,
+) -> list[dict]:
     """One dataset's summary figure (cases by split, runout curves read by `runout`) at
     `figure_path` and its case table as CSV at `cases_path`: the case-table `rows` of the dataset
     with each case's final L* (column final_L_star, 4 decimals). Returns those rows."""
@@ -45,8 +56,13 @@ def summarise(metadata_path: StrPath, figure_path: StrPath, cases_path: StrPath,
         path = TRAJECTORY.format(dataset=row["dataset"], case_id=row["case_id"])
         row["final_L_star"] = round(final_runout[path], 4)
     write_case_table(rows, cases_path)
-    log.info("summary of %s: %d cases, final L* %.3g-%.3g", metadata["name"], len(rows),
-             min(final_runout.values()), max(final_runout.values()))
+    log.info(
+        "summary of %s: %d cases, final L* %.3g-%.3g",
+        metadata["name"],
+        len(rows),
+        min(final_runout.values()),
+        max(final_runout.values()),
+    )
     return rows
 
 
@@ -57,21 +73,28 @@ def write_section(metadata_paths: Sequence[StrPath], summary_figures: Sequence[S
     return text
 
 
-def dataset_section(metadata_paths: Sequence[StrPath], summary_figures: Sequence[StrPath],
-                    fragment_path: StrPath) -> str:
+def dataset_section(
+    metadata_paths: Sequence[StrPath], summary_figures: Sequence[StrPath], fragment_path: StrPath
+) -> str:
     """Markdown report section on the DEM datasets; figure links are relative to `fragment_path`."""
     where = Path(fragment_path).parent
-    lines = ["DEM datasets built from the case table (one trajectory HDF5 per case).", "",
-             "| dataset | cases train/valid/test | grains per case | frames | dt_frame (ms) | friction | "
-             "restitution | L_i (mm) | a |", "|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "DEM datasets built from the case table (one trajectory HDF5 per case).",
+        "",
+        "| dataset | cases train/valid/test | grains per case | frames | dt_frame (ms) | friction | "
+        "restitution | L_i (mm) | a |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for meta_path in metadata_paths:
         m = load_dataset_metadata(meta_path)
         r = m["parameter_ranges"]
         n = {s: len(m["splits"][s]) for s in SPLITS}
-        lines.append(f"| {m['name']} | {n['train']}/{n['valid']}/{n['test']} | {m['n_particles']['min']}-"
-                     f"{m['n_particles']['max']} | {m['sequence_length']}-{m.get('sequence_length_max', '')} | "
-                     f"{m['dt_frame'] * 1e3:.3g} | {_span(r['friction'])} | {_span(r['restitution'])} | "
-                     f"{_span([v * 1e3 for v in r['L_i']])} | {_span(r['aspect_ratio'])} |")
+        lines.append(
+            f"| {m['name']} | {n['train']}/{n['valid']}/{n['test']} | {m['n_particles']['min']}-"
+            f"{m['n_particles']['max']} | {m['sequence_length']}-{m.get('sequence_length_max', '')} | "
+            f"{m['dt_frame'] * 1e3:.3g} | {_span(r['friction'])} | {_span(r['restitution'])} | "
+            f"{_span([v * 1e3 for v in r['L_i']])} | {_span(r['aspect_ratio'])} |"
+        )
     lines.append("")
     for meta_path, figure in zip(metadata_paths, summary_figures):
         name = Path(meta_path).parent.name

@@ -9,6 +9,7 @@ The settled packing comes from the builtin settling step for every engine, so al
 from the same grains; run_case hands it to the engine named by config dem.engine (dem.engines).
 Every output is written atomically; progress goes to the job's log.
 """
+
 from __future__ import annotations
 
 import logging
@@ -30,8 +31,14 @@ StrPath = str | os.PathLike  # a file or folder path
 def write_deck(row: dict, path: StrPath) -> CollapseCase:
     """Write one case's deck (engine-neutral JSON) from its case-table row; returns the case."""
     case = grid.write_deck(row, path)
-    log.info("deck %s: %d grains, dt %.3g s, %d frames every %.3g s", case.name, case.n_particles,
-             case.time_step, case.n_frames, case.frame_interval)
+    log.info(
+        "deck %s: %d grains, dt %.3g s, %d frames every %.3g s",
+        case.name,
+        case.n_particles,
+        case.time_step,
+        case.n_frames,
+        case.frame_interval,
+    )
     return case
 
 
@@ -46,8 +53,15 @@ def settle(deck_path: StrPath, out_path: StrPath) -> Trajectory:
     return packing
 
 
-def run_case(deck_path: StrPath, packing_path: StrPath, out_path: StrPath, engine: str, solvers: dict,
-             keep_work: bool, work_dir: StrPath) -> Trajectory:
+def run_case(
+    deck_path: StrPath,
+    packing_path: StrPath,
+    out_path: StrPath,
+    engine: str,
+    solvers: dict,
+    keep_work: bool,
+    work_dir: StrPath,
+) -> Trajectory:
     """Run one case's collapse from its settled packing with `engine` (a dem.engines name;
     `solvers`: config dem.solvers); writes the trajectory HDF5 at `out_path` and returns it.
 
@@ -57,17 +71,28 @@ def run_case(deck_path: StrPath, packing_path: StrPath, out_path: StrPath, engin
     case, _ = grid.read_deck(deck_path)
     packing = read_trajectory(packing_path)
     dem_engine = get_engine(engine, {"solvers": dict(solvers)})
-    log.info("collapse %s with the %s engine (%s): %d grains, %d frames", case.name, dem_engine.name,
-             dem_engine.version(), case.n_particles, case.n_frames)
+    log.info(
+        "collapse %s with the %s engine (%s): %d grains, %d frames",
+        case.name,
+        dem_engine.name,
+        dem_engine.version(),
+        case.n_particles,
+        case.n_frames,
+    )
 
     shutil.rmtree(work_dir, ignore_errors=True)  # a killed run's leftovers
     # writes the output atomically, only once the engine's output reads whole
-    trajectory = dem_engine.simulate(case, packing, work_dir,
-                                     progress=progress_logger(f"collapse {case.name}", log), output=out_path)
+    trajectory = dem_engine.simulate(
+        case, packing, work_dir, progress=progress_logger(f"collapse {case.name}", log), output=out_path
+    )
     if not keep_work:
         shutil.rmtree(work_dir)
-    log.info("done: %d frames of %d grains (engine %s)", trajectory.n_frames, trajectory.n_particles,
-             trajectory.attrs["engine"])
+    log.info(
+        "done: %d frames of %d grains (engine %s)",
+        trajectory.n_frames,
+        trajectory.n_particles,
+        trajectory.attrs["engine"],
+    )
     return trajectory
 
 

@@ -9,6 +9,7 @@
 The method is calibration/diagnosis.py (`diagnose`, `DiagnosisSettings`); the figures are
 calibration/diagnosis_report.py's.
 """
+
 from __future__ import annotations
 
 import json
@@ -39,12 +40,20 @@ def run_library(measured_path: PathLike, library_path: PathLike, section: dict, 
     return library
 
 
-def run_diagnosis(measured_path: PathLike, library_path: PathLike, out_dir: PathLike, section: dict, *,
-                  runout: dict | None, name: str = "") -> dict:
+def run_diagnosis(
+    measured_path: PathLike,
+    library_path: PathLike,
+    out_dir: PathLike,
+    section: dict,
+    *,
+    runout: dict | None,
+    name: str = "",
+) -> dict:
     """Diagnose a measured-data CSV with its design runs; write diagnosis.json, residuals.png and
     candidates.png to out_dir (workflow rule diagnosis). runout: the config's runout section; a
     library read by another method is refused (LibraryError)."""
     from calibration.diagnosis_report import plot_candidates, plot_residuals
+
     columns, data_warnings = read_columns(measured_path)
     settings = DiagnosisSettings.from_config({k: v for k, v in section.items() if k != "enabled"}, runout)
     result = diagnose(columns, settings, Library.load(library_path), data_warnings=data_warnings, name=name)
@@ -60,8 +69,9 @@ def run_section(names: list[str], diagnosis_paths: list[PathLike], section_path:
     """The report section (workflow rule diagnosis_section) from the diagnosis.json of each data set
     in `names` (same order as `diagnosis_paths`); the figures lie beside each JSON file. Returns
     {name: (diagnosis dict, folder)}."""
-    results = {name: (json.loads(Path(path).read_text()), Path(path).parent)
-               for name, path in zip(names, diagnosis_paths)}
+    results = {
+        name: (json.loads(Path(path).read_text()), Path(path).parent) for name, path in zip(names, diagnosis_paths)
+    }
     write_section(results, section_path)
     return results
 
@@ -101,23 +111,33 @@ def _parameters(evidence: dict) -> str:
 
 def section_markdown(results: dict, section_path: PathLike) -> str:
     """The report section for {name: (diagnosis dict, folder with its figures)}."""
-    lines = ["What the calibrated DEM still gets wrong, and whether a missing mechanism explains it. "
-             "Each measured data set is fitted by the base model (friction, restitution) and by the base "
-             "model plus one candidate mechanism at a time; a cause is named only when the evidence is decisive "
-             "(rule below each table). Simulator: the builtin DEM, coarse-grained, through a Gaussian-process "
-             "emulator of its design runs, scored by DEM runs at the optima (the GNS is not trained on the "
-             "extension parameters).", ""]
+    lines = [
+        "What the calibrated DEM still gets wrong, and whether a missing mechanism explains it. "
+        "Each measured data set is fitted by the base model (friction, restitution) and by the base "
+        "model plus one candidate mechanism at a time; a cause is named only when the evidence is decisive "
+        "(rule below each table). Simulator: the builtin DEM, coarse-grained, through a Gaussian-process "
+        "emulator of its design runs, scored by DEM runs at the optima (the GNS is not trained on the "
+        "extension parameters).",
+        "",
+    ]
     for name, (result, folder) in results.items():
         rel = os.path.relpath(folder, os.path.dirname(section_path))
         errors = result["errors"]
-        lines += [f"### {name}", "",
-                  f"**Cause: {result['cause']}.** {result['verdict']}", "",
-                  f"What the calibrated base model gets wrong: {result['residuals']['summary']}", "",
-                  f"Simulator: builtin DEM at size_scale {result['simulator']['size_scale']:g}; design runs "
-                  f"{sum(result['simulator']['design_runs'].values())}, refinement runs "
-                  f"{result['simulator']['refinement_runs']}; noise: {result['observables']['noise_source']}.", "",
-                  "| model | parameters (&plusmn; std) | chi^2 | BIC | BIC gain | held-out chi^2 | fit MSE | held-out MSE | scored in |",
-                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+        lines += [
+            f"### {name}",
+            "",
+            f"**Cause: {result['cause']}.** {result['verdict']}",
+            "",
+            f"What the calibrated base model gets wrong: {result['residuals']['summary']}",
+            "",
+            f"Simulator: builtin DEM at size_scale {result['simulator']['size_scale']:g}; design runs "
+            f"{sum(result['simulator']['design_runs'].values())}, refinement runs "
+            f"{result['simulator']['refinement_runs']}; noise: {result['observables']['noise_source']}.",
+            "",
+            "| model | parameters (&plusmn; std) | chi^2 | BIC | BIC gain | held-out chi^2 | fit MSE "
+            "| held-out MSE | scored in |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        ]
         rows = [("base", result["base"])] + list(result["candidates"].items())
         for model, evidence in rows:
             score = evidence["dem"] or evidence["emulator"]
@@ -125,12 +145,19 @@ def section_markdown(results: dict, section_path: PathLike) -> str:
             gain = "" if model == "base" else f"{evidence['delta_bic_vs_base']:+.1f}"
             fit_mse = score.get("objective", score.get("fit_mse"))
             label = f"**{model}**" if model == result["cause"] else model
-            lines.append(f"| {label} | {_parameters(evidence)} | {score['chi2']:.1f} | {score['bic']:.1f} | {gain} | "
-                         f"{score['heldout_chi2']:.1f} | {fit_mse:.4f} | {score['heldout_mse']:.4f} | {where} |")
-        lines += ["", f"Gain ({errors['compared_model']} vs base, DEM runs): runout MSE "
-                      f"{errors['fit_mse']['before']:.4f} &rarr; {errors['fit_mse']['after']:.4f} (fit), "
-                      f"{errors['heldout_mse']['before']:.4f} &rarr; {errors['heldout_mse']['after']:.4f} (held out).", "",
-                  "Checks: " + ", ".join(f"{k} {'yes' if v else 'NO'}" for k, v in result["checks"].items()) + ".", ""]
+            lines.append(
+                f"| {label} | {_parameters(evidence)} | {score['chi2']:.1f} | {score['bic']:.1f} | {gain} | "
+                f"{score['heldout_chi2']:.1f} | {fit_mse:.4f} | {score['heldout_mse']:.4f} | {where} |"
+            )
+        lines += [
+            "",
+            f"Gain ({errors['compared_model']} vs base, DEM runs): runout MSE "
+            f"{errors['fit_mse']['before']:.4f} &rarr; {errors['fit_mse']['after']:.4f} (fit), "
+            f"{errors['heldout_mse']['before']:.4f} &rarr; {errors['heldout_mse']['after']:.4f} (held out).",
+            "",
+            "Checks: " + ", ".join(f"{k} {'yes' if v else 'NO'}" for k, v in result["checks"].items()) + ".",
+            "",
+        ]
         if result["warnings"]:
             lines += ["Warnings:", ""] + [f"- {w}" for w in result["warnings"]] + [""]
         lines += [f"![residuals]({rel}/residuals.png)", "", f"![candidates]({rel}/candidates.png)", ""]

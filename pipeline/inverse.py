@@ -11,6 +11,7 @@ calibration.recovery; here they meet the pipeline's files: inputs read, outputs 
 atomically, progress logged. Times of the routes come from the Snakemake benchmark files
 (pipeline.benchmarks).
 """
+
 from __future__ import annotations
 
 import json
@@ -23,9 +24,21 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from calibration.compare import (BO_MAX_RUNS, Route, bayesopt_on_dem, comparison_routes, dem_run, markdown_table,
-                                 measured_case_fields, plot_bayesopt, plot_comparison, read_table,
-                                 validation_summary, write_bayesopt, write_table)
+from calibration.compare import (
+    BO_MAX_RUNS,
+    Route,
+    bayesopt_on_dem,
+    comparison_routes,
+    dem_run,
+    markdown_table,
+    measured_case_fields,
+    plot_bayesopt,
+    plot_comparison,
+    read_table,
+    validation_summary,
+    write_bayesopt,
+    write_table,
+)
 from calibration.gns_objective import GNSObjective
 from calibration.inverse import InverseResult, inverse_design, read_result, write_result
 from calibration.inverse_plots import plot_deposits, plot_paths
@@ -42,28 +55,46 @@ from pipeline.benchmarks import benchmark_seconds
 
 log = logging.getLogger(__name__)
 StrPath = str | os.PathLike
-START_NAMES = ("friction", "restitution")      # the order of the config's inverse.start
+START_NAMES = ("friction", "restitution")  # the order of the config's inverse.start
 
 
 # -- DEM runs of a measured column: at a point, and Bayesian optimisation -------------------------------
-def run_dem_point(measured_path: StrPath, metadata_path: StrPath, params: dict, out_path: StrPath, *,
-                  runout: dict | None, seed: int = 0, name: str = "", dem: dict | None = None) -> dict:
+def run_dem_point(
+    measured_path: StrPath,
+    metadata_path: StrPath,
+    params: dict,
+    out_path: StrPath,
+    *,
+    runout: dict | None,
+    seed: int = 0,
+    name: str = "",
+    dem: dict | None = None,
+) -> dict:
     """DEM run of a measured column at params with the GNS dataset's DEM model and the engine of
     `dem` (the config's dem section); writes the trajectory (atomically) and returns its validation
     summary (L* read by `runout`, the config's runout section)."""
     measured = load_column(measured_path)
     fields = measured_case_fields(read_metadata(metadata_path), seed)
-    trajectory = dem_run(measured, params, fields, name=name, progress=progress_logger(f"DEM run {name}", log),
-                         dem_config=dem)
+    trajectory = dem_run(
+        measured, params, fields, name=name, progress=progress_logger(f"DEM run {name}", log), dem_config=dem
+    )
     write_trajectory(out_path, trajectory)
     summary = validation_summary(trajectory, measured, RunoutMethod.from_config(runout))
     log.info("%s: objective %.4g against %s", name, summary["mse"], measured.name)
     return summary
 
 
-def run_dem_at(measured_path: StrPath, metadata_path: StrPath, out_path: StrPath, *, runout: dict | None,
-               seed: int = 0, dem: dict | None = None, result_path: StrPath | None = None,
-               start: Sequence[float] | None = None) -> tuple[str, dict, dict]:
+def run_dem_at(
+    measured_path: StrPath,
+    metadata_path: StrPath,
+    out_path: StrPath,
+    *,
+    runout: dict | None,
+    seed: int = 0,
+    dem: dict | None = None,
+    result_path: StrPath | None = None,
+    start: Sequence[float] | None = None,
+) -> tuple[str, dict, dict]:
     """The DEM run of rule inverse_validate (at the GNS optimum of the inverse.json at
     `result_path`) or, without one, of rule inverse_start (at `start`, the config's inverse.start
     (mu, e)): run_dem_point named "gns_optimum" or "start". Returns (name, params, its summary)."""
@@ -74,22 +105,33 @@ def run_dem_at(measured_path: StrPath, metadata_path: StrPath, out_path: StrPath
         params, name = dict(zip(START_NAMES, start)), "start"
     else:
         raise ValueError(f"DEM run to {out_path}: give the inverse design's result or the start point")
-    summary = run_dem_point(measured_path, metadata_path, params, out_path, runout=runout, seed=seed, name=name,
-                            dem=dem)
+    summary = run_dem_point(
+        measured_path, metadata_path, params, out_path, runout=runout, seed=seed, name=name, dem=dem
+    )
     return name, params, summary
 
 
-def run_bayesopt(measured_path: StrPath, metadata_path: StrPath, out_json: StrPath, out_figure: StrPath,
-                 out_best: StrPath, bounds: Sequence[Sequence[float]], *, runout: dict | None,
-                 budget: int = BO_MAX_RUNS, n_initial: int = 6, seed: int = 0, dem: dict | None = None) -> dict:
+def run_bayesopt(
+    measured_path: StrPath,
+    metadata_path: StrPath,
+    out_json: StrPath,
+    out_figure: StrPath,
+    out_best: StrPath,
+    bounds: Sequence[Sequence[float]],
+    *,
+    runout: dict | None,
+    budget: int = BO_MAX_RUNS,
+    n_initial: int = 6,
+    seed: int = 0,
+    dem: dict | None = None,
+) -> dict:
     """The BO arm: bayesopt.json (every run), its figure and the best run's trajectory; every
     objective reads L* by `runout` (the config's runout section), every run uses the engine of
     `dem` (the config's dem section)."""
     measured = load_column(measured_path)
     fields = measured_case_fields(read_metadata(metadata_path), seed)
     runout = RunoutMethod.from_config(runout)
-    history, best, seconds = bayesopt_on_dem(measured, fields, bounds, runout, budget, n_initial, seed,
-                                             dem_config=dem)
+    history, best, seconds = bayesopt_on_dem(measured, fields, bounds, runout, budget, n_initial, seed, dem_config=dem)
     write_trajectory(out_best, best)
     write_bayesopt(history, seconds, out_json, runout)
     data = json.loads(Path(out_json).read_text())
@@ -109,10 +151,21 @@ def model_error_from_evaluation(path: StrPath | None, runout: RunoutMethod) -> f
     return math.sqrt(value) if value is not None and math.isfinite(value) else None
 
 
-def run_inverse_design(model_path: StrPath, metadata_path: StrPath, start_path: StrPath, measured_path: StrPath,
-                       out_json: StrPath, out_paths: StrPath, out_deposits: StrPath, settings: dict, *,
-                       runout: dict | None, evaluation_path: StrPath | None = None,
-                       doe_responses_path: StrPath | None = None, threads: int | None = None) -> InverseResult:
+def run_inverse_design(
+    model_path: StrPath,
+    metadata_path: StrPath,
+    start_path: StrPath,
+    measured_path: StrPath,
+    out_json: StrPath,
+    out_paths: StrPath,
+    out_deposits: StrPath,
+    settings: dict,
+    *,
+    runout: dict | None,
+    evaluation_path: StrPath | None = None,
+    doe_responses_path: StrPath | None = None,
+    threads: int | None = None,
+) -> InverseResult:
     """The inverse-design stage of one measured column: inverse.json and the two figures.
 
     settings: the config's `inverse` section (friction, restitution bounds, start, starts, gradient,
@@ -129,30 +182,53 @@ def run_inverse_design(model_path: StrPath, metadata_path: StrPath, start_path: 
     start = read_trajectory(start_path)
     runout = RunoutMethod.from_config(runout)
     model_error = model_error_from_evaluation(evaluation_path, runout)
-    result = inverse_design(simulator, start, measured, metadata, read_training_attrs(metadata),
-                            bounds=[settings["friction"], settings["restitution"]], n_starts=settings["starts"],
-                            first_start=settings["start"], gradient=settings["gradient"], fd_step=settings["fd_step"],
-                            max_iterations=settings["max_iterations"], model_error_std=model_error,
-                            landscape_levels=settings["landscape_levels"], seed=settings["seed"], runout=runout)
+    result = inverse_design(
+        simulator,
+        start,
+        measured,
+        metadata,
+        read_training_attrs(metadata),
+        bounds=[settings["friction"], settings["restitution"]],
+        n_starts=settings["starts"],
+        first_start=settings["start"],
+        gradient=settings["gradient"],
+        fd_step=settings["fd_step"],
+        max_iterations=settings["max_iterations"],
+        model_error_std=model_error,
+        landscape_levels=settings["landscape_levels"],
+        seed=settings["seed"],
+        runout=runout,
+    )
     write_result(result, out_json)
     dem_points = None
     if doe_responses_path:
-        from doe.study import read_responses    # the DoE's DEM points drawn under the paths
+        from doe.study import read_responses  # the DoE's DEM points drawn under the paths
 
         table = read_responses(doe_responses_path, runout)
         dem_points = {name: table[name].to_numpy(float) for name in list(result.names) + ["mse"]}
     plot_paths(result.to_dict(), out_paths, dem_points)
     best = min(result.starts, key=lambda r: r.value)
     middle = best.iterates[len(best.iterates) // 2][0]
-    plot_deposits(GNSObjective(simulator, start, measured, result.names, runout=runout),
-                  {"start": best.start, f"iteration {len(best.iterates) // 2}": middle, "optimum": best.params},
-                  out_deposits)
+    plot_deposits(
+        GNSObjective(simulator, start, measured, result.names, runout=runout),
+        {"start": best.start, f"iteration {len(best.iterates) // 2}": middle, "optimum": best.params},
+        out_deposits,
+    )
     return result
 
 
-def run_recovery(model_path: StrPath, metadata_path: StrPath, out_json: StrPath, out_figure: StrPath, *,
-                 runout: dict | None, evaluation_path: StrPath | None = None, dem: dict | None = None,
-                 threads: int | None = None, **study_kwargs) -> dict:
+def run_recovery(
+    model_path: StrPath,
+    metadata_path: StrPath,
+    out_json: StrPath,
+    out_figure: StrPath,
+    *,
+    runout: dict | None,
+    evaluation_path: StrPath | None = None,
+    dem: dict | None = None,
+    threads: int | None = None,
+    **study_kwargs,
+) -> dict:
     """The recovery stage: recovery_study with the GNS at model_path, L* read by `runout` (the
     config's runout section), DEM runs by the engine of `dem` (the config's dem section); writes
     JSON and figure. threads: torch's CPU threads (the job's; None: torch's default)."""
@@ -160,34 +236,58 @@ def run_recovery(model_path: StrPath, metadata_path: StrPath, out_json: StrPath,
         torch.set_num_threads(threads)
     metadata = read_metadata(metadata_path)
     runout = RunoutMethod.from_config(runout)
-    summary = recovery_study(load_simulator(model_path, metadata), metadata,
-                             model_error_std=model_error_from_evaluation(evaluation_path, runout), runout=runout,
-                             dem_config=dem, **study_kwargs)
+    summary = recovery_study(
+        load_simulator(model_path, metadata),
+        metadata,
+        model_error_std=model_error_from_evaluation(evaluation_path, runout),
+        runout=runout,
+        dem_config=dem,
+        **study_kwargs,
+    )
     write_text(out_json, json.dumps(summary, indent=1) + "\n")
-    plot_recovery(summary, out_figure, title=f"{metadata['name']} (targets: mean of {summary['packings']} packings): mu "
-                  f"within {summary['mu_tolerance']:g} in {summary['mu_within']} of {summary['n_cases']}, truth inside "
-                  f"95% in {summary['truth_inside_95']}")
+    plot_recovery(
+        summary,
+        out_figure,
+        title=f"{metadata['name']} (targets: mean of {summary['packings']} packings): mu "
+        f"within {summary['mu_tolerance']:g} in {summary['mu_within']} of {summary['n_cases']}, truth inside "
+        f"95% in {summary['truth_inside_95']}",
+    )
     return summary
 
 
 # -- the comparison of the calibration routes ---------------------------------------------------------
-def plot_validation_runout(measured: MeasuredColumn, trajectories: dict, path: StrPath, runout: RunoutMethod,
-                           title: str = "") -> None:
+def plot_validation_runout(
+    measured: MeasuredColumn, trajectories: dict, path: StrPath, runout: RunoutMethod, title: str = ""
+) -> None:
     """DEM runout curves at each route's optimum against the measured points (the paper's Fig. 10).
 
     trajectories: {label: Trajectory}; labels get their objective appended.
     """
     from doe.plots import plot_runout_comparison
 
-    curves = {f"{label}, MSE {objective(t, measured, runout):.3f}": runout_curve(t, runout)
-              for label, t in trajectories.items()}
+    curves = {
+        f"{label}, MSE {objective(t, measured, runout):.3f}": runout_curve(t, runout)
+        for label, t in trajectories.items()
+    }
     plot_runout_comparison(measured, curves, path, title=title)
 
 
-def run_comparison(measured_path: StrPath, inverse_path: StrPath, validation_path: StrPath, start_path: StrPath,
-                   out_table: StrPath, out_figure: StrPath, out_runout: StrPath, benchmarks: dict, dem_runs: dict, *,
-                   runout: dict | None, bayesopt_path: StrPath | None = None,
-                   bayesopt_best_path: StrPath | None = None, doe_validation: dict | None = None) -> list[Route]:
+def run_comparison(
+    measured_path: StrPath,
+    inverse_path: StrPath,
+    validation_path: StrPath,
+    start_path: StrPath,
+    out_table: StrPath,
+    out_figure: StrPath,
+    out_runout: StrPath,
+    benchmarks: dict,
+    dem_runs: dict,
+    *,
+    runout: dict | None,
+    bayesopt_path: StrPath | None = None,
+    bayesopt_best_path: StrPath | None = None,
+    doe_validation: dict | None = None,
+) -> list[Route]:
     """The comparison of one measured column: table (CSV), accuracy-cost figure, runout figure.
 
     benchmarks: {"start" | "gns_dataset" | "gns_training" | "gns_validation" | "doe" | "bayesopt":
@@ -201,10 +301,15 @@ def run_comparison(measured_path: StrPath, inverse_path: StrPath, validation_pat
     runout = RunoutMethod.from_config(runout)
     check_same_method(inverse.get("runout"), runout, f"inverse design {inverse_path}")
     seconds = lambda key: benchmark_seconds(benchmarks.get(key, []))[0]  # noqa: E731
-    times = {"start": seconds("start"), "gns_dataset": (seconds("gns_dataset"), dem_runs["gns_dataset"]),
-             "gns_training": seconds("gns_training"), "gns_validation": seconds("gns_validation"),
-             "doe": (seconds("doe"), dem_runs.get("doe", 0)), "bayesopt": seconds("bayesopt"),
-             "doe_validation": {m: benchmark_seconds(p)[0] for m, p in benchmarks.get("doe_validation", {}).items()}}
+    times = {
+        "start": seconds("start"),
+        "gns_dataset": (seconds("gns_dataset"), dem_runs["gns_dataset"]),
+        "gns_training": seconds("gns_training"),
+        "gns_validation": seconds("gns_validation"),
+        "doe": (seconds("doe"), dem_runs.get("doe", 0)),
+        "bayesopt": seconds("bayesopt"),
+        "doe_validation": {m: benchmark_seconds(p)[0] for m, p in benchmarks.get("doe_validation", {}).items()},
+    }
     doe = {model: read_trajectory(path) for model, path in (doe_validation or {}).items()}
     bayesopt = json.loads(Path(bayesopt_path).read_text()) if bayesopt_path else None
     if bayesopt is not None:
@@ -213,9 +318,13 @@ def run_comparison(measured_path: StrPath, inverse_path: StrPath, validation_pat
     routes = comparison_routes(measured, inverse, validation, start, times, runout, doe, bayesopt)
     write_table(routes, out_table)
     plot_comparison(routes, out_figure, title=f"calibration routes for {measured.name}")
-    curves = {f"start ({start.attrs['friction']:.2f}, {start.attrs['restitution']:.2f})": start,
-              f"GNS optimum ({validation.attrs['friction']:.2f}, {validation.attrs['restitution']:.2f})": validation}
-    curves.update({f"DoE {m} optimum ({t.attrs['friction']:.2f}, {t.attrs['restitution']:.2f})": t for m, t in doe.items()})
+    curves = {
+        f"start ({start.attrs['friction']:.2f}, {start.attrs['restitution']:.2f})": start,
+        f"GNS optimum ({validation.attrs['friction']:.2f}, {validation.attrs['restitution']:.2f})": validation,
+    }
+    curves.update(
+        {f"DoE {m} optimum ({t.attrs['friction']:.2f}, {t.attrs['restitution']:.2f})": t for m, t in doe.items()}
+    )
     if bayesopt_best_path:
         best = read_trajectory(bayesopt_best_path)
         curves[f"BO best run ({best.attrs['friction']:.2f}, {best.attrs['restitution']:.2f})"] = best
@@ -225,8 +334,15 @@ def run_comparison(measured_path: StrPath, inverse_path: StrPath, validation_pat
 
 
 # -- the report section --------------------------------------------------------------------------------
-def section(name: str, measured: MeasuredColumn, routes: list[Route], inverse: dict, figures: dict,
-            section_path: StrPath, recovery: dict | None = None) -> str:
+def section(
+    name: str,
+    measured: MeasuredColumn,
+    routes: list[Route],
+    inverse: dict,
+    figures: dict,
+    section_path: StrPath,
+    recovery: dict | None = None,
+) -> str:
     """Markdown report section of one measured column (links relative to section_path)."""
     here = Path(section_path).parent
     rel = {k: Path(os.path.relpath(v, here)).as_posix() for k, v in figures.items()}
@@ -234,93 +350,153 @@ def section(name: str, measured: MeasuredColumn, routes: list[Route], inverse: d
     lines = [f"### {name}: {measured.material}, a = {measured.aspect_ratio:g}, L_i = {measured.L_i:g} m", ""]
     geometry = inverse["geometry"]
     if geometry["distance"] > 0.05:
-        lines += [f"**Warning:** the GNS was not trained on this column: the nearest training column "
-                  f"(a = {geometry['nearest'][0]:g}, L_i = {geometry['nearest'][1]:g} m) is "
-                  f"{geometry['distance']:.0%} away.", ""]
-    lines += [f"GNS inverse design: {len(inverse['starts'])} L-BFGS-B starts in lockstep ({inverse['gradient']} "
-              f"gradients through the checkpointed rollout), {inverse['n_batches']} batched rollouts, "
-              f"online time {inverse['seconds']['online']:.1f} s. Optimum (GNS objective "
-              f"{inverse['best_value']:.3f}):", "",
-              "| parameter | optimum | std | 95% interval | identifiable |", "|---|---|---|---|---|"]
+        lines += [
+            f"**Warning:** the GNS was not trained on this column: the nearest training column "
+            f"(a = {geometry['nearest'][0]:g}, L_i = {geometry['nearest'][1]:g} m) is "
+            f"{geometry['distance']:.0%} away.",
+            "",
+        ]
+    lines += [
+        f"GNS inverse design: {len(inverse['starts'])} L-BFGS-B starts in lockstep ({inverse['gradient']} "
+        f"gradients through the checkpointed rollout), {inverse['n_batches']} batched rollouts, "
+        f"online time {inverse['seconds']['online']:.1f} s. Optimum (GNS objective "
+        f"{inverse['best_value']:.3f}):",
+        "",
+        "| parameter | optimum | std | 95% interval | identifiable |",
+        "|---|---|---|---|---|",
+    ]
     for p in post["parameters"]:
-        lines.append(f"| {p['name']} | {p['value']:.3f} | {p['std']:.3f} | [{p['low']:.3f}, {p['high']:.3f}] | "
-                     f"{'yes' if p['identifiable'] else 'no: ' + p['why']} |")
-    lines += ["", f"Posterior correlation of the two parameters: {post['correlation'][0][1]:.2f}; noise: "
-                  f"{post['sigma_source']} (std {np.mean(post['sigma']):.3g} in L*).", "",
-              "| start (mu, e) | end (mu, e) | GNS objective | iterations | rollouts | L-BFGS-B |",
-              "|---|---|---|---|---|---|"]
+        lines.append(
+            f"| {p['name']} | {p['value']:.3f} | {p['std']:.3f} | [{p['low']:.3f}, {p['high']:.3f}] | "
+            f"{'yes' if p['identifiable'] else 'no: ' + p['why']} |"
+        )
+    lines += [
+        "",
+        f"Posterior correlation of the two parameters: {post['correlation'][0][1]:.2f}; noise: "
+        f"{post['sigma_source']} (std {np.mean(post['sigma']):.3g} in L*).",
+        "",
+        "| start (mu, e) | end (mu, e) | GNS objective | iterations | rollouts | L-BFGS-B |",
+        "|---|---|---|---|---|---|",
+    ]
     for s in inverse["starts"]:
-        lines.append(f"| {s['start'][0]:.3f}, {s['start'][1]:.3f} | {s['params'][0]:.3f}, {s['params'][1]:.3f} | "
-                     f"{s['iterates'][0]['value']:.4g} -> {s['value']:.4g} | {s['n_iterations']} | "
-                     f"{s['n_evaluations']} | {s['message']} |")
+        lines.append(
+            f"| {s['start'][0]:.3f}, {s['start'][1]:.3f} | {s['params'][0]:.3f}, {s['params'][1]:.3f} | "
+            f"{s['iterates'][0]['value']:.4g} -> {s['value']:.4g} | {s['n_iterations']} | "
+            f"{s['n_evaluations']} | {s['message']} |"
+        )
     rough = inverse.get("roughness")
     if rough:
-        lines += ["", f"Roughness of the GNS objective: within {rough['radius']:g} of the optimum it spans "
-                      f"{rough['spread']:.3g} ({', '.join(f'{v:.3g}' for v in rough['values'])} around "
-                      f"{rough['optimum_value']:.3g}); the posterior's steps of {rough['jacobian_step']:g} give "
-                      f"{', '.join(f'{v:.3g}' for v in rough['jacobian_step_values'])}. Where the spread is comparable, "
-                      "the rollout is chaotic in (mu, e) at that scale (as the DEM is between packings): local "
-                      "gradients, exact or finite-difference, describe that noise rather than the trend."]
-    lines += ["",
-              "Validated against the measured runout (DEM runs at each optimum; the paper: start 0.66, "
-              "GNS 0.10, DoE 0.17 for quartz):", "", markdown_table(routes), ""]
-    for key, caption in (("paths", "optimisation paths over the objective landscape (Fig. 2)"),
-                         ("deposits", "GNS deposits during the optimisation (Fig. 9)"),
-                         ("runout", "DEM runout at each optimum against the measurement (Fig. 10)"),
-                         ("comparison", "validated objective against DEM runs and wall time (Table 5)"),
-                         ("bayesopt", "Bayesian optimisation on DEM runs")):
+        lines += [
+            "",
+            f"Roughness of the GNS objective: within {rough['radius']:g} of the optimum it spans "
+            f"{rough['spread']:.3g} ({', '.join(f'{v:.3g}' for v in rough['values'])} around "
+            f"{rough['optimum_value']:.3g}); the posterior's steps of {rough['jacobian_step']:g} give "
+            f"{', '.join(f'{v:.3g}' for v in rough['jacobian_step_values'])}. Where the spread is comparable, "
+            "the rollout is chaotic in (mu, e) at that scale (as the DEM is between packings): local "
+            "gradients, exact or finite-difference, describe that noise rather than the trend.",
+        ]
+    lines += [
+        "",
+        "Validated against the measured runout (DEM runs at each optimum; the paper: start 0.66, "
+        "GNS 0.10, DoE 0.17 for quartz):",
+        "",
+        markdown_table(routes),
+        "",
+    ]
+    for key, caption in (
+        ("paths", "optimisation paths over the objective landscape (Fig. 2)"),
+        ("deposits", "GNS deposits during the optimisation (Fig. 9)"),
+        ("runout", "DEM runout at each optimum against the measurement (Fig. 10)"),
+        ("comparison", "validated objective against DEM runs and wall time (Table 5)"),
+        ("bayesopt", "Bayesian optimisation on DEM runs"),
+    ):
         if key in rel:
             lines += [f"![{caption}]({rel[key]})", ""]
     return "\n".join(lines)
 
 
-def report_section(names: Sequence[str], measured_paths: Sequence[StrPath], inverse_paths: Sequence[StrPath],
-                   table_paths: Sequence[StrPath], figures: dict, section_path: StrPath,
-                   recovery_paths: Sequence[StrPath] = (), recovery_figures: Sequence[StrPath] = ()) -> str:
+def report_section(
+    names: Sequence[str],
+    measured_paths: Sequence[StrPath],
+    inverse_paths: Sequence[StrPath],
+    table_paths: Sequence[StrPath],
+    figures: dict,
+    section_path: StrPath,
+    recovery_paths: Sequence[StrPath] = (),
+    recovery_figures: Sequence[StrPath] = (),
+) -> str:
     """The inverse-design report section: per measured column the optimum with its uncertainty, the
     comparison table and figures; then the parameter recovery of each GNS on synthetic targets.
 
     figures: {name: {"paths", "deposits", "runout", "comparison", "bayesopt": path}}.
     """
-    parts = ["Calibration of (mu, e) through the trained GNS (L-BFGS-B within bounds, as Jiang et al. 2024), "
-             "checked by DEM runs at the optimum and compared with the DoE and with Bayesian optimisation "
-             "directly on DEM runs. Wall times are sums of job times (one core each) from the benchmark files.", ""]
+    parts = [
+        "Calibration of (mu, e) through the trained GNS (L-BFGS-B within bounds, as Jiang et al. 2024), "
+        "checked by DEM runs at the optimum and compared with the DoE and with Bayesian optimisation "
+        "directly on DEM runs. Wall times are sums of job times (one core each) from the benchmark files.",
+        "",
+    ]
     for k, name in enumerate(names):
-        parts.append(section(name, load_column(measured_paths[k]), read_table(table_paths[k]),
-                             read_result(inverse_paths[k]), figures[name], section_path))
+        parts.append(
+            section(
+                name,
+                load_column(measured_paths[k]),
+                read_table(table_paths[k]),
+                read_result(inverse_paths[k]),
+                figures[name],
+                section_path,
+            )
+        )
     here = Path(section_path).parent
     for path, figure in zip(recovery_paths, recovery_figures):
         summary = json.loads(Path(path).read_text())
         packings = summary.get("packings", 1)
         scatter = summary.get("packing_std")
         model_error = summary["model_error_std"]
-        parts += [f"### Parameter recovery on synthetic DEM targets ({summary['dataset']})", "",
-                  f"{summary['n_cases']} targets of the dataset's column with known (mu, e) not in its training set, "
-                  f"each the mean runout of {packings} DEM packing(s) (as a lab averages repeated tests) at t/t* = "
-                  f"{', '.join(f'{t:g}' for t in summary['t_over_tstar'])} plus Gaussian noise "
-                  f"(std {summary['noise_std']:g}). "
-                  + (f"The runout scatters between packings by {min(scatter):.2g}-{max(scatter):.2g} L* (pooled, "
-                     f"{summary['packing_dof']} dof); the posterior's noise holds the noise, that scatter / "
-                     f"sqrt({packings}) on the target side and the scatter of the one packing the GNS rolls out"
-                     if scatter else "The posterior's noise holds the noise")
-                  + ("" if model_error is None else f", and the GNS's own runout error {model_error:.3g}")
-                  + f". mu within {summary['mu_tolerance']:g}: "
-                  f"**{summary['mu_within']} of {summary['n_cases']}**; truth inside both 95% intervals: "
-                  f"**{summary['truth_inside_95']} of {summary['n_cases']}** (target: all, and 4 of 5).", "",
-                  "| target | true mu, e | recovered mu, e | 95% interval mu | 95% interval e | identifiable | "
-                  "mu error |", "|---|---|---|---|---|---|---|"]
+        parts += [
+            f"### Parameter recovery on synthetic DEM targets ({summary['dataset']})",
+            "",
+            f"{summary['n_cases']} targets of the dataset's column with known (mu, e) not in its training set, "
+            f"each the mean runout of {packings} DEM packing(s) (as a lab averages repeated tests) at t/t* = "
+            f"{', '.join(f'{t:g}' for t in summary['t_over_tstar'])} plus Gaussian noise "
+            f"(std {summary['noise_std']:g}). "
+            + (
+                f"The runout scatters between packings by {min(scatter):.2g}-{max(scatter):.2g} L* (pooled, "
+                f"{summary['packing_dof']} dof); the posterior's noise holds the noise, that scatter / "
+                f"sqrt({packings}) on the target side and the scatter of the one packing the GNS rolls out"
+                if scatter
+                else "The posterior's noise holds the noise"
+            )
+            + ("" if model_error is None else f", and the GNS's own runout error {model_error:.3g}")
+            + f". mu within {summary['mu_tolerance']:g}: "
+            f"**{summary['mu_within']} of {summary['n_cases']}**; truth inside both 95% intervals: "
+            f"**{summary['truth_inside_95']} of {summary['n_cases']}** (target: all, and 4 of 5).",
+            "",
+            "| target | true mu, e | recovered mu, e | 95% interval mu | 95% interval e | identifiable | mu error |",
+            "|---|---|---|---|---|---|---|",
+        ]
         for r in summary["cases"]:
-            parts.append(f"| {r['target']} | {r['truth'][0]:.3f}, {r['truth'][1]:.3f} | {r['estimate'][0]:.3f}, "
-                         f"{r['estimate'][1]:.3f} | [{r['interval'][0][0]:.3f}, {r['interval'][0][1]:.3f}] | "
-                         f"[{r['interval'][1][0]:.3f}, {r['interval'][1][1]:.3f}] | "
-                         f"{', '.join('yes' if i else 'no' for i in r['identifiable'])} | {r['mu_error']:.3f} |")
+            parts.append(
+                f"| {r['target']} | {r['truth'][0]:.3f}, {r['truth'][1]:.3f} | {r['estimate'][0]:.3f}, "
+                f"{r['estimate'][1]:.3f} | [{r['interval'][0][0]:.3f}, {r['interval'][0][1]:.3f}] | "
+                f"[{r['interval'][1][0]:.3f}, {r['interval'][1][1]:.3f}] | "
+                f"{', '.join('yes' if i else 'no' for i in r['identifiable'])} | {r['mu_error']:.3f} |"
+            )
         parts += ["", f"![parameter recovery]({Path(os.path.relpath(figure, here)).as_posix()})", ""]
     return "\n".join(parts)
 
 
-def write_section(names: Sequence[str], measured_paths: Sequence[StrPath], inverse_paths: Sequence[StrPath],
-                  table_paths: Sequence[StrPath], section_path: StrPath, recovery_paths: Sequence[StrPath] = (),
-                  recovery_figures: Sequence[StrPath] = (), *, bayesopt: bool = False) -> str:
+def write_section(
+    names: Sequence[str],
+    measured_paths: Sequence[StrPath],
+    inverse_paths: Sequence[StrPath],
+    table_paths: Sequence[StrPath],
+    section_path: StrPath,
+    recovery_paths: Sequence[StrPath] = (),
+    recovery_figures: Sequence[StrPath] = (),
+    *,
+    bayesopt: bool = False,
+) -> str:
     """Write results/report/inverse.md (atomically) and return its text: report_section with each
     column's figures beside its inverse.json (paths, deposits, runout, comparison.png, and
     bayesopt.png when the BO arm ran)."""
@@ -330,7 +506,8 @@ def write_section(names: Sequence[str], measured_paths: Sequence[StrPath], inver
         figures[name] = {key: folder / f"{key}.png" for key in ("paths", "deposits", "runout", "comparison")}
         if bayesopt:
             figures[name]["bayesopt"] = folder / "bayesopt.png"
-    text = report_section(names, measured_paths, inverse_paths, table_paths, figures, section_path,
-                          recovery_paths, recovery_figures)
+    text = report_section(
+        names, measured_paths, inverse_paths, table_paths, figures, section_path, recovery_paths, recovery_figures
+    )
     write_text(section_path, text)
     return text

@@ -6,6 +6,7 @@ Conventions (workflow/rules/common.smk repeats them for stage authors):
   - each job benchmarks to results/benchmarks/<stage>/<rule>[/<wildcards>].tsv.
 The report rebases the fragments' relative links onto the report's own folder.
 """
+
 from __future__ import annotations
 
 import os
@@ -20,14 +21,20 @@ LINK = re.compile(r"(!?\[[^\]]*\]\()([^)\s]+)(\))")
 
 def time_table(times: list[StageTime]) -> str:
     """Markdown table of time per stage and rule, with stage subtotals."""
-    lines = ["| stage | rule | jobs | total (s) | mean per job (s) | max per job (s) | peak memory (MB) |",
-             "|---|---|---:|---:|---:|---:|---:|"]
+    lines = [
+        "| stage | rule | jobs | total (s) | mean per job (s) | max per job (s) | peak memory (MB) |",
+        "|---|---|---:|---:|---:|---:|---:|",
+    ]
     for stage in dict.fromkeys(t.stage for t in times):
         rows = [t for t in times if t.stage == stage]
         for t in rows:
             rss = "" if t.max_rss_mb is None else f"{t.max_rss_mb:.0f}"
-            lines.append(f"| {stage} | {t.rule} | {t.jobs} | {t.total_s:.1f} | {t.mean_s:.2f} | {t.max_s:.2f} | {rss} |")
-        lines.append(f"| **{stage}** | all | {sum(t.jobs for t in rows)} | **{sum(t.total_s for t in rows):.1f}** | | | |")
+            lines.append(
+                f"| {stage} | {t.rule} | {t.jobs} | {t.total_s:.1f} | {t.mean_s:.2f} | {t.max_s:.2f} | {rss} |"
+            )
+        lines.append(
+            f"| **{stage}** | all | {sum(t.jobs for t in rows)} | **{sum(t.total_s for t in rows):.1f}** | | | |"
+        )
     return "\n".join(lines)
 
 
@@ -57,6 +64,7 @@ def plot_stage_times(times: list[StageTime], path) -> None:
 
 def rebase_links(markdown: str, from_dir, to_dir) -> str:
     """Rewrite relative Markdown links/images written relative to `from_dir` to be relative to `to_dir`."""
+
     def fix(match):
         target = match.group(2)
         if re.match(r"^([a-z]+:|/|#)", target):
@@ -66,8 +74,7 @@ def rebase_links(markdown: str, from_dir, to_dir) -> str:
     return LINK.sub(fix, markdown)
 
 
-def assemble_report(sections: list[tuple[str, str]], benchmark_dir, out_path, title: str,
-                    time_figure) -> str:
+def assemble_report(sections: list[tuple[str, str]], benchmark_dir, out_path, title: str, time_figure) -> str:
     """Write the report at `out_path`: `title`, one `## <title>` per (title, fragment path) in
     `sections` (links rebased), then the time-per-stage table and figure. Returns the text."""
     out_dir = Path(out_path).parent
@@ -80,11 +87,15 @@ def assemble_report(sections: list[tuple[str, str]], benchmark_dir, out_path, ti
         text = rebase_links(fragment.read_text(), fragment.parent, out_dir)
         parts += [f"## {name}", "", text.strip(), ""]
     times = read_benchmarks(benchmark_dir)
-    parts += ["## Time per stage", "",
-              "Wall time of every job, from Snakemake `benchmark:` files "
-              f"({os.path.relpath(benchmark_dir, out_dir)}/<stage>/<rule>/...). Jobs run in parallel, so the "
-              "elapsed time of a run is shorter than these sums. Files of jobs from earlier configs count too; "
-              "delete the folder for a clean tally.", ""]
+    parts += [
+        "## Time per stage",
+        "",
+        "Wall time of every job, from Snakemake `benchmark:` files "
+        f"({os.path.relpath(benchmark_dir, out_dir)}/<stage>/<rule>/...). Jobs run in parallel, so the "
+        "elapsed time of a run is shorter than these sums. Files of jobs from earlier configs count too; "
+        "delete the folder for a clean tally.",
+        "",
+    ]
     if times:
         plot_stage_times(times, time_figure)
         parts += [time_table(times), "", f"![time per stage]({os.path.relpath(time_figure, out_dir)})", ""]

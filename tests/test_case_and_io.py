@@ -1,4 +1,5 @@
 """Case validation, the trajectory HDF5 contract, atomic writes and the runout measure."""
+
 import math
 
 import h5py
@@ -10,22 +11,25 @@ from dem.runout import RunoutMethod, deposit_mask, deposit_profile, final_height
 from dem.trajectory import Trajectory, TrajectoryError, read_trajectory, write_trajectory
 
 
-@pytest.mark.parametrize("changes, field", [
-    (dict(material="marble"), "material"),
-    (dict(column_length=-0.02), "column_length"),
-    (dict(column_length=math.nan), "column_length"),
-    (dict(aspect_ratio=0.0), "aspect_ratio"),
-    (dict(friction=-0.1), "friction"),
-    (dict(friction_wall=math.inf), "friction_wall"),
-    (dict(restitution=0.0), "restitution"),
-    (dict(restitution=1.2), "restitution"),
-    (dict(restitution_wall=-0.5), "restitution_wall"),
-    (dict(size_scale=-1.0), "size_scale"),
-    (dict(aspect_ratio=20.0), "column of height"),
-    (dict(column_length=0.45), "column_length"),
-    (dict(dt_over_contact_time=0.5), "dt_over_contact_time"),
-    (dict(seed=-1), "seed"),
-])
+@pytest.mark.parametrize(
+    "changes, field",
+    [
+        (dict(material="marble"), "material"),
+        (dict(column_length=-0.02), "column_length"),
+        (dict(column_length=math.nan), "column_length"),
+        (dict(aspect_ratio=0.0), "aspect_ratio"),
+        (dict(friction=-0.1), "friction"),
+        (dict(friction_wall=math.inf), "friction_wall"),
+        (dict(restitution=0.0), "restitution"),
+        (dict(restitution=1.2), "restitution"),
+        (dict(restitution_wall=-0.5), "restitution_wall"),
+        (dict(size_scale=-1.0), "size_scale"),
+        (dict(aspect_ratio=20.0), "column of height"),
+        (dict(column_length=0.45), "column_length"),
+        (dict(dt_over_contact_time=0.5), "dt_over_contact_time"),
+        (dict(seed=-1), "seed"),
+    ],
+)
 def test_bad_case_fields_are_named(changes, field):
     base = dict(material="quartz", column_length=0.02, aspect_ratio=2.0, friction=0.5, restitution=0.6)
     with pytest.raises(CaseError, match=field):
@@ -57,8 +61,7 @@ def test_derived_scales_follow_the_paper():
 def _trajectory(n_frames=3, n=4):
     positions = np.random.default_rng(0).uniform(0, 0.01, (n_frames, n, 2)).astype(np.float32)
     attrs = CollapseCase("quartz", 0.02, 1.0, 0.5, 0.65).physical_parameters()
-    attrs.update(engine="test", engine_version="0", dt_frame=0.01, x_min=0.0, x_max=0.5, y_min=0.0,
-                 y_max=0.35)
+    attrs.update(engine="test", engine_version="0", dt_frame=0.01, x_min=0.0, x_max=0.5, y_min=0.0, y_max=0.35)
     return Trajectory(positions, np.full(n, 2e-4), np.zeros(n, np.int32), attrs)
 
 
@@ -97,8 +100,8 @@ def test_broken_files_are_named(tmp_path):
 
 def test_runout_ignores_grains_rolling_alone_ahead():
     r = 1e-3
-    row = np.stack([np.arange(30) * 2 * r + r, np.full(30, r)], axis=1)       # touching grains
-    loner = np.array([[0.5, r]])                                              # far ahead
+    row = np.stack([np.arange(30) * 2 * r + r, np.full(30, r)], axis=1)  # touching grains
+    loner = np.array([[0.5, r]])  # far ahead
     positions = np.vstack([row, loner])
     radius = np.full(len(positions), r)
     mask = deposit_mask(positions, radius)

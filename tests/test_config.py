@@ -3,6 +3,7 @@ or a GNS that is not there fails with a ConfigError naming the key, before any j
 
 The schema checks themselves are tested in test_grid.py (and the runout section in test_runout.py).
 """
+
 import re
 import warnings
 from pathlib import Path
@@ -34,7 +35,7 @@ def validated(name="config.yaml", edit=None):
 
 def cross_key_error(config) -> str:
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore")   # a GeometryWarning on the way is not what these tests look at
+        warnings.simplefilter("ignore")  # a GeometryWarning on the way is not what these tests look at
         with pytest.raises(ConfigError) as info:
             check_cross_keys(config, case_table(config))
     return str(info.value)
@@ -44,8 +45,10 @@ def test_one_config_error_class():
     assert pipeline.config.ConfigError is dem.grid.ConfigError
 
 
-@pytest.mark.parametrize("name, expected", [("config.yaml", {"quartz": "quartz_multiple"}),
-                                            ("paper.yaml", {"quartz": "quartz_multiple"}), ("test.yaml", {})])
+@pytest.mark.parametrize(
+    "name, expected",
+    [("config.yaml", {"quartz": "quartz_multiple"}), ("paper.yaml", {"quartz": "quartz_multiple"}), ("test.yaml", {})],
+)
 def test_shipped_configs_pass_and_give_each_inverse_column_its_gns_dataset(name, expected):
     config = validated(name)
     assert check_cross_keys(config, case_table(config)) == expected
@@ -72,6 +75,7 @@ def test_doe_measured_not_an_entry_of_measured():
 def test_dataset_named_like_a_doe_of_measured():
     def edit(config):
         config["datasets"]["doe_quartz"] = config["datasets"]["quartz_multiple"]
+
     config = validated(edit=edit)
     message = "config key datasets.doe_quartz: the name is taken by the DoE of measured 'quartz'"
     assert message in cross_key_error(config)
@@ -79,23 +83,30 @@ def test_dataset_named_like_a_doe_of_measured():
 
 def test_inverse_measured_not_an_entry_of_measured():
     config = validated(edit=lambda c: c["inverse"].update(measured=["sand"]))
-    assert ("config key inverse.measured: 'sand' is not an entry of `measured` (entries: ['copper', 'quartz'])"
-            in cross_key_error(config))
+    assert (
+        "config key inverse.measured: 'sand' is not an entry of `measured` (entries: ['copper', 'quartz'])"
+        in cross_key_error(config)
+    )
 
 
 def test_inverse_dataset_without_a_gns():
     config = validated(edit=lambda c: c["inverse"].update(dataset={"quartz": "quartz_friction"}))
-    assert ("config key inverse.dataset.quartz: 'quartz_friction' has no GNS (gns datasets: ['quartz_multiple'])"
-            in cross_key_error(config))
+    assert (
+        "config key inverse.dataset.quartz: 'quartz_friction' has no GNS (gns datasets: ['quartz_multiple'])"
+        in cross_key_error(config)
+    )
 
 
 def test_inverse_column_outside_the_geometry_of_its_gns():
     def edit(config):
         config["gns"]["datasets"] = ["quartz_friction", "quartz_multiple"]
-        config["inverse"]["dataset"] = {"quartz": "quartz_friction"}   # a = 1, 2; the measured column has a = 6
+        config["inverse"]["dataset"] = {"quartz": "quartz_friction"}  # a = 1, 2; the measured column has a = 6
+
     message = cross_key_error(validated(edit=edit))
-    assert "config key inverse.measured: 'quartz' cannot be calibrated with the GNS of dataset 'quartz_friction'" \
+    assert (
+        "config key inverse.measured: 'quartz' cannot be calibrated with the GNS of dataset 'quartz_friction'"
         in message
+    )
     assert "aspect_ratio = 6 lies outside [1, 2]" in message
 
 
@@ -108,14 +119,18 @@ def test_inverse_column_of_a_material_no_gns_was_trained_on():
 
 def test_inverse_recovery_dataset_without_a_gns():
     config = validated(edit=lambda c: c["inverse"].update(recovery_datasets=["quartz_friction"]))
-    assert ("config key inverse.recovery_datasets: 'quartz_friction' has no GNS (gns datasets: ['quartz_multiple'])"
-            in cross_key_error(config))
+    assert (
+        "config key inverse.recovery_datasets: 'quartz_friction' has no GNS (gns datasets: ['quartz_multiple'])"
+        in cross_key_error(config)
+    )
 
 
 def test_checks_run_in_stage_order():
     """Several bad keys: the GNS's is reported first (the stage the others build on)."""
+
     def edit(config):
         config["gns"]["datasets"] = ["nope"]
         config["doe"]["measured"] = ["sand"]
         config["inverse"]["recovery_datasets"] = ["quartz_friction"]
+
     assert cross_key_error(validated(edit=edit)).startswith("config key gns.datasets: 'nope'")

@@ -1,4 +1,5 @@
 """Dataset metadata: splits, normalisation statistics from the training split only, checks."""
+
 import json
 
 import numpy as np
@@ -6,12 +7,10 @@ import pytest
 
 from dem.case import CollapseCase
 from dem.dataset import DatasetError, build_dataset, load_dataset_metadata, plot_dataset
-from dem.trajectory import engine_attrs
-from dem.trajectory import GRAIN, Trajectory, write_trajectory
+from dem.trajectory import GRAIN, Trajectory, engine_attrs, write_trajectory
 
 
-def write_motion(path, friction, L_i=0.01, speed=0.0, accel=0.0, n_frames=12, n=5, output_interval=0.002,
-                 rng=None):
+def write_motion(path, friction, L_i=0.01, speed=0.0, accel=0.0, n_frames=12, n=5, output_interval=0.002, rng=None):
     """A trajectory of n grains moving with constant velocity `speed` and acceleration `accel`
     (m per frame, m per frame^2) in x and -y, plus seeded noise, with a real case's attributes."""
     case = CollapseCase("quartz", L_i, 2.0, friction, 0.65, size_scale=4, output_interval=output_interval)
@@ -19,9 +18,13 @@ def write_motion(path, friction, L_i=0.01, speed=0.0, accel=0.0, n_frames=12, n=
     t = np.arange(n_frames)[:, None, None]
     start = rng.uniform(0.001, 0.009, (1, n, 2))
     direction = np.array([1.0, -0.5])
-    positions = start + (speed * t + 0.5 * accel * t ** 2) * direction + rng.normal(0, 1e-5, (n_frames, n, 2))
-    traj = Trajectory(positions.astype(np.float32), np.full(n, 0.5 * case.diameter),
-                      np.full(n, GRAIN, np.int32), engine_attrs(case, "synthetic", "test"))
+    positions = start + (speed * t + 0.5 * accel * t**2) * direction + rng.normal(0, 1e-5, (n_frames, n, 2))
+    traj = Trajectory(
+        positions.astype(np.float32),
+        np.full(n, 0.5 * case.diameter),
+        np.full(n, GRAIN, np.int32),
+        engine_attrs(case, "synthetic", "test"),
+    )
     write_trajectory(path, traj)
     return positions.astype(np.float32).astype(np.float64)
 
@@ -30,13 +33,17 @@ def write_motion(path, friction, L_i=0.01, speed=0.0, accel=0.0, n_frames=12, n=
 def three_splits(tmp_path):
     rng = np.random.default_rng(1)
     train = [tmp_path / f"train_{k}.h5" for k in range(3)]
-    arrays = [write_motion(p, friction=0.3 + 0.1 * k, speed=1e-4 * (k + 1), accel=2e-5, rng=rng)
-              for k, p in enumerate(train)]
+    arrays = [
+        write_motion(p, friction=0.3 + 0.1 * k, speed=1e-4 * (k + 1), accel=2e-5, rng=rng) for k, p in enumerate(train)
+    ]
     # valid/test move 100x faster: they must not touch the statistics, but do set the ranges
     write_motion(tmp_path / "valid.h5", friction=0.9, L_i=0.012, speed=1e-2, accel=1e-3, n=7, rng=rng)
     write_motion(tmp_path / "test.h5", friction=0.2, speed=1e-2, accel=1e-3, n_frames=15, rng=rng)
-    splits = {"train": [str(p) for p in train], "valid": [str(tmp_path / "valid.h5")],
-              "test": [str(tmp_path / "test.h5")]}
+    splits = {
+        "train": [str(p) for p in train],
+        "valid": [str(tmp_path / "valid.h5")],
+        "test": [str(tmp_path / "test.h5")],
+    }
     return splits, arrays
 
 
@@ -132,8 +139,9 @@ def test_dataset_stage_summary_table_and_report_section(tmp_path, monkeypatch):
     meta_path = "results/datasets/syn/metadata.json"
     meta = build(splits, meta_path, "syn")
     assert meta["n_cases"] == {"train": 2, "valid": 1, "test": 1}
-    out = summarise(meta_path, "results/datasets/syn/summary.png", "results/datasets/syn/cases.csv", rows,
-                    "connected_front")
+    out = summarise(
+        meta_path, "results/datasets/syn/summary.png", "results/datasets/syn/cases.csv", rows, "connected_front"
+    )
     final = plot_dataset(meta, tmp_path / "again.png", "connected_front")
     assert [r["final_L_star"] for r in out] == [round(final[p], 4) for p in sum(splits.values(), [])]
     assert "final_L_star" not in rows[0]  # the caller's rows are left alone

@@ -5,6 +5,7 @@ The DEM part (one module fixture) builds a CI-sized run library: quartz L_i = 0.
 size_scale 5 (98 and 196 grains), 6 + 3 base runs and 5 per candidate, one DEM scoring round.
 benchmarks/diagnosis_hidden.py runs the full-size version (size_scale 4, five hidden cases).
 """
+
 import json
 import math
 from dataclasses import replace
@@ -17,12 +18,16 @@ from calibration.design_runs import DesignRuns, Library, Model, SimulationSettin
 from calibration.diagnosis import DiagnosisSettings, diagnose, fit_emulated
 from calibration.emulator import GPEmulator, ParameterBox, latin_hypercube
 from calibration.measured import MeasuredColumn
-from calibration.mechanisms import (MechanismError, bond_from_cohesion_energy, cohesion_energy_from_bond,
-                                    get_mechanisms)
-from calibration.observables import LibraryError, Observables
+from calibration.mechanisms import MechanismError, bond_from_cohesion_energy, cohesion_energy_from_bond, get_mechanisms
+from calibration.observables import Observables
 from calibration.residuals import DiagnosisError, check_data, held_out_folds, noise_model, residual_structure, runs_test
-from calibration.synthetic import (draw_truth, evidence_margins, synthetic_columns, synthetic_measurement,
-                                   write_measured_csv)
+from calibration.synthetic import (
+    draw_truth,
+    evidence_margins,
+    synthetic_columns,
+    synthetic_measurement,
+    write_measured_csv,
+)
 from dem.case import CollapseCase
 from dem.runout import RunoutMethod, runout_curve
 from dem.trajectory import Trajectory
@@ -44,13 +49,13 @@ def test_candidates_map_to_engine_fields():
     assert MECHANISMS["gate_lift"].case_fields(0.0, case) == {"gate_lift_speed": 0.0}
     assert MECHANISMS["sidewall_friction"].case_fields(0.1, case) == {"sidewall_friction": 0.1, "channel_width": 0.01}
     assert MECHANISMS["rolling_resistance"].case_fields(0.2, case) == {"rolling_friction": 0.2}
-    assert MECHANISMS["basal_friction"].off_value(0.45, 0.6) == 0.45   # the base model's floor
+    assert MECHANISMS["basal_friction"].off_value(0.45, 0.6) == 0.45  # the base model's floor
     assert MECHANISMS["rolling_resistance"].off_value(0.45, 0.6) == 0.0
     with pytest.raises(MechanismError, match="rolling_friction = 0.9 outside"):
         MECHANISMS["rolling_resistance"].case_fields(0.9, case)
     with pytest.raises(MechanismError, match="unknown candidate mechanism"):
         get_mechanisms(["rolling_resistance", "magnetism"])
-    for m in MECHANISMS.values():   # the hidden magnitudes lie inside the searched box, away from "off"
+    for m in MECHANISMS.values():  # the hidden magnitudes lie inside the searched box, away from "off"
         assert m.bounds[0] <= m.hidden_range[0] < m.hidden_range[1] <= m.bounds[1]
 
 
@@ -58,7 +63,7 @@ def test_parameter_box_log_scale():
     box = Model(MECHANISMS["basal_friction"]).box
     theta = np.array([[0.5, 0.6, 0.02], [0.3, 0.9, 1.0], [0.9, 0.3, math.sqrt(0.02)]])
     unit = box.to_unit(theta)
-    assert unit[:, 2] == pytest.approx([0.0, 1.0, 0.5])     # geometric middle of [0.02, 1]
+    assert unit[:, 2] == pytest.approx([0.0, 1.0, 0.5])  # geometric middle of [0.02, 1]
     assert box.from_unit(unit) == pytest.approx(theta)
     design = latin_hypercube(box, 8, seed=1)
     assert np.all(design >= box.bounds[:, 0]) and np.all(design <= box.bounds[:, 1])
@@ -70,19 +75,19 @@ def test_runout_front_never_moves_back():
     dem.runout's connected deposit; the "_reached" runout (the diagnosis' before the runout
     contract, still available to it) keeps the farthest front reached."""
     radius = np.full(20, 1e-3)
-    row = np.column_stack([1e-3 + 2e-3 * np.arange(20), radius])          # 20 touching grains on the floor
+    row = np.column_stack([1e-3 + 2e-3 * np.arange(20), radius])  # 20 touching grains on the floor
     split = row.copy()
-    split[10:, 0] += 10e-3                                                 # the leading 10 grains 5 d ahead
+    split[10:, 0] += 10e-3  # the leading 10 grains 5 d ahead
     grown = row.copy()
-    grown[:, 0] *= 1.5                                                     # gaps of 1 mm (< 2 d): still one deposit
+    grown[:, 0] *= 1.5  # gaps of 1 mm (< 2 d): still one deposit
     positions = np.stack([row, grown, split, split]).astype(np.float32)
     trajectory = Trajectory(positions, radius, np.zeros(20, np.int32), {"L_i": 0.01, "dt_frame": 0.01, "t_star": 0.1})
     t, raw = runout_curve(trajectory, "connected_front")
     t_front, front = RunoutMethod("connected_front_reached").curve(trajectory)
     assert np.array_equal(t, t_front)
-    assert raw[2] < raw[1] - 2.0                                           # the connected front jumps back
-    assert front[:2] == pytest.approx(raw[:2]) and front[1] > front[0]    # a growing front is read as is
-    assert front[2] == front[3] == pytest.approx(raw[1])                  # ... and never moves back
+    assert raw[2] < raw[1] - 2.0  # the connected front jumps back
+    assert front[:2] == pytest.approx(raw[:2]) and front[1] > front[0]  # a growing front is read as is
+    assert front[2] == front[3] == pytest.approx(raw[1])  # ... and never moves back
 
 
 # -- emulator and fits -------------------------------------------------------------------------------------
@@ -90,7 +95,7 @@ def response(theta):
     """A smooth nonlinear two-output function of (x, y) in [0, 1]^2, one-to-one (Jacobian
     determinant -1 - 2 y e^x < 0 everywhere)."""
     x, y = theta[:, 0], theta[:, 1]
-    return np.column_stack([x + y ** 2, np.exp(x) - y])
+    return np.column_stack([x + y**2, np.exp(x) - y])
 
 
 def test_emulator_reproduces_a_known_function_and_its_noise():
@@ -101,7 +106,7 @@ def test_emulator_reproduces_a_known_function_and_its_noise():
     emulator = GPEmulator(box, seed=0).fit(design, response(design) + rng.normal(0, noise, (30, 2)))
     test = latin_hypercube(box, 50, seed=3)
     error = emulator.predict(test) - response(test)
-    assert np.sqrt(np.mean(error ** 2)) < 3 * noise
+    assert np.sqrt(np.mean(error**2)) < 3 * noise
     # leave-one-out error: the noise itself, plus a little emulation error
     assert np.all(emulator.loo_rmse() > 0.5 * noise) and np.all(emulator.loo_rmse() < 4 * noise)
     truth = np.array([0.3, 0.7])
@@ -117,8 +122,20 @@ def two_columns(profile=True):
     columns = []
     for a in (1.0, 2.0):
         x = np.array([0.005, 0.015, 0.03]) if profile else None
-        columns.append(MeasuredColumn(f"q{a:g}", "quartz", a, 0.02, t, a * np.sqrt(t), np.full(len(t), 0.05),
-                                      x, None if x is None else np.array([0.02, 0.015, 0.005]), "memory"))
+        columns.append(
+            MeasuredColumn(
+                f"q{a:g}",
+                "quartz",
+                a,
+                0.02,
+                t,
+                a * np.sqrt(t),
+                np.full(len(t), 0.05),
+                x,
+                None if x is None else np.array([0.02, 0.015, 0.005]),
+                "memory",
+            )
+        )
     return columns
 
 
@@ -128,15 +145,17 @@ def test_residuals_said_in_plain_words():
     kind, x, column = observables.kind, observables.x, observables.column_index
     predicted = measured.copy()
     late = (kind == "runout") & (x > 2.5)
-    predicted[late] += np.where(column[late] == 0, 0.3, 0.6)           # overshoot, larger for a = 2
+    predicted[late] += np.where(column[late] == 0, 0.3, 0.6)  # overshoot, larger for a = 2
     near_wall = (kind == "profile") & (x <= 0.02)
-    predicted[near_wall] -= 0.004                                      # deposit too low at the wall
+    predicted[near_wall] -= 0.004  # deposit too low at the wall
     sigma = np.where(kind == "runout", 0.05, 0.001)
     words = residual_structure(observables, predicted, sigma, 2)
     summary = words["summary"]
     assert "beyond the stated noise" in summary
-    assert ("In the stopping phase the simulated runout overshoots in every column, more for taller columns "
-            "(a = 1: +0.30 L*, a = 2: +0.60 L*)") in summary
+    assert (
+        "In the stopping phase the simulated runout overshoots in every column, more for taller columns "
+        "(a = 1: +0.30 L*, a = 2: +0.60 L*)"
+    ) in summary
     assert "deposit behind the gate (x <= L_i) the simulated deposit is lower than measured in every column" in summary
     assert "free-fall" not in summary and "spreading" not in summary
     stopping = [g for g in words["groups"] if g["group"].startswith("stopping")]
@@ -146,9 +165,9 @@ def test_residuals_said_in_plain_words():
 
 
 def test_runs_test():
-    assert runs_test([1, 1, 1, 1, 1, 1]) == pytest.approx(2.0 ** -5)
-    assert runs_test([1, -1, 1, -1, 1, -1, 1, -1]) > 0.9            # alternating: no structure
-    assert runs_test([-1, -1, -1, -1, 1, 1, 1, 1]) < 0.05           # two long runs: structure
+    assert runs_test([1, 1, 1, 1, 1, 1]) == pytest.approx(2.0**-5)
+    assert runs_test([1, -1, 1, -1, 1, -1, 1, -1]) > 0.9  # alternating: no structure
+    assert runs_test([-1, -1, -1, -1, 1, 1, 1, 1]) < 0.05  # two long runs: structure
 
 
 def test_held_out_folds():
@@ -164,19 +183,28 @@ def test_held_out_folds():
 
 # -- the decision rule ---------------------------------------------------------------------------------
 def dem_entry(chi2, heldout, n=20, p=3):
-    return {"chi2": chi2, "bic": chi2 + p * math.log(n), "heldout_chi2": heldout, "n_heldout": n,
-            "p_value": 0.5 if chi2 < n else 1e-6}
+    return {
+        "chi2": chi2,
+        "bic": chi2 + p * math.log(n),
+        "heldout_chi2": heldout,
+        "n_heldout": n,
+        "p_value": 0.5 if chi2 < n else 1e-6,
+    }
 
 
 def test_decision_names_a_cause_only_when_decisive():
     rule = DecisionRule()
-    decisive = {"base": dem_entry(120, 130, p=2), "cohesion": dem_entry(22, 30), "rolling_resistance": dem_entry(60, 80)}
+    decisive = {
+        "base": dem_entry(120, 130, p=2),
+        "cohesion": dem_entry(22, 30),
+        "rolling_resistance": dem_entry(60, 80),
+    }
     cause, checks, verdict = decide(decisive, rule, [], "cohesion")
     assert cause == "cohesion" and all(checks.values()) and verdict.startswith("Cause: cohesion")
-    close = dict(decisive, rolling_resistance=dem_entry(25, 35))                       # runner-up 3 behind
+    close = dict(decisive, rolling_resistance=dem_entry(25, 35))  # runner-up 3 behind
     cause, checks, _ = decide(close, rule, [], "cohesion")
     assert cause == "none" and not checks["bic_beats_runner_up"]
-    worse_heldout = dict(decisive, cohesion=dem_entry(22, 110))                        # held-out gain 15% only
+    worse_heldout = dict(decisive, cohesion=dem_entry(22, 110))  # held-out gain 15% only
     assert decide(worse_heldout, rule, [], "cohesion")[0] == "none"
     # held out no better than the runner-up: a tie (within sqrt(2 n) = 6.3 of a chi^2 over 20
     # held-out values) leaves the BIC margin to decide; clearly worse out of sample is overfitting
@@ -186,7 +214,7 @@ def test_decision_names_a_cause_only_when_decisive():
     cause, checks, _ = decide(overfit, rule, [], "cohesion")
     assert cause == "none" and not checks["heldout_no_worse_than_runner_up"]
     assert decide(decisive, rule, ["runout looks like metres"], "cohesion")[0] == "none"
-    assert decide(decisive, rule, [], "rolling_resistance")[0] == "none"               # emulator disagrees
+    assert decide(decisive, rule, [], "rolling_resistance")[0] == "none"  # emulator disagrees
     nothing = {"base": dem_entry(18, 20, p=2), "cohesion": dem_entry(17, 22), "gate_lift": dem_entry(18, 25)}
     cause, _, verdict = decide(nothing, rule, [], "cohesion")
     assert cause == "none" and "no candidate improves" in verdict
@@ -194,17 +222,30 @@ def test_decision_names_a_cause_only_when_decisive():
 
 def test_benchmark_margins_never_mix_dem_and_emulator_bic():
     """A candidate scored only on its emulator is compared with the emulator's base fit, never the DEM's."""
+
     def evidence(dem_bic, dem_heldout, final_bic):
-        return {"dem": None if dem_bic is None else {"bic": dem_bic, "heldout_chi2": dem_heldout},
-                "emulator_final": {"bic": final_bic}}
-    result = {"base": evidence(100.0, 80.0, 150.0),
-              "candidates": {"cohesion": evidence(30.0, 20.0, 40.0), "gate_lift": evidence(45.0, 30.0, 50.0),
-                             "basal_friction": evidence(None, None, 35.0)}}
+        return {
+            "dem": None if dem_bic is None else {"bic": dem_bic, "heldout_chi2": dem_heldout},
+            "emulator_final": {"bic": final_bic},
+        }
+
+    result = {
+        "base": evidence(100.0, 80.0, 150.0),
+        "candidates": {
+            "cohesion": evidence(30.0, 20.0, 40.0),
+            "gate_lift": evidence(45.0, 30.0, 50.0),
+            "basal_friction": evidence(None, None, 35.0),
+        },
+    }
     margins = evidence_margins(result)
     assert margins["delta_bic_dem"] == {"cohesion": 70.0, "gate_lift": 55.0}
     assert margins["delta_bic_emulator"] == {"cohesion": 110.0, "gate_lift": 100.0, "basal_friction": 115.0}
-    assert margins["margins"] == {"dem_best": "cohesion", "bic_vs_base": 70.0, "bic_vs_runner_up": 15.0,
-                                  "heldout_gain": 0.75}
+    assert margins["margins"] == {
+        "dem_best": "cohesion",
+        "bic_vs_base": 70.0,
+        "bic_vs_runner_up": 15.0,
+        "heldout_gain": 0.75,
+    }
 
 
 # -- bad input (a small library of real arrays, no DEM) ------------------------------------------------
@@ -213,11 +254,13 @@ def small_library(observables, scale=1.0):
     rng = np.random.default_rng(0)
     box = Model().box
     theta = np.vstack([latin_hypercube(box, 6, 0), np.tile(box.centre, (3, 1))])
-    base = np.concatenate([c.runout if c.profile_x is None else np.concatenate([c.runout, c.profile_height])
-                           for c in observables.columns])
+    base = np.concatenate(
+        [c.runout if c.profile_x is None else np.concatenate([c.runout, c.profile_height]) for c in observables.columns]
+    )
     observed = np.array([base * (1.5 - th[0]) * scale for th in theta]) + rng.normal(0, 0.01, (9, len(base)))
-    runs = DesignRuns("base", theta, observed, np.arange(9) % 3, np.ones(9),
-                      np.array(["design"] * 6 + ["replicate"] * 3))
+    runs = DesignRuns(
+        "base", theta, observed, np.arange(9) % 3, np.ones(9), np.array(["design"] * 6 + ["replicate"] * 3)
+    )
     return Library(observables.signature(), {"size_scale": 4.0}, {"base": runs})
 
 
@@ -237,10 +280,17 @@ def test_bad_input_is_an_error_not_a_cause():
     assert any("barely moved" in note for note in check_data(Observables(mixed), library, models, noise))
     # ... and so is a column that stands (L* small but flat, say cohesive grains)
     standing = [replace(c, runout=np.full(len(c.runout), 0.02)) for c in columns]
-    assert check_data(Observables(standing), library, models, noise)   # only a note: out of the runs' range
+    assert check_data(Observables(standing), library, models, noise)  # only a note: out of the runs' range
     # a single time point (or two) is no curve
-    short = [replace(columns[0], t_over_tstar=np.array([1.0, 2.0]), runout=np.array([1.0, 1.4]),
-                     runout_std=np.array([0.05, 0.05])), columns[1]]
+    short = [
+        replace(
+            columns[0],
+            t_over_tstar=np.array([1.0, 2.0]),
+            runout=np.array([1.0, 1.4]),
+            runout_std=np.array([0.05, 0.05]),
+        ),
+        columns[1],
+    ]
     with pytest.raises(DiagnosisError, match="2 runout point"):
         check_data(Observables(short), small_library(Observables(short)), models, noise)
     # a zero noise level would make any misfit "decisive"
@@ -266,8 +316,16 @@ def test_library_round_trip(tmp_path):
 
 
 # -- hidden mechanism in DEM data ---------------------------------------------------------------------
-CI_SETTINGS = DiagnosisSettings(simulation=SimulationSettings(size_scale=5.0), n_base=6, n_per_mechanism=5,
-                                n_rounds=1, n_packings=2, dem_top=2, profile_noise=5e-4, seed=0)
+CI_SETTINGS = DiagnosisSettings(
+    simulation=SimulationSettings(size_scale=5.0),
+    n_base=6,
+    n_per_mechanism=5,
+    n_rounds=1,
+    n_packings=2,
+    dem_top=2,
+    profile_noise=5e-4,
+    seed=0,
+)
 RUNOUT_NOISE, PROFILE_NOISE = 0.05, 5e-4
 
 
@@ -283,8 +341,16 @@ def ci_library(tmp_path_factory):
 
 def hidden_data(columns, truth, seed):
     rng = np.random.default_rng(seed)
-    data, _ = synthetic_measurement(truth, columns, get_mechanisms(), CI_SETTINGS.simulation, RUNOUT_NOISE,
-                                    PROFILE_NOISE, rng, runout=CI_SETTINGS.runout)
+    data, _ = synthetic_measurement(
+        truth,
+        columns,
+        get_mechanisms(),
+        CI_SETTINGS.simulation,
+        RUNOUT_NOISE,
+        PROFILE_NOISE,
+        rng,
+        runout=CI_SETTINGS.runout,
+    )
     return data
 
 
@@ -297,10 +363,18 @@ def test_hidden_mechanism_is_named_from_a_csv(ci_library, tmp_path):
     truth = draw_truth(rng, mechanism)
     csv = tmp_path / "hidden.csv"
     write_measured_csv(hidden_data(columns, truth, 8), csv, comment="synthetic, hidden mechanism")
-    section = {"size_scale": 5.0, "n_base": 6, "n_per_mechanism": 5, "n_rounds": 1, "n_packings": 2,
-               "profile_noise": PROFILE_NOISE, "enabled": True}
-    result = run_diagnosis(csv, library_path, tmp_path / "out", section, runout=CI_SETTINGS.runout.to_config(),
-                           name="hidden")
+    section = {
+        "size_scale": 5.0,
+        "n_base": 6,
+        "n_per_mechanism": 5,
+        "n_rounds": 1,
+        "n_packings": 2,
+        "profile_noise": PROFILE_NOISE,
+        "enabled": True,
+    }
+    result = run_diagnosis(
+        csv, library_path, tmp_path / "out", section, runout=CI_SETTINGS.runout.to_config(), name="hidden"
+    )
     assert result["cause"] == truth.mechanism, (truth, result["verdict"], result["checks"])
     written = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
     assert written["cause"] == truth.mechanism
@@ -337,8 +411,14 @@ def test_null_case_names_no_cause(ci_library):
 def test_runout_in_metres_is_refused_before_any_run(ci_library):
     columns, library, _ = ci_library
     # a plausible runout curve L* = a sqrt(t/t*), given as L - L_i in metres
-    metres = [replace(c, runout=c.aspect_ratio * np.sqrt(c.t_over_tstar) * c.L_i,
-                      runout_std=np.full(len(c.t_over_tstar), 0.001),
-                      profile_height=np.zeros(len(c.profile_x))) for c in columns]
+    metres = [
+        replace(
+            c,
+            runout=c.aspect_ratio * np.sqrt(c.t_over_tstar) * c.L_i,
+            runout_std=np.full(len(c.t_over_tstar), 0.001),
+            profile_height=np.zeros(len(c.profile_x)),
+        )
+        for c in columns
+    ]
     with pytest.raises(DiagnosisError, match="metres"):
         diagnose(metres, CI_SETTINGS, library=library)

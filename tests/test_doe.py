@@ -1,5 +1,6 @@
 """DoE: the factorial design, response-surface regression, ANOVA effect table, pure error, optimum;
 the stage's jobs (pipeline/doe.py) on synthetic trajectories."""
+
 import json
 
 import numpy as np
@@ -18,7 +19,7 @@ def synthetic(design, coefficients, noise=0.0, seed=0):
     """Response b0 + b1 x1 + b2 x2 + b12 x1 x2 + b11 x1^2 + b22 x2^2 (coded factors) + N(0, noise)."""
     x1, x2 = design["x_friction"].to_numpy(), design["x_restitution"].to_numpy()
     b0, b1, b2, b12, b11, b22 = coefficients
-    y = b0 + b1 * x1 + b2 * x2 + b12 * x1 * x2 + b11 * x1 ** 2 + b22 * x2 ** 2
+    y = b0 + b1 * x1 + b2 * x2 + b12 * x1 * x2 + b11 * x1**2 + b22 * x2**2
     out = design.copy()
     out["mse"] = y + np.random.default_rng(seed).normal(0, noise, len(y))
     return out
@@ -51,10 +52,13 @@ def test_design_cases_take_the_measured_geometry():
     assert cases["run_00"].friction == 0.3 and cases["run_00"].seed == 5
 
 
-@pytest.mark.parametrize("model, coefficients", [
-    ("eq9", (0.713, -0.731, -0.04, -0.732, 0.0, 0.0)),            # the paper's eq. (9)
-    ("quadratic", (1.2, -0.4, 0.3, 0.25, 0.6, 0.9)),
-])
+@pytest.mark.parametrize(
+    "model, coefficients",
+    [
+        ("eq9", (0.713, -0.731, -0.04, -0.732, 0.0, 0.0)),  # the paper's eq. (9)
+        ("quadratic", (1.2, -0.4, 0.3, 0.25, 0.6, 0.9)),
+    ],
+)
 def test_regression_recovers_known_coefficients(model, coefficients):
     responses = synthetic(full_factorial(), coefficients, noise=0.02)
     fit = fit_surface(responses, model, FACTORS)
@@ -68,7 +72,7 @@ def test_optimum_of_a_known_surface():
     # minimum at coded (0.3, -0.4): natural (0.69, 0.48), value 0.5
     design = full_factorial()
     x1, x2 = design["x_friction"] - 0.3, design["x_restitution"] + 0.4
-    responses = design.assign(mse=0.5 + 0.8 * x1 ** 2 + 0.6 * x2 ** 2 + 0.3 * x1 * x2)
+    responses = design.assign(mse=0.5 + 0.8 * x1**2 + 0.6 * x2**2 + 0.3 * x1 * x2)
     best = fit_surface(responses, "quadratic", FACTORS).optimum()
     assert best["natural"]["friction"] == pytest.approx(0.69, abs=1e-4)
     assert best["natural"]["restitution"] == pytest.approx(0.48, abs=1e-4)
@@ -144,13 +148,14 @@ def test_case_rows_build_the_same_cases_in_the_dem_stage():
 def test_study_on_synthetic_trajectories(tmp_path):
     """Responses, analysis and report section from trajectories whose runout is known exactly:
     L*(t; mu, e) = g(mu, e) L*_measured(t), so the MSE is (g - 1)^2 mean(L*_measured^2)."""
-    from dem.trajectory import write_trajectory
-    from dem.runout import RunoutError, RunoutMethod
-    from doe.study import collect_responses, read_responses, run_analysis, write_responses
-    from pipeline.doe import report_section, write_json
     from test_objective import front_trajectory
 
-    connected = RunoutMethod("connected_front")      # front_trajectory builds a connected-deposit front
+    from dem.runout import RunoutError, RunoutMethod
+    from dem.trajectory import write_trajectory
+    from doe.study import collect_responses, read_responses, run_analysis, write_responses
+    from pipeline.doe import report_section, write_json
+
+    connected = RunoutMethod("connected_front")  # front_trajectory builds a connected-deposit front
 
     measured = load_column("data/measured/quartz_a6.csv")
     t_frames = np.arange(0, 4.01, 0.25)
@@ -169,7 +174,7 @@ def test_study_on_synthetic_trajectories(tmp_path):
     paths = {r.run_id: write_run(tmp_path / f"{r.run_id}.h5", r.friction, r.restitution) for r in design.itertuples()}
     responses = collect_responses(design, paths, measured, connected)
     g = gain(responses.friction, responses.restitution)
-    np.testing.assert_allclose(responses["mse"], (g - 1) ** 2 * np.mean(measured.runout ** 2), rtol=1e-4, atol=1e-8)
+    np.testing.assert_allclose(responses["mse"], (g - 1) ** 2 * np.mean(measured.runout**2), rtol=1e-4, atol=1e-8)
     np.testing.assert_allclose(responses["L_star_t3.5"], 6.0 * g, rtol=1e-4)
 
     fits, summary = run_analysis(responses, FACTORS, ["eq9", "quadratic"])
@@ -178,7 +183,9 @@ def test_study_on_synthetic_trajectories(tmp_path):
     write_responses(folder / "responses.csv", responses)
     # the responses state their runout method; read back by it, refused by another
     assert set(responses["runout_method"]) == {json.dumps(connected.to_config(), sort_keys=True)}
-    assert read_responses(folder / "responses.csv", connected)["mse"].tolist() == pytest.approx(responses["mse"].tolist())
+    assert read_responses(folder / "responses.csv", connected)["mse"].tolist() == pytest.approx(
+        responses["mse"].tolist()
+    )
     with pytest.raises(RunoutError, match="DoE responses .*responses.csv.*scored with runout"):
         read_responses(folder / "responses.csv", RunoutMethod("connected_front_reached"))
     plot_response_surfaces(fits, responses, folder / "response_surface.png")
@@ -186,11 +193,23 @@ def test_study_on_synthetic_trajectories(tmp_path):
     assert summary["models"]["quadratic"]["r_squared"] == pytest.approx(1.0, abs=1e-6)
     best = summary["models"]["quadratic"]["optimum"]
     assert gain(best["natural"]["friction"], best["natural"]["restitution"]) == pytest.approx(1.0, abs=1e-3)
-    validation = {"quartz": {"quadratic": write_run(tmp_path / "val.h5", best["natural"]["friction"],
-                                                    best["natural"]["restitution"])}}
+    validation = {
+        "quartz": {
+            "quadratic": write_run(tmp_path / "val.h5", best["natural"]["friction"], best["natural"]["restitution"])
+        }
+    }
     section_path = tmp_path / "report" / "doe.md"
-    text = report_section(["quartz"], [measured.source], [folder / "analysis.json"], [paths["run_4"]],
-                          validation, [folder / "runout.png"], {"quartz": []}, section_path, runout=connected)
+    text = report_section(
+        ["quartz"],
+        [measured.source],
+        [folder / "analysis.json"],
+        [paths["run_4"]],
+        validation,
+        [folder / "runout.png"],
+        {"quartz": []},
+        section_path,
+        runout=connected,
+    )
     assert "| friction(0.3,0.9) |" in text and "**MSE = 0.000**" in text
     assert "](../doe/response_surface.png)" in text and (folder / "runout.png").stat().st_size > 10_000
 
@@ -199,11 +218,12 @@ def test_stage_jobs_on_synthetic_trajectories(tmp_path, monkeypatch):
     """pipeline.doe's entry functions, one per Snakemake job, on the files the rules name: design
     table, responses + analysis (runout recorded) + surface, validation run (DEM stubbed: the
     case, the engine config and the progress reporter reach it), section from the files alone."""
+    from test_objective import front_trajectory
+
     import pipeline.doe
     from dem.runout import RunoutMethod
     from dem.trajectory import read_trajectory, write_trajectory
     from doe.design import read_design
-    from test_objective import front_trajectory
 
     connected = RunoutMethod("connected_front")
     measured_path = "data/measured/quartz_a6.csv"
@@ -223,9 +243,16 @@ def test_stage_jobs_on_synthetic_trajectories(tmp_path, monkeypatch):
     runs = tmp_path / "results/dem/doe_quartz/trajectories"
     for r in table.itertuples():
         write_trajectory(runs / f"{r.run_id}.h5", run(r.friction, r.restitution))
-    summary = pipeline.doe.analyse(folder / "design.csv", measured_path, sorted(runs.glob("*.h5")), doe,
-                                   connected.to_config(), folder / "responses.csv", folder / "analysis.json",
-                                   folder / "response_surface.png")
+    summary = pipeline.doe.analyse(
+        folder / "design.csv",
+        measured_path,
+        sorted(runs.glob("*.h5")),
+        doe,
+        connected.to_config(),
+        folder / "responses.csv",
+        folder / "analysis.json",
+        folder / "response_surface.png",
+    )
     written = json.loads((folder / "analysis.json").read_text())
     assert written["runout"] == connected.to_config() == summary["runout"]
     assert written["n_runs"] == len(table) and (folder / "response_surface.png").stat().st_size > 10_000
@@ -239,8 +266,15 @@ def test_stage_jobs_on_synthetic_trajectories(tmp_path, monkeypatch):
 
     monkeypatch.setattr(pipeline.doe, "simulate_case", fake_simulate)
     fields = {"size_scale": 4.0, "duration_over_tstar": 4.0, "seed": 0}
-    mse = pipeline.doe.validate(folder / "analysis.json", measured_path, "quadratic", fields, {"engine": "builtin"},
-                                connected.to_config(), folder / "validation/quadratic.h5")
+    mse = pipeline.doe.validate(
+        folder / "analysis.json",
+        measured_path,
+        "quadratic",
+        fields,
+        {"engine": "builtin"},
+        connected.to_config(),
+        folder / "validation/quadratic.h5",
+    )
     case, config = calls[0]
     assert config == {"engine": "builtin"} and case.name == "doe_validation_quadratic"
     optimum = written["models"]["quadratic"]["optimum"]["natural"]
@@ -249,8 +283,16 @@ def test_stage_jobs_on_synthetic_trajectories(tmp_path, monkeypatch):
     assert mse == pytest.approx(0.0, abs=1e-3)
 
     section = tmp_path / "results/report/doe.md"
-    text = pipeline.doe.write_section(["quartz"], [measured_path], [folder / "analysis.json"], [runs / "run_4.h5"],
-                                      [folder / "validation/quadratic.h5"], [folder / "runout.png"], {"quartz": []},
-                                      section, runout=connected.to_config())
+    text = pipeline.doe.write_section(
+        ["quartz"],
+        [measured_path],
+        [folder / "analysis.json"],
+        [runs / "run_4.h5"],
+        [folder / "validation/quadratic.h5"],
+        [folder / "runout.png"],
+        {"quartz": []},
+        section,
+        runout=connected.to_config(),
+    )
     assert section.read_text() == text and "**MSE = 0.000**" in text
     assert "](../doe/quartz/response_surface.png)" in text and (folder / "runout.png").stat().st_size > 10_000

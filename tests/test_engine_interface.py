@@ -1,4 +1,5 @@
 """The engine interface: selection, configuration, the builtin engine behind it, failures."""
+
 import logging
 import math
 import shutil
@@ -9,7 +10,7 @@ import pytest
 from dem.case import CollapseCase
 from dem.collapse import simulate_collapse
 from dem.engines import EngineError, EngineNotInstalled, get_engine
-from dem.engines.base import restitution_from_damping_ratio, damping_ratio, size_classes
+from dem.engines.base import damping_ratio, restitution_from_damping_ratio, size_classes
 from dem.engines.builtin import BuiltinEngine
 from dem.packing import settle_column
 from dem.trajectory import read_trajectory
@@ -67,8 +68,7 @@ def test_builtin_engine_through_the_interface_matches_simulate_collapse(tiny, tm
     case, packing = tiny
     engine = get_engine("builtin")
     fractions = []
-    trajectory = engine.simulate(case, packing, tmp_path / "run", progress=fractions.append,
-                                 output=tmp_path / "out.h5")
+    trajectory = engine.simulate(case, packing, tmp_path / "run", progress=fractions.append, output=tmp_path / "out.h5")
     direct = simulate_collapse(case, packing)
     np.testing.assert_array_equal(trajectory.positions, direct.positions)
     assert trajectory.n_frames == case.n_frames and fractions[-1] == 1.0
@@ -105,7 +105,7 @@ def test_size_classes_keep_restitution_within_tolerance():
         m_eff = mass[i] * mass[j] / (mass[i] + mass[j])
         mc = class_mass[index]
         m_eff_class = mc[i] * mc[j] / (mc[i] + mc[j])
-        eta = 2 * np.sqrt(kn * m_eff_class) * damping_ratio(e)            # what the solver is given
+        eta = 2 * np.sqrt(kn * m_eff_class) * damping_ratio(e)  # what the solver is given
         e_real = restitution_from_damping_ratio(eta / (2 * np.sqrt(kn * m_eff)))
         assert np.max(np.abs(e_real / e - 1)) <= worst + 1e-12
         e_wall = restitution_from_damping_ratio(np.sqrt(mc / mass) * damping_ratio(e))
@@ -122,8 +122,18 @@ def test_dem_stage_row_to_deck_packing_run_and_figure(tiny, tmp_path, caplog):
 
     case, packing = tiny
     caplog.set_level(logging.INFO)
-    row = {"dataset": "tiny_set", "case_id": "case_000", "split": "train", "material": "quartz", "L_i": 0.006,
-           "aspect_ratio": 1.0, "friction": 0.5, "restitution": 0.6, "size_scale": 3.0, "duration_over_tstar": 0.5}
+    row = {
+        "dataset": "tiny_set",
+        "case_id": "case_000",
+        "split": "train",
+        "material": "quartz",
+        "L_i": 0.006,
+        "aspect_ratio": 1.0,
+        "friction": 0.5,
+        "restitution": 0.6,
+        "size_scale": 3.0,
+        "duration_over_tstar": 0.5,
+    }
     assert write_deck(row, tmp_path / "deck.json") == case
     settled = settle(tmp_path / "deck.json", tmp_path / "packing.h5")
     np.testing.assert_array_equal(read_trajectory(tmp_path / "packing.h5").positions, packing.positions)
@@ -131,13 +141,27 @@ def test_dem_stage_row_to_deck_packing_run_and_figure(tiny, tmp_path, caplog):
     work = tmp_path / "work"
     work.mkdir()
     (work / "stale.txt").write_text("a killed run's leftovers")
-    trajectory = run_case(tmp_path / "deck.json", tmp_path / "packing.h5", tmp_path / "out.h5", "builtin", {},
-                          keep_work=False, work_dir=work)
+    trajectory = run_case(
+        tmp_path / "deck.json",
+        tmp_path / "packing.h5",
+        tmp_path / "out.h5",
+        "builtin",
+        {},
+        keep_work=False,
+        work_dir=work,
+    )
     np.testing.assert_array_equal(read_trajectory(tmp_path / "out.h5").positions, trajectory.positions)
     np.testing.assert_array_equal(trajectory.positions, simulate_collapse(case, packing).positions)
     assert not work.exists()
-    run_case(tmp_path / "deck.json", tmp_path / "packing.h5", tmp_path / "out.h5", "builtin", {}, keep_work=True,
-             work_dir=work)
+    run_case(
+        tmp_path / "deck.json",
+        tmp_path / "packing.h5",
+        tmp_path / "out.h5",
+        "builtin",
+        {},
+        keep_work=True,
+        work_dir=work,
+    )
     assert (work / "case.json").exists()
     assert "collapse tiny_set/case_000: 100%" in caplog.text and "settled height" in caplog.text
     draw_case(tmp_path / "out.h5", tmp_path / "case.png", "connected_front")
@@ -155,8 +179,17 @@ def test_runout_methods_stage_writes_study_figure_and_section(tiny, tmp_path):
     case, packing = tiny
     write_trajectory(tmp_path / "run.h5", simulate_collapse(case, packing))
     run = tmp_path / "run.h5"
-    study = run_runout_methods(["tiny"], [run], {"tiny": run}, tmp_path / "methods.json", tmp_path / "methods.png",
-                               tmp_path / "report" / "runout.md", "connected_front", n_packings=2, n_reruns=2)
+    study = run_runout_methods(
+        ["tiny"],
+        [run],
+        {"tiny": run},
+        tmp_path / "methods.json",
+        tmp_path / "methods.png",
+        tmp_path / "report" / "runout.md",
+        "connected_front",
+        n_packings=2,
+        n_reruns=2,
+    )
     assert json.loads((tmp_path / "methods.json").read_text())["configured"]["method"] == "connected_front"
     assert study["mean"]["connected_front"]["gns_mse"] == 0.0 and study["mean"]["connected_front"]["gns_cases"] == 1
     text = (tmp_path / "report" / "runout.md").read_text()

@@ -1,4 +1,5 @@
 """GNS model: graph, features, network, output transform, differentiable checkpointed rollout, checkpoints."""
+
 from __future__ import annotations
 
 import warnings
@@ -19,7 +20,7 @@ from tests.gns_synthetic import synthetic_dataset
 TINY = dict(latent_size=16, n_message_passing=2, connectivity_radius=4.0, noise_std=0.05)
 
 
-pytestmark = pytest.mark.usefixtures("one_torch_thread")   # tests/conftest.py
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # tests/conftest.py
 
 
 @pytest.fixture(scope="module")
@@ -47,26 +48,25 @@ def test_radius_graph_matches_brute_force_and_keeps_graphs_apart():
     same = graph_index[:, None] == graph_index[None, :]
     expected = {(i, j) for i, j in zip(*np.nonzero(((distance < 0.2) & same).numpy())) if i != j}
     assert set(zip(senders.tolist(), receivers.tolist())) == expected
-    assert len(expected) > 60   # the check above compared a real graph
+    assert len(expected) > 60  # the check above compared a real graph
 
 
 def test_neighbour_cap_warns_with_count_and_keeps_nearest():
     points = torch.tensor([[0.0, 0.0], [0.1, 0.0], [0.2, 0.0], [0.3, 0.0]])
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        full = radius_graph(points, 1.0, max_neighbours=3)          # 3 neighbours each: nothing dropped
+        full = radius_graph(points, 1.0, max_neighbours=3)  # 3 neighbours each: nothing dropped
     assert full[0].numel() == 12
     with pytest.warns(NeighbourCapWarning, match="dropped 4 of 12 edges"):
         senders, receivers = radius_graph(points, 1.0, max_neighbours=2)
     kept = set(zip(senders.tolist(), receivers.tolist()))
-    assert (1, 0) in kept and (2, 0) in kept and (3, 0) not in kept   # node 0 keeps its two nearest
+    assert (1, 0) in kept and (2, 0) in kept and (3, 0) not in kept  # node 0 keeps its two nearest
 
 
 # -- network ---------------------------------------------------------------------------------------
 def test_processor_really_updates_edge_latents():
     torch.manual_seed(0)
-    net = EncodeProcessDecode(node_in=5, edge_in=3, out_size=2, latent_size=16, mlp_hidden_size=16,
-                              n_message_passing=2)
+    net = EncodeProcessDecode(node_in=5, edge_in=3, out_size=2, latent_size=16, mlp_hidden_size=16, n_message_passing=2)
     nodes, edges = net.encode(torch.randn(6, 5), torch.randn(8, 3))
     senders, receivers = torch.tensor([0, 1, 2, 3, 4, 5, 0, 2]), torch.tensor([1, 2, 3, 4, 5, 0, 3, 5])
     block = net.processor[0]
@@ -107,13 +107,15 @@ def test_features_follow_layout_and_noise_widens_statistics(metadata, dataset):
     nodes, edges, senders, receivers = sim.preprocess(sequence, ctx)
     assert nodes.shape == (traj.n_particles, sum(w for _, w in c.node_layout))
     assert edges.shape == (len(senders), 4)
-    gap = (edges[:, 2] - edges[:, 3]) * c.connectivity_radius        # centre distance - surface gap
+    gap = (edges[:, 2] - edges[:, 3]) * c.connectivity_radius  # centre distance - surface gap
     assert torch.allclose(gap, ctx.radius[senders] + ctx.radius[receivers])
     walls = nodes[:, 10:14]
-    assert walls.min() >= -1 and walls.max() <= 1 and (walls == 1).any()   # far walls clip to 1
-    params = nodes[:, 14 + c.type_embedding_size: 16 + c.type_embedding_size]
+    assert walls.min() >= -1 and walls.max() <= 1 and (walls == 1).any()  # far walls clip to 1
+    params = nodes[:, 14 + c.type_embedding_size : 16 + c.type_embedding_size]
     low, high = metadata["parameter_ranges"]["friction"]
-    assert torch.allclose(params[:, 0], torch.tensor((traj.attrs["friction"] - low) / (high - low), dtype=torch.float32))
+    assert torch.allclose(
+        params[:, 0], torch.tensor((traj.attrs["friction"] - low) / (high - low), dtype=torch.float32)
+    )
 
 
 def test_random_walk_noise_ends_with_requested_std():
@@ -134,18 +136,21 @@ def test_pushforward_loss_scores_the_models_own_state_against_the_true_frame(met
     assert torch.equal(pushforward_loss(sim, plain, 0), one_step_loss(sim, plain, zero))
     # p = 2: the window starting at the same frame, 2 frames longer; inputs are the model's own frames
     pushed = TrajectoryWindows(paths, c.n_input_frames + 2, c.parameter_names).batch([3])
-    assert torch.equal(pushed.position_sequence[:, :c.n_input_frames], plain.position_sequence)
-    sequence = pushed.position_sequence[:, :c.n_input_frames]
+    assert torch.equal(pushed.position_sequence[:, : c.n_input_frames], plain.position_sequence)
+    sequence = pushed.position_sequence[:, : c.n_input_frames]
     with torch.no_grad():
         for _ in range(2):
             sequence = torch.cat([sequence[:, 1:], sim.predict_positions(sequence, pushed.context)[:, None]], dim=1)
-    expected = torch.mean(torch.sum((sim(sequence, pushed.context)
-                                     - sim.inverse_postprocess(pushed.next_position, sequence)) ** 2, dim=-1))
+    expected = torch.mean(
+        torch.sum(
+            (sim(sequence, pushed.context) - sim.inverse_postprocess(pushed.next_position, sequence)) ** 2, dim=-1
+        )
+    )
     loss = pushforward_loss(sim, pushed, 2)
     assert torch.allclose(loss, expected) and loss.requires_grad
     # the state the model reached differs from the true one, so this is not the one-step loss
     assert not torch.allclose(sequence[:, -1], pushed.position_sequence[:, -1])
-    loss.backward()          # the gradient reaches the weights through the last step only
+    loss.backward()  # the gradient reaches the weights through the last step only
     assert all(p.grad is not None for p in sim.network.decoder.parameters())
     with pytest.raises(ValueError, match="pushforward_fraction"):
         TrainSettings(pushforward_fraction=1.5)
@@ -175,13 +180,13 @@ def test_rollout_gradient_wrt_parameters_matches_finite_differences(metadata, da
     eps = 1e-6
     parameters, initial = ctx.parameters.detach().clone(), initial.detach()
     with torch.no_grad():
-        for k in range(2):   # friction, restitution
+        for k in range(2):  # friction, restitution
             step = torch.zeros_like(parameters)
             step[0, k] = eps
             fd = (objective(parameters + step, initial) - objective(parameters - step, initial)) / (2 * eps)
             assert float(fd) == pytest.approx(float(grad_params[0, k]), rel=1e-4, abs=1e-12)
         step = torch.zeros_like(initial)
-        step[-1, 3, 1] = eps     # last input frame, grain 3, y
+        step[-1, 3, 1] = eps  # last input frame, grain 3, y
         fd = (objective(parameters, initial + step) - objective(parameters, initial - step)) / (2 * eps)
         assert float(fd) == pytest.approx(float(grad_initial[-1, 3, 1]), rel=1e-4, abs=1e-12)
 
@@ -212,6 +217,7 @@ def test_checkpointing_keeps_saved_activations_from_growing_with_steps(metadata,
         def pack(tensor):
             total[0] += tensor.numel() * tensor.element_size()
             return tensor
+
         with torch.autograd.graph.saved_tensors_hooks(pack, lambda t: t):
             rollout(sim, initial, ctx, n_steps=n_steps, checkpoint=use_checkpoint)
         return total[0]
@@ -229,8 +235,12 @@ def test_rollout_keeps_grains_out_of_walls_but_training_targets_are_not_clipped(
     assert torch.allclose(kept, torch.tensor([[0.05, 0.001], [0.001, 0.05], [0.05, 0.0015]], dtype=torch.float64))
     # the training pair never passes through the clamp: a target below the floor stays below
     sequence = sunk[:, None, :].repeat(1, 6, 1)
-    ctx = Context.single(torch.zeros(3), radius, torch.tensor([0.45, 0.6], dtype=torch.float64),
-                         torch.tensor([0.03, 0.04], dtype=torch.float64))
+    ctx = Context.single(
+        torch.zeros(3),
+        radius,
+        torch.tensor([0.45, 0.6], dtype=torch.float64),
+        torch.tensor([0.03, 0.04], dtype=torch.float64),
+    )
     _, target = sim.predict_accelerations(sunk - 0.001, torch.zeros_like(sequence), sequence, ctx)
     assert torch.allclose(sim.postprocess(target, sequence), sunk - 0.001)
 
@@ -239,7 +249,7 @@ def test_rollout_that_leaves_the_box_raises_or_flags(metadata, dataset):
     sim = tiny_simulator(metadata)
     _, ctx, initial = rollout_inputs(sim, dataset, dtype=torch.float32)
     with torch.no_grad():
-        sim.network.decoder[-1].bias.fill_(50.0)     # a huge constant acceleration throws grains out
+        sim.network.decoder[-1].bias.fill_(50.0)  # a huge constant acceleration throws grains out
     with pytest.raises(RolloutError, match="left the box"):
         rollout(sim, initial, ctx, n_steps=30)
     flagged = rollout(sim, initial, ctx, n_steps=30, on_invalid="flag")
@@ -267,7 +277,7 @@ def test_checkpoint_round_trip_and_bad_checkpoints(metadata, tmp_path):
     assert all(torch.equal(a, b) for a, b in zip(sim.state_dict().values(), loaded.state_dict().values()))
 
     payload = model_payload(sim)
-    payload["config"]["node_layout"][0] = ["velocity", 8]     # written by code with another layout
+    payload["config"]["node_layout"][0] = ["velocity", 8]  # written by code with another layout
     torch.save(payload, tmp_path / "layout.pt")
     with pytest.raises(CheckpointError, match="feature layout mismatch"):
         load_simulator(tmp_path / "layout.pt")
@@ -277,7 +287,7 @@ def test_checkpoint_round_trip_and_bad_checkpoints(metadata, tmp_path):
         load_simulator(path, other)
 
     payload = model_payload(tiny_simulator(metadata))
-    payload["config"]["latent_size"] = 32                       # weights of another size
+    payload["config"]["latent_size"] = 32  # weights of another size
     torch.save(payload, tmp_path / "shape.pt")
     with pytest.raises(CheckpointError, match="weights do not fit"):
         load_simulator(tmp_path / "shape.pt")

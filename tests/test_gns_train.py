@@ -1,5 +1,6 @@
 """GNS training, resume after a kill, streaming windows, evaluation outputs, the stage's jobs
 (pipeline.gns) and report section."""
+
 from __future__ import annotations
 
 import json
@@ -27,13 +28,23 @@ from pipeline import gns as gns_stage
 from tests.gns_synthetic import synthetic_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = dict(latent_size=16, n_message_passing=2, connectivity_radius=4.0, noise_std=0.01, batch_size=2, log_every=5,
-            checkpoint_every=5, validate_every=30, learning_rate=3e-3, learning_rate_decay_steps=1000)
+TINY = dict(
+    latent_size=16,
+    n_message_passing=2,
+    connectivity_radius=4.0,
+    noise_std=0.01,
+    batch_size=2,
+    log_every=5,
+    checkpoint_every=5,
+    validate_every=30,
+    learning_rate=3e-3,
+    learning_rate_decay_steps=1000,
+)
 # Twelve grains that never touch: no grain has 8 neighbours, so only the connected front reads them.
 CONNECTED = RunoutMethod("connected_front")
 
 
-pytestmark = pytest.mark.usefixtures("one_torch_thread")   # tests/conftest.py
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # tests/conftest.py
 
 
 @pytest.fixture(scope="module")
@@ -57,7 +68,7 @@ def test_training_lowers_the_loss_and_writes_its_outputs(trained, dataset):
     assert all(r["particles_per_graph"] == 12 and r["edges_per_node"] > 0 for r in rows)
     validated = [r for r in rows if np.isfinite(r["valid_one_step_loss"])]
     assert [int(r["step"]) for r in validated] == [30, 60]
-    best = min(validated, key=lambda r: r["valid_runout_mse"])     # a failed rollout scores inf
+    best = min(validated, key=lambda r: r["valid_runout_mse"])  # a failed rollout scores inf
     assert np.isfinite(best["valid_runout_mse"]) and result["best"]["step"] == int(best["step"])
     assert (out / "loss_curve.png").stat().st_size > 10_000
     model = torch.load(out / "model_best.pt", weights_only=False)
@@ -70,11 +81,16 @@ def test_training_resumes_after_a_kill_exactly_as_if_uninterrupted(dataset, tmp_
     reference = train(dataset, tmp_path / "reference", settings, runout=CONNECTED)
 
     killed = tmp_path / "killed"
-    script = ("import json, sys, torch; torch.set_num_threads(1); from gns.train import train; "
-              "train(sys.argv[1], sys.argv[2], json.loads(sys.argv[3]), runout='connected_front')")
-    process = subprocess.Popen([sys.executable, "-c", script, dataset, str(killed),
-                                json.dumps(dict(settings, steps=100_000))], cwd=ROOT,
-                               env={**os.environ, "PYTHONPATH": str(ROOT)}, stderr=subprocess.PIPE)
+    script = (
+        "import json, sys, torch; torch.set_num_threads(1); from gns.train import train; "
+        "train(sys.argv[1], sys.argv[2], json.loads(sys.argv[3]), runout='connected_front')"
+    )
+    process = subprocess.Popen(
+        [sys.executable, "-c", script, dataset, str(killed), json.dumps(dict(settings, steps=100_000))],
+        cwd=ROOT,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        stderr=subprocess.PIPE,
+    )
     deadline = time.time() + 60
     while not (killed / "checkpoint_last.pt").exists():
         assert process.poll() is None, process.stderr.read().decode()
@@ -124,7 +140,7 @@ def test_a_finished_training_rerun_writes_its_outputs_again_without_training(dat
         train(dataset, out, dict(TINY, steps=60, validate_every=30), runout=CONNECTED)
     # the workflow's job restarts on a mismatch (pipeline.gns.train)
     fresh = gns_stage.train(dataset, out, dict(TINY, steps=60, validate_every=30), CONNECTED)
-    assert fresh["resumed_from"] is None and fresh["best"] == first["best"]      # retrained, same seed
+    assert fresh["resumed_from"] is None and fresh["best"] == first["best"]  # retrained, same seed
     again = torch.load(out / "model_best.pt", weights_only=False)
     assert all(torch.equal(again["state_dict"][k], best_bytes["state_dict"][k]) for k in best_bytes["state_dict"])
     # the kept copy is a copy: the EMA updates the model's weights in place after the best step
@@ -150,7 +166,7 @@ def test_windows_are_read_as_slices_of_the_files(dataset):
     paths = metadata["splits"]["train"]
     windows = TrajectoryWindows(paths, 6, ["friction", "restitution"], metadata["dt_frame"])
     assert len(windows) == 4 * (24 - 6)
-    positions, entry = windows.window(18 + 7)            # second file, frames 7..13
+    positions, entry = windows.window(18 + 7)  # second file, frames 7..13
     with h5py.File(paths[1]) as f:
         assert np.array_equal(positions, f["positions"][7:14])
     batch = windows.batch([0, 25])
@@ -173,14 +189,15 @@ def test_evaluation_rolls_out_test_cases_and_scores_them(trained, dataset, tmp_p
     assert (tmp_path / "eval" / "snapshots" / f"{Path(dem_path).stem}.png").exists()
     dem = read_trajectory(dem_path)
     assert rollout_runout_mse(dem, dem, CONNECTED) == 0.0
-    assert summary["runout"] == CONNECTED.to_config()       # the summary states how it read L*
+    assert summary["runout"] == CONNECTED.to_config()  # the summary states how it read L*
     assert json.loads((tmp_path / "eval" / "summary.json").read_text())["runout"] == CONNECTED.to_config()
     # the stage's jobs: the same scores from the path lists, and the report section linking its figures
     gns_stage.evaluate([dem_path], [tmp_path / "rollout.h5"], tmp_path / "stage", CONNECTED)
     assert (tmp_path / "stage" / "summary.json").read_text() == (tmp_path / "eval" / "summary.json").read_text()
     fragment = tmp_path / "report" / "gns.md"
-    text = gns_stage.section(["synthetic"], [tmp_path / "stage" / "summary.json"], [out / "loss_curve.png"],
-                             [out / "metrics.csv"], fragment)
+    text = gns_stage.section(
+        ["synthetic"], [tmp_path / "stage" / "summary.json"], [out / "loss_curve.png"], [out / "metrics.csv"], fragment
+    )
     assert fragment.read_text() == text
     assert "| synthetic | 60 |" in text and "### synthetic" in text and "connected" in text
     links = re.findall(r"\]\(([^)]+)\)", text)

@@ -1,4 +1,5 @@
 """The case table: config validation, expansion into cases, balanced splits, decks."""
+
 import copy
 from collections import Counter
 from pathlib import Path
@@ -8,8 +9,17 @@ import pytest
 import yaml
 
 from dem.case import CollapseCase
-from dem.grid import (ConfigError, assign_splits, case_from_row, case_table, read_deck, sample_dataset,
-                      split_counts, write_case_table, write_deck)
+from dem.grid import (
+    ConfigError,
+    assign_splits,
+    case_from_row,
+    case_table,
+    read_deck,
+    sample_dataset,
+    split_counts,
+    write_case_table,
+    write_deck,
+)
 from pipeline.config import validate_config
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -35,27 +45,48 @@ def test_shipped_configs_validate_and_fill_defaults(name):
     assert len(case_table(config)) == sum(spec["n_cases"] for spec in config["datasets"].values())
 
 
-@pytest.mark.parametrize("edit, words", [
-    (lambda c: c["dem"].update(enigne="builtin"), ["dem.enigne", "unknown key", "engine", "threads"]),
-    (lambda c: c.update(extra_section={}), ["extra_section", "unknown key", "datasets", "gns"]),
-    (lambda c: c["dem"].update(engine="lammps"), ["dem.engine", "'lammps'", "auto", "builtin", "liggghts", "mfix"]),
-    (lambda c: c["datasets"]["tiny_friction"].update(n_cases="five"), ["tiny_friction.n_cases", "wrong type", "integer"]),
-    (lambda c: c["datasets"]["tiny_friction"].update(restitution=1.5), ["tiny_friction.restitution", "1.5", "<= 1"]),
-    (lambda c: c["datasets"]["tiny_friction"].update(friction={"range": [0.3, 3.0]}),
-     ["tiny_friction.friction.range.1", "<= 2"]),
-    (lambda c: c["datasets"]["tiny_friction"].update(friction={"range": [0.9, 0.3]}),
-     ["tiny_friction.friction.range", "min <= max"]),
-    (lambda c: c["datasets"]["tiny_friction"].update(material="sand"), ["material", "quartz", "copper"]),
-    (lambda c: c["datasets"]["tiny_friction"].update(splits={"train": 0.9, "valid": 0.1, "test": 0.1}),
-     ["tiny_friction.splits", "sum to 1"]),
-    (lambda c: c["datasets"]["tiny_friction"].update(overrides={"case_009": {"friction": 0.5}}),
-     ["overrides.case_009", "no such case", "case_000..case_004"]),
-    (lambda c: c["datasets"]["tiny_friction"].pop("output_interval"), ["output_interval", "required"]),
-    (lambda c: c["gns"].update(per_dataset={"tiny_friction": {"pushforward_fraction": 2}}),
-     ["gns.per_dataset.tiny_friction", "pushforward_fraction", "<= 1"]),
-    (lambda c: c["gns"].update(per_dataset={"tiny_friction": {"latent": 8}}),
-     ["gns.per_dataset.tiny_friction", "latent: unknown key", "latent_size"]),
-])
+@pytest.mark.parametrize(
+    "edit, words",
+    [
+        (lambda c: c["dem"].update(enigne="builtin"), ["dem.enigne", "unknown key", "engine", "threads"]),
+        (lambda c: c.update(extra_section={}), ["extra_section", "unknown key", "datasets", "gns"]),
+        (lambda c: c["dem"].update(engine="lammps"), ["dem.engine", "'lammps'", "auto", "builtin", "liggghts", "mfix"]),
+        (
+            lambda c: c["datasets"]["tiny_friction"].update(n_cases="five"),
+            ["tiny_friction.n_cases", "wrong type", "integer"],
+        ),
+        (
+            lambda c: c["datasets"]["tiny_friction"].update(restitution=1.5),
+            ["tiny_friction.restitution", "1.5", "<= 1"],
+        ),
+        (
+            lambda c: c["datasets"]["tiny_friction"].update(friction={"range": [0.3, 3.0]}),
+            ["tiny_friction.friction.range.1", "<= 2"],
+        ),
+        (
+            lambda c: c["datasets"]["tiny_friction"].update(friction={"range": [0.9, 0.3]}),
+            ["tiny_friction.friction.range", "min <= max"],
+        ),
+        (lambda c: c["datasets"]["tiny_friction"].update(material="sand"), ["material", "quartz", "copper"]),
+        (
+            lambda c: c["datasets"]["tiny_friction"].update(splits={"train": 0.9, "valid": 0.1, "test": 0.1}),
+            ["tiny_friction.splits", "sum to 1"],
+        ),
+        (
+            lambda c: c["datasets"]["tiny_friction"].update(overrides={"case_009": {"friction": 0.5}}),
+            ["overrides.case_009", "no such case", "case_000..case_004"],
+        ),
+        (lambda c: c["datasets"]["tiny_friction"].pop("output_interval"), ["output_interval", "required"]),
+        (
+            lambda c: c["gns"].update(per_dataset={"tiny_friction": {"pushforward_fraction": 2}}),
+            ["gns.per_dataset.tiny_friction", "pushforward_fraction", "<= 1"],
+        ),
+        (
+            lambda c: c["gns"].update(per_dataset={"tiny_friction": {"latent": 8}}),
+            ["gns.per_dataset.tiny_friction", "latent: unknown key", "latent_size"],
+        ),
+    ],
+)
 def test_bad_config_names_key_and_allowed_values(edit, words):
     config = load("test.yaml")
     edit(config)
@@ -80,8 +111,9 @@ def test_paper_table_has_table2_datasets_with_8_1_1_splits(paper_table):
         assert splits == {"train": n * 8 // 10, "valid": n // 10, "test": n // 10}
     quartz = [row for row in paper_table.values() if row["dataset"] == "quartz_friction"]
     assert {row["aspect_ratio"] for row in quartz} == {0.5, 1, 2, 3, 4, 5, 6}
-    assert all(row["restitution"] == 0.65 and 0.3 <= row["friction"] <= 0.9 and 0.01 <= row["L_i"] <= 0.02
-               for row in quartz)
+    assert all(
+        row["restitution"] == 0.65 and 0.3 <= row["friction"] <= 0.9 and 0.01 <= row["L_i"] <= 0.02 for row in quartz
+    )
     multiple = [row for row in paper_table.values() if row["dataset"] == "quartz_multiple"]
     assert {(row["aspect_ratio"], row["L_i"]) for row in multiple} == {(6, 0.02)}
     assert len({row["restitution"] for row in multiple}) == 50
@@ -132,9 +164,14 @@ def test_override_changes_only_that_case():
     assert after["tiny_friction/case_001"]["restitution"] == 0.4
 
 
-@pytest.mark.parametrize("fractions", [{"train": 0.8, "valid": 0.1, "test": 0.1},
-                                       {"train": 0.6, "valid": 0.2, "test": 0.2},
-                                       {"train": 1.0, "valid": 0.0, "test": 0.0}])
+@pytest.mark.parametrize(
+    "fractions",
+    [
+        {"train": 0.8, "valid": 0.1, "test": 0.1},
+        {"train": 0.6, "valid": 0.2, "test": 0.2},
+        {"train": 1.0, "valid": 0.0, "test": 0.0},
+    ],
+)
 def test_assign_splits_matches_counts_and_spreads_them(fractions):
     for n in range(1, 60):
         if n < sum(1 for f in fractions.values() if f > 0):

@@ -1,6 +1,7 @@
 """GNS inverse design: float32 finite-difference steps, the differentiable runout against dem.runout,
 autograd gradients through the rollout, lockstep multi-start, uncertainty, bad input, and the
 recovery of a synthetic DEM target on a tiny column."""
+
 from __future__ import annotations
 
 import warnings
@@ -13,8 +14,17 @@ from scipy.optimize import minimize
 from calibration.compare import case_like
 from calibration.gns_objective import GeometryWarning, GNSObjective, InverseDesignError, check_geometry
 from calibration.inverse import ROUGHNESS_PROBES, check_bounds, design_bounds, inverse_design, posterior_at
-from calibration.lbfgsb import (FD_STEP, FTOL, GTOL, MAX_LINE_SEARCH, SCIPY_DEFAULT_STEP, STALL_EVALUATIONS,
-                               check_step, multistart_lbfgsb, step_vanishes)
+from calibration.lbfgsb import (
+    FD_STEP,
+    FTOL,
+    GTOL,
+    MAX_LINE_SEARCH,
+    SCIPY_DEFAULT_STEP,
+    STALL_EVALUATIONS,
+    check_step,
+    multistart_lbfgsb,
+    step_vanishes,
+)
 from calibration.measured import MeasuredColumn
 from calibration.recovery import observation_times, packing_scatter, recover_case
 from dem.case import CollapseCase
@@ -28,18 +38,27 @@ from gns.simulator import LearnedSimulator, load_simulator
 from gns.train import TrainSettings, simulator_config, train
 
 TINY_MODEL = dict(latent_size=16, n_message_passing=2, connectivity_radius=1.6, noise_std=0.05)
-T_POINTS = np.array([0.6, 0.8, 1.0])       # t/t*: a short rollout (frames 6..12) for the gradient tests
+T_POINTS = np.array([0.6, 0.8, 1.0])  # t/t*: a short rollout (frames 6..12) for the gradient tests
 # DEM runs of the tiny dataset: the first two span the ranges [0.3, 0.9]^2
 TINY_RUNS = [(0.3, 0.3), (0.9, 0.9), (0.45, 0.8), (0.6, 0.5), (0.75, 0.65), (0.85, 0.4)]
 
 
 def tiny_case(friction, restitution, seed=0):
     """Quartz, a = 2, L_i = 1 cm, grains 4x coarse: 77 grains, 3 t* in 34 frames, under a second of DEM."""
-    return CollapseCase("quartz", column_length=0.01, aspect_ratio=2.0, friction=friction, restitution=restitution,
-                        size_scale=4, output_interval=0.004, duration_over_tstar=3.0, seed=seed)
+    return CollapseCase(
+        "quartz",
+        column_length=0.01,
+        aspect_ratio=2.0,
+        friction=friction,
+        restitution=restitution,
+        size_scale=4,
+        output_interval=0.004,
+        duration_over_tstar=3.0,
+        seed=seed,
+    )
 
 
-pytestmark = pytest.mark.usefixtures("one_torch_thread")   # tests/conftest.py
+pytestmark = pytest.mark.usefixtures("one_torch_thread")  # tests/conftest.py
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +88,7 @@ def untrained_simulator(metadata, dtype=torch.float32, seed=0, output_scale=0.1)
 def parameter_inputs(simulator):
     """(first Linear layer of the node encoder, column of the first DEM parameter in its input)."""
     layout = simulator.config.node_layout
-    offset = sum(width for name, width in layout[:[name for name, _ in layout].index("parameters")])
+    offset = sum(width for name, width in layout[: [name for name, _ in layout].index("parameters")])
     return [m for m in simulator.network.modules() if isinstance(m, torch.nn.Linear)][0], offset
 
 
@@ -77,15 +96,22 @@ def louder_parameters(simulator, factor=100.0):
     """Amplify the encoder's weights on (mu, e): an untrained model hardly responds to them."""
     first, offset = parameter_inputs(simulator)
     with torch.no_grad():
-        first.weight[:, offset:offset + len(simulator.config.parameter_names)] *= factor
+        first.weight[:, offset : offset + len(simulator.config.parameter_names)] *= factor
     return simulator
 
 
 def column_of(trajectory, t_points, runout, std=None, name="target"):
     a = trajectory.attrs
-    return MeasuredColumn(name, str(a["material"]), float(a["aspect_ratio"]), float(a["L_i"]), np.asarray(t_points),
-                          np.asarray(runout, float), None if std is None else np.full(len(t_points), std),
-                          source="test")
+    return MeasuredColumn(
+        name,
+        str(a["material"]),
+        float(a["aspect_ratio"]),
+        float(a["L_i"]),
+        np.asarray(t_points),
+        np.asarray(runout, float),
+        None if std is None else np.full(len(t_points), std),
+        source="test",
+    )
 
 
 # -- float32 finite-difference steps -----------------------------------------------------------------------
@@ -107,11 +133,10 @@ def test_default_step_gives_a_zero_gradient_through_the_float32_gns_and_lbfgsb_s
     x0 = np.array([0.55, 0.73])
     plus = x0 + np.array([SCIPY_DEFAULT_STEP, 0.0])
     values = objective.values(np.array([x0, plus, x0 + [FD_STEP, 0.0]]))
-    assert values[1] == values[0]                     # the parameter change rounded away: exactly no signal
+    assert values[1] == values[0]  # the parameter change rounded away: exactly no signal
     assert values[2] != values[0]
     # the paper's set-up: scipy's L-BFGS-B with its default step, on the float32 model
-    result = minimize(lambda x: float(objective.values(x[None])[0]), x0, method="L-BFGS-B",
-                      bounds=[(0.3, 0.9)] * 2)
+    result = minimize(lambda x: float(objective.values(x[None])[0]), x0, method="L-BFGS-B", bounds=[(0.3, 0.9)] * 2)
     assert result.nit == 0 and np.array_equal(result.x, x0)
 
 
@@ -131,17 +156,22 @@ def test_soft_runout_agrees_with_dem_runout_on_dem_trajectories(tiny_dataset, me
     runout_method = RunoutMethod(method)
     for trajectory in trajectories[:2]:
         t, runout = runout_curve(trajectory, runout_method)
-        soft = soft_runout_at(torch.as_tensor(trajectory.positions, dtype=torch.float64),
-                              torch.as_tensor(trajectory.radius), float(trajectory.attrs["L_i"]),
-                              float(trajectory.attrs["t_star"]), float(trajectory.attrs["dt_frame"]), t[:-1],
-                              runout_method)
+        soft = soft_runout_at(
+            torch.as_tensor(trajectory.positions, dtype=torch.float64),
+            torch.as_tensor(trajectory.radius),
+            float(trajectory.attrs["L_i"]),
+            float(trajectory.attrs["t_star"]),
+            float(trajectory.attrs["dt_frame"]),
+            t[:-1],
+            runout_method,
+        )
         # stated tolerance: SOFT_TEMPERATURE (0.25) mean diameters of front position, in L*, for every method
         assert SOFT_TEMPERATURE == 0.25
         tolerance = SOFT_TEMPERATURE * 2 * np.mean(trajectory.radius) / float(trajectory.attrs["L_i"])
         difference = np.abs(soft.numpy() - runout[:-1])
         assert difference.max() <= tolerance, (method, difference.max(), tolerance)
-        assert runout[-1] > 1.0            # a real collapse was compared, not a standing column
-        if runout_method.reached:          # a running maximum never moves back, in either twin
+        assert runout[-1] > 1.0  # a real collapse was compared, not a standing column
+        if runout_method.reached:  # a running maximum never moves back, in either twin
             assert np.all(np.diff(runout) >= 0) and np.all(np.diff(soft.numpy()) >= 0)
 
 
@@ -152,9 +182,15 @@ def test_soft_reached_runout_passes_a_gradient_to_the_positions(tiny_dataset, me
     _, trajectories = tiny_dataset
     trajectory = trajectories[0]
     positions = torch.as_tensor(trajectory.positions, dtype=torch.float64).requires_grad_(True)
-    soft = soft_runout_at(positions, torch.as_tensor(trajectory.radius), float(trajectory.attrs["L_i"]),
-                          float(trajectory.attrs["t_star"]), float(trajectory.attrs["dt_frame"]), [0.5, 1.0, 2.0],
-                          RunoutMethod(method))
+    soft = soft_runout_at(
+        positions,
+        torch.as_tensor(trajectory.radius),
+        float(trajectory.attrs["L_i"]),
+        float(trajectory.attrs["t_star"]),
+        float(trajectory.attrs["dt_frame"]),
+        [0.5, 1.0, 2.0],
+        RunoutMethod(method),
+    )
     soft.sum().backward()
     grad = positions.grad.numpy()
     assert np.all(np.isfinite(grad)) and np.abs(grad[..., 0]).max() > 0
@@ -169,20 +205,20 @@ def test_autograd_gradient_through_the_checkpointed_rollout_matches_finite_diffe
     start = trajectories[0]
     measured = column_of(start, T_POINTS, [0.1, 0.2, 0.3])
     # checkpointed segments of 2 steps: backward recomputes them one at a time
-    objective = GNSObjective(untrained_simulator(read_metadata(metadata_path), torch.float64), start, measured,
-                             segment_steps=2)
+    objective = GNSObjective(
+        untrained_simulator(read_metadata(metadata_path), torch.float64), start, measured, segment_steps=2
+    )
     assert objective.checkpoint and objective.n_steps > 2 * objective.segment_steps
     points = np.array([[0.55, 0.73], [0.4, 0.35]])
-    values, gradients = objective.values_and_gradients(points)          # two graphs in one batch
+    values, gradients = objective.values_and_gradients(points)  # two graphs in one batch
     # a fresh objective (no cached runouts) rolls each point out alone
     lone = GNSObjective(objective.simulator, start, measured, checkpoint=False)
     h = 1e-6
     for g, x in enumerate(points):
-        numeric = [(lone.values((x + h * e)[None])[0] - lone.values((x - h * e)[None])[0]) / (2 * h)
-                   for e in np.eye(2)]
+        numeric = [(lone.values((x + h * e)[None])[0] - lone.values((x - h * e)[None])[0]) / (2 * h) for e in np.eye(2)]
         assert np.allclose(gradients[g], numeric, rtol=1e-4, atol=1e-9), (gradients[g], numeric)
-        assert values[g] == pytest.approx(lone.values(x[None])[0], rel=1e-10)   # batching changes nothing
-    assert lone.timing["rollouts"] == 10 and objective.values(points).tolist() == values.tolist()   # cached
+        assert values[g] == pytest.approx(lone.values(x[None])[0], rel=1e-10)  # batching changes nothing
+    assert lone.timing["rollouts"] == 10 and objective.values(points).tolist() == values.tolist()  # cached
     assert objective.timing["rollouts"] == 2 and objective.timing["backward_s"] > 0
     assert np.abs(gradients).max() > 1e-6
 
@@ -195,15 +231,21 @@ def test_float32_model_resolves_the_sound_step_but_not_small_ones_while_autograd
     start = trajectories[0]
     measured = column_of(start, T_POINTS, [0.1, 0.2, 0.3])
     x = np.array([0.55, 0.73])
-    objectives = {dtype: GNSObjective(louder_parameters(untrained_simulator(read_metadata(metadata_path), dtype)),
-                                      start, measured) for dtype in (torch.float32, torch.float64)}
+    objectives = {
+        dtype: GNSObjective(
+            louder_parameters(untrained_simulator(read_metadata(metadata_path), dtype)), start, measured
+        )
+        for dtype in (torch.float32, torch.float64)
+    }
 
     def forward_difference(objective, h):
         values = objective.values(np.array([x, x + [h, 0], x + [0, h]]))
         return (values[1:] - values[0]) / h
 
-    error = {h: np.abs(forward_difference(objectives[torch.float32], h) - forward_difference(objectives[torch.float64], h))
-             for h in (1e-4, FD_STEP)}
+    error = {
+        h: np.abs(forward_difference(objectives[torch.float32], h) - forward_difference(objectives[torch.float64], h))
+        for h in (1e-4, FD_STEP)
+    }
     scale = np.abs(forward_difference(objectives[torch.float64], FD_STEP)).max()
     assert error[FD_STEP].max() < 0.15 * scale
     assert error[1e-4].max() > 3 * error[FD_STEP].max()
@@ -218,8 +260,9 @@ def _bowl(x):
 
 
 def _bowl_gradient(x):
-    return np.array([6 * (x[0] - 0.42) + 0.5 * (x[1] - 0.71) + 0.5 * np.cos(5 * x[0]),
-                     2 * (x[1] - 0.71) + 0.5 * (x[0] - 0.42)])
+    return np.array(
+        [6 * (x[0] - 0.42) + 0.5 * (x[1] - 0.71) + 0.5 * np.cos(5 * x[0]), 2 * (x[1] - 0.71) + 0.5 * (x[0] - 0.42)]
+    )
 
 
 def test_lockstep_multistart_batches_points_and_follows_the_paths_of_lone_runs():
@@ -234,8 +277,14 @@ def test_lockstep_multistart_batches_points_and_follows_the_paths_of_lone_runs()
     assert n_batches == len(batch_sizes) and batch_sizes[0] == 4
     assert sum(batch_sizes) == sum(len(r.evaluations.values) for r in runs) > n_batches
     for start, run in zip(starts, runs):
-        lone = minimize(lambda x: (_bowl(x), _bowl_gradient(x)), start, jac=True, method="L-BFGS-B",
-                        bounds=[(0.3, 0.9)] * 2, options={"maxiter": 20, "ftol": FTOL, "gtol": GTOL, "maxls": 10, "maxfun": 40})
+        lone = minimize(
+            lambda x: (_bowl(x), _bowl_gradient(x)),
+            start,
+            jac=True,
+            method="L-BFGS-B",
+            bounds=[(0.3, 0.9)] * 2,
+            options={"maxiter": 20, "ftol": FTOL, "gtol": GTOL, "maxls": 10, "maxfun": 40},
+        )
         assert np.allclose(run.params, lone.x, rtol=0, atol=1e-12) and run.n_iterations == lone.nit
         assert run.iterates[0][0] == start.tolist() and run.iterates[-1][0] == pytest.approx(run.params)
         assert run.value == pytest.approx(_bowl(lone.x))
@@ -244,30 +293,36 @@ def test_lockstep_multistart_batches_points_and_follows_the_paths_of_lone_runs()
 def test_finite_difference_stencils_run_as_one_batch_and_follow_scipys_own_differences():
     """Each start's forward-difference stencil (x, x + h e_j; backwards at an upper bound) is one
     batch of P + 1 points, and the path is the one scipy takes with eps = h."""
-    starts = np.array([[0.55, 0.73], [0.9, 0.3]])           # the second sits on an upper bound
+    starts = np.array([[0.55, 0.73], [0.9, 0.3]])  # the second sits on an upper bound
     batch_sizes = []
 
     def batch(points):
         batch_sizes.append(len(points))
         return np.array([_bowl(p) for p in points])
 
-    runs, n_batches = multistart_lbfgsb(batch, starts, [(0.3, 0.9)] * 2, ["friction", "restitution"],
-                                        gradient="finite-difference", fd_step=FD_STEP)
+    runs, n_batches = multistart_lbfgsb(
+        batch, starts, [(0.3, 0.9)] * 2, ["friction", "restitution"], gradient="finite-difference", fd_step=FD_STEP
+    )
     assert batch_sizes[0] == 2 * 3 and n_batches == len(batch_sizes)
     for start, run in zip(starts, runs):
-        lone = minimize(_bowl, start, method="L-BFGS-B", bounds=[(0.3, 0.9)] * 2,
-                        options={"maxiter": 20, "ftol": FTOL, "gtol": GTOL, "maxls": 10, "maxfun": 40, "eps": FD_STEP})
+        lone = minimize(
+            _bowl,
+            start,
+            method="L-BFGS-B",
+            bounds=[(0.3, 0.9)] * 2,
+            options={"maxiter": 20, "ftol": FTOL, "gtol": GTOL, "maxls": 10, "maxfun": 40, "eps": FD_STEP},
+        )
         assert np.allclose(run.params, lone.x, rtol=0, atol=1e-9) and run.n_iterations == lone.nit
 
 
 def test_a_start_that_stops_improving_stops_instead_of_retrying_its_line_search():
     """A rough objective as a rollout makes it: flat to within noise, with a large local gradient."""
+
     def batch(points):
         noise = 1e-6 * np.sin(1e4 * points[:, 0])
         return 1.0 + noise, np.tile([50.0, -80.0], (len(points), 1))
 
-    runs, _ = multistart_lbfgsb(batch, [[0.55, 0.73]], [(0.3, 0.9)] * 2, ["friction", "restitution"],
-                                max_iterations=20)
+    runs, _ = multistart_lbfgsb(batch, [[0.55, 0.73]], [(0.3, 0.9)] * 2, ["friction", "restitution"], max_iterations=20)
     assert len(runs[0].evaluations.values) == 1 + STALL_EVALUATIONS < MAX_LINE_SEARCH
     assert "without improvement" in runs[0].message and runs[0].value == min(runs[0].evaluations.values)
 
@@ -282,12 +337,15 @@ def test_lockstep_reports_a_failing_evaluation_instead_of_hanging():
 
 # -- bad input -----------------------------------------------------------------------------------------
 def test_bounds_outside_the_trained_range_are_refused(tiny_dataset):
-    metadata = read_metadata(tiny_dataset[0])     # trained on friction and restitution 0.3-0.9
+    metadata = read_metadata(tiny_dataset[0])  # trained on friction and restitution 0.3-0.9
     assert check_bounds([(0.3, 0.9), (0.4, 0.8)], ["friction", "restitution"], metadata["parameter_ranges"])
-    with pytest.raises(InverseDesignError, match=r"bounds of restitution \[0.3, 0.95\] leave the range the GNS "
-                                                 r"was trained on \[0.3, 0.9\]"):
+    with pytest.raises(
+        InverseDesignError,
+        match=r"bounds of restitution \[0.3, 0.95\] leave the range the GNS "
+        r"was trained on \[0.3, 0.9\]",
+    ):
         check_bounds([(0.3, 0.9), (0.3, 0.95)], ["friction", "restitution"], metadata["parameter_ranges"])
-    narrowed = dict(metadata["parameter_ranges"], friction=[0.33, 0.87])      # a sampled range
+    narrowed = dict(metadata["parameter_ranges"], friction=[0.33, 0.87])  # a sampled range
     assert design_bounds([None, None], ["friction", "restitution"], narrowed) == [(0.33, 0.87), (0.3, 0.9)]
     assert design_bounds([None, (0.4, 0.6)], ["friction", "restitution"], narrowed)[1] == (0.4, 0.6)
     with pytest.raises(InverseDesignError, match="low 0.6 must be below high 0.5"):
@@ -303,7 +361,9 @@ def test_geometry_checks_name_the_distance_from_the_training_set(tiny_dataset):
         warnings.simplefilter("error")
         assert check_geometry(same, metadata, attrs)["distance"] == pytest.approx(0.0)
     taller = MeasuredColumn("tall", "quartz", 6.0, 0.02, np.array([0.5, 1.0]), np.array([0.5, 1.5]), source="t.csv")
-    with pytest.raises(InverseDesignError, match=r"outside the geometry the GNS was trained on: L_i = 0.02 lies outside \[0.01, 0.01\]"):
+    with pytest.raises(
+        InverseDesignError, match=r"outside the geometry the GNS was trained on: L_i = 0.02 lies outside \[0.01, 0.01\]"
+    ):
         check_geometry(taller, metadata, attrs)
     copper = MeasuredColumn("cu", "copper", 2.0, 0.01, np.array([0.5, 1.0]), np.array([0.3, 1.0]), source="c.csv")
     with pytest.raises(InverseDesignError, match="is copper; the GNS was trained on"):
@@ -343,7 +403,11 @@ def test_posterior_flags_a_parameter_the_model_ignores(tiny_dataset):
     assert (restitution_interval.low, restitution_interval.high) == (0.5, 0.8)
     assert friction.identifiable and friction.high - friction.low < 0.4
     assert posterior.sigma_source == "measured" and runout.shape == (3,)
-    assert len(roughness["values"]) == ROUGHNESS_PROBES and roughness["spread"] >= 0 and len(roughness["jacobian_step_values"]) == 4
+    assert (
+        len(roughness["values"]) == ROUGHNESS_PROBES
+        and roughness["spread"] >= 0
+        and len(roughness["jacobian_step_values"]) == 4
+    )
 
 
 # -- inverse design end to end -------------------------------------------------------------------------
@@ -359,20 +423,32 @@ def test_inverse_design_recovers_a_target_made_by_the_surrogate_itself(tiny_data
     # the connected front (a mean of 8 grains) the tolerances below were set for; the untrained model's
     # dense front (one grain) responds to mu too weakly and unevenly to pin it within 0.02
     runout = RunoutMethod("connected_front")
-    target = GNSObjective(simulator, start, column_of(start, t, np.zeros(len(t))),
-                          runout=runout).runout_values(truth[None])[0]
+    target = GNSObjective(simulator, start, column_of(start, t, np.zeros(len(t))), runout=runout).runout_values(
+        truth[None]
+    )[0]
     measured = column_of(start, t, target, std=1e-4)
     attrs = [read_attrs(p) for p in metadata["splits"]["train"]]
     # the untrained model moves L* by only ~0.04 over the whole box: tolerances to match that scale
-    result = inverse_design(simulator, start, measured, metadata, attrs, n_starts=2, max_iterations=25,
-                            ftol=1e-12, gtol=1e-9, max_evaluations=60, runout=runout)
+    result = inverse_design(
+        simulator,
+        start,
+        measured,
+        metadata,
+        attrs,
+        n_starts=2,
+        max_iterations=25,
+        ftol=1e-12,
+        gtol=1e-9,
+        max_evaluations=60,
+        runout=runout,
+    )
     assert np.allclose(result.best_params, truth, atol=0.02), result.best_params
     assert result.best_value < 1e-2 * result.starts[0].iterates[0][1]
-    assert result.n_batches < sum(len(s.evaluations.values) for s in result.starts)     # starts shared batches
+    assert result.n_batches < sum(len(s.evaluations.values) for s in result.starts)  # starts shared batches
     for p, value in zip(result.posterior["parameters"], truth):
         assert p["identifiable"] and p["low"] <= value <= p["high"] and p["high"] - p["low"] < 0.3
     assert result.seconds["online"] > 0 and len(result.starts[0].iterates) >= 2
-    assert result.runout == runout.to_config() == result.to_dict()["runout"]   # states how it read L*
+    assert result.runout == runout.to_config() == result.to_dict()["runout"]  # states how it read L*
 
 
 @pytest.fixture(scope="module")
@@ -380,8 +456,21 @@ def trained_tiny_gns(tiny_dataset, tmp_path_factory):
     """A GNS briefly trained (300 steps, ~8 s) on the tiny dataset: (simulator, metadata)."""
     metadata_path, _ = tiny_dataset
     folder = tmp_path_factory.mktemp("tiny_gns")
-    train(metadata_path, folder, dict(TINY_MODEL, latent_size=32, n_message_passing=3, steps=300, validate_every=300,
-                                      log_every=300, checkpoint_every=300, learning_rate_decay_steps=300), resume=False)
+    train(
+        metadata_path,
+        folder,
+        dict(
+            TINY_MODEL,
+            latent_size=32,
+            n_message_passing=3,
+            steps=300,
+            validate_every=300,
+            log_every=300,
+            checkpoint_every=300,
+            learning_rate_decay_steps=300,
+        ),
+        resume=False,
+    )
     metadata = read_metadata(metadata_path)
     return load_simulator(folder / "model_best.pt", metadata), metadata
 
@@ -398,27 +487,38 @@ def test_recovery_of_a_dem_target_on_the_tiny_column(trained_tiny_gns):
     start = simulate_collapse(case_like(trained[0], 0.55, 0.73, seed=99))
     truths = [simulate_collapse(case_like(trained[0], 0.5, 0.6, seed=seed)) for seed in (100, 101)]
     t_points = observation_times(3.0)
-    runout = RunoutMethod()                 # the config's default, for the targets and the inverse design
+    runout = RunoutMethod()  # the config's default, for the targets and the inverse design
     curves = np.array([runout_at(t, t_points, runout) for t in truths])
-    row = recover_case(simulator, metadata, trained, start, truths, t_points, noise_std=0.05, seed=0,
-                       n_starts=2, max_iterations=10, runout=runout)
+    row = recover_case(
+        simulator,
+        metadata,
+        trained,
+        start,
+        truths,
+        t_points,
+        noise_std=0.05,
+        seed=0,
+        n_starts=2,
+        max_iterations=10,
+        runout=runout,
+    )
     # the stated std is that of a mean of 2 packings: sqrt(noise^2 + s^2 / 2), s from the two runs
     scatter = np.abs(curves[0] - curves[1]) / np.sqrt(2)
     assert row["packings"] == 2 and np.allclose(row["packing_std"], scatter)
-    assert np.allclose(row["measured_std"], np.sqrt(0.05 ** 2 + scatter ** 2 / 2))
+    assert np.allclose(row["measured_std"], np.sqrt(0.05**2 + scatter**2 / 2))
     assert np.abs(np.array(row["measured"]) - curves.mean(0)).max() < 4 * 0.05
     assert row["objective"] < row["start_objective"]
     assert all(row["inside"]), row
     for k, (low, high) in enumerate(row["interval"]):
         if row["identifiable"][k]:
             assert abs(row["estimate"][k] - row["truth"][k]) <= 0.15, row
-        else:                                          # reported as unknown, not given a false precision
+        else:  # reported as unknown, not given a false precision
             assert high - low > 0.5 * (0.9 - 0.3), row
     assert row["truth"] == [0.5, 0.6] and row["t_over_tstar"] == [0.5, 1.0, 1.5, 2.0, 2.5]
 
 
 def test_packing_scatter_pools_targets_without_their_differences():
-    a = np.array([[1.0, 2.0], [1.2, 2.4]])            # target 1: two packings
+    a = np.array([[1.0, 2.0], [1.2, 2.4]])  # target 1: two packings
     b = np.array([[5.0, 9.0], [5.2, 8.6], [5.1, 8.8]])  # target 2, far away: its offset is no scatter
     std, dof = packing_scatter([a, b])
     expected = np.sqrt((np.sum((a - a.mean(0)) ** 2, 0) + np.sum((b - b.mean(0)) ** 2, 0)) / 3)

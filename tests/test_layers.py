@@ -4,6 +4,7 @@ dem <- gns <- calibration <- doe <- pipeline <- workflow/scripts (ARCHITECTURE.m
 read from the source (module level and inside functions), so a shortcut hidden in a function
 counts too.
 """
+
 from __future__ import annotations
 
 import ast
@@ -50,8 +51,9 @@ def test_packages_import_downwards_only_and_know_nothing_of_snakemake(path):
 def test_workflow_scripts_call_only_the_stage_layer(path):
     for name in imports(path):
         top = name.split(".")[0]
-        assert top == "pipeline" or (top in sys.stdlib_module_names and top not in PROJECT), \
+        assert top == "pipeline" or (top in sys.stdlib_module_names and top not in PROJECT), (
             f"workflow/scripts/{path.name} imports {name}: scripts go through pipeline/"
+        )
 
 
 def test_no_import_cycle_between_files():
@@ -60,7 +62,7 @@ def test_no_import_cycle_between_files():
     for module, path in modules.items():
         targets = set()
         for name in imports(path):
-            while name and name not in modules:          # "dem.runout.RunoutMethod" -> "dem.runout"
+            while name and name not in modules:  # "dem.runout.RunoutMethod" -> "dem.runout"
                 name = name.rpartition(".")[0]
             if name and name != module and not modules[name].name == "__init__.py":
                 targets.add(name)

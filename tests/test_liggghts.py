@@ -1,5 +1,6 @@
 """The LIGGGHTS engine: its deck reproduces the builtin physics, failures are reported clearly,
 and it agrees with the builtin engine on a collapse (one (mu, e) pair; the benchmark runs more)."""
+
 import shutil
 
 import numpy as np
@@ -15,8 +16,10 @@ from dem.packing import settle_column, walls_open
 from dem.runout import runout_curve
 from dem.trajectory import Trajectory
 
-pytestmark = pytest.mark.skipif(shutil.which("liggghts") is None,
-                                reason="liggghts not installed (Debian: apt-get install liggghts; .ci/run does it as root)")
+pytestmark = pytest.mark.skipif(
+    shutil.which("liggghts") is None,
+    reason="liggghts not installed (Debian: apt-get install liggghts; .ci/run does it as root)",
+)
 
 # 0.5 t* (12 ms) of a coarse quartz column: frames every 1 ms, contacts last ~0.1 ms
 TINY = CollapseCase("quartz", 0.006, 1.0, 0.5, 0.6, size_scale=3.0, duration_over_tstar=0.5, name="tiny")
@@ -24,8 +27,9 @@ TINY = CollapseCase("quartz", 0.006, 1.0, 0.5, 0.6, size_scale=3.0, duration_ove
 
 def run_grains(tmp_path, case, positions, radius, velocities):
     """Run the rendered deck for free grains with initial velocities; positions [T, N, 2]."""
-    packing = Trajectory(np.asarray(positions, np.float32)[None], np.asarray(radius, float),
-                         np.zeros(len(radius), np.int32), {})
+    packing = Trajectory(
+        np.asarray(positions, np.float32)[None], np.asarray(radius, float), np.zeros(len(radius), np.int32), {}
+    )
     engine = get_engine("liggghts")
     deck = engine.render(case, packing, tmp_path)
     velocity_lines = [f"{i} {vx!r} {vy!r} 0 0 0 0" for i, (vx, vy) in enumerate(velocities, start=1)]
@@ -76,7 +80,7 @@ def test_rolling_resistance_and_floor_friction_match_the_builtin_engine(tmp_path
     steps, dt = frame_steps(case.frame_interval, case.time_step)
     run(state, ContactLaw.from_case(case), walls_open(case), (-1, 1, -1, 1), dt, steps * (case.n_frames - 1))
     travel_liggghts, travel_builtin = x[-1, 0, 0] - start, state.x[0, 0] - start
-    assert np.ptp(x[-10:, 0, 0]) < 0.01 * travel_liggghts          # it has stopped
+    assert np.ptp(x[-10:, 0, 0]) < 0.01 * travel_liggghts  # it has stopped
     assert travel_liggghts == pytest.approx(travel_builtin, rel=0.02)
 
 
@@ -142,8 +146,9 @@ def test_builtin_agrees_with_liggghts_on_a_collapse(tmp_path):
     engine = get_engine("liggghts")
     builtin_curves, liggghts_curves = [], []
     for seed in SEEDS:
-        case = CollapseCase("quartz", 0.02, 1.0, friction=0.5, restitution=0.6, size_scale=3.0, seed=seed,
-                            name=f"crossval{seed}")
+        case = CollapseCase(
+            "quartz", 0.02, 1.0, friction=0.5, restitution=0.6, size_scale=3.0, seed=seed, name=f"crossval{seed}"
+        )
         packing = settle_column(case)
         builtin_curves.append(runout_curve(simulate_collapse(case, packing), "connected_front")[1])
         liggghts_curves.append(runout_curve(engine.simulate(case, packing, tmp_path / case.name), "connected_front")[1])

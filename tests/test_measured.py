@@ -1,9 +1,15 @@
 """Measured-data CSV reader: the shipped curves, the schema and every bad-input check."""
+
 import numpy as np
 import pytest
 
-from calibration.measured import (MeasuredDataError, MeasuredDataWarning, expected_final_runout, load_column,
-                                  read_measured)
+from calibration.measured import (
+    MeasuredDataError,
+    MeasuredDataWarning,
+    expected_final_runout,
+    load_column,
+    read_measured,
+)
 from dem.case import CaseError
 
 HEADER = "column,material,aspect_ratio,L_i,kind,x,value,std\n"
@@ -34,8 +40,12 @@ def test_shipped_curves_match_the_paper():
 
 
 def test_several_columns_noise_and_profile(tmp_path):
-    text = (HEADER + runout_rows(name="a", std="0.1") + runout_rows(name="b", a=2.0, values=np.array(QUARTZ_RUNOUT) / 3)
-            + "a,quartz,6.0,0.02,profile,0.0,0.03,\na,quartz,6.0,0.02,profile,0.05,0.01,\n")
+    text = (
+        HEADER
+        + runout_rows(name="a", std="0.1")
+        + runout_rows(name="b", a=2.0, values=np.array(QUARTZ_RUNOUT) / 3)
+        + "a,quartz,6.0,0.02,profile,0.0,0.03,\na,quartz,6.0,0.02,profile,0.05,0.01,\n"
+    )
     path = write(tmp_path, "# a comment line\n" + text)
     columns = read_measured(path)
     assert list(columns) == ["a", "b"]
@@ -58,25 +68,35 @@ def test_collapse_case_of_a_measured_column():
         quartz.collapse_case(0.4, 0.5, size_scale=4.0, duration_over_tstar=3.0)
 
 
-@pytest.mark.parametrize("text, where", [
-    ("column,material,aspect_ratio,kind,x,value\nq,quartz,6,runout,1,1\n",
-     r"line 1: header lacks column\(s\) \['L_i'\]"),
-    (HEADER.replace(",std", ",stdev") + runout_rows(), r"line 1: unknown column\(s\) \['stdev'\]"),
-    (HEADER + runout_rows().replace("2.7", "2,7"), "line 4: 9 fields"),
-    (HEADER + runout_rows().replace(",2.7,", ",abc,"), "line 4, column 'value': 'abc' is not a number"),
-    (HEADER + runout_rows().replace(",1.5,", ",nan,"), "line 4, column 'x': 'nan' is not finite"),
-    (HEADER + runout_rows().replace("runout,2.0", "runout,1.0"), "line 5, column 'x'.*does not increase"),
-    (HEADER + runout_rows().replace("runout,3.0", "runoff,3.0"), "line 7, column 'kind'"),
-    (HEADER + runout_rows().replace("quartz", "sand"), "line 2, column 'material': unknown material 'sand'"),
-    (HEADER + runout_rows(L_i=20), "line 2, column 'L_i'.*mm"),
-    (HEADER + runout_rows()[:-1] + "\nq,quartz,5.0,0.02,runout,4.0,6.0,\n", "line 9, column 'aspect_ratio'.*differs"),
-    (HEADER + runout_rows(values=[0.3], times=[1.0]), "has 1 t/t\\* point"),
-    (HEADER + runout_rows(std="0"), "line 2, column 'std'.*exact measurement"),
-    (HEADER + runout_rows(std="0.1").replace("runout,2.0,4.2,0.1", "runout,2.0,4.2,"),
-     "line 5, column 'std'.*every runout row"),
-    (HEADER, "no data rows"),
-    ("# only a comment\n", "empty file"),
-])
+@pytest.mark.parametrize(
+    "text, where",
+    [
+        (
+            "column,material,aspect_ratio,kind,x,value\nq,quartz,6,runout,1,1\n",
+            r"line 1: header lacks column\(s\) \['L_i'\]",
+        ),
+        (HEADER.replace(",std", ",stdev") + runout_rows(), r"line 1: unknown column\(s\) \['stdev'\]"),
+        (HEADER + runout_rows().replace("2.7", "2,7"), "line 4: 9 fields"),
+        (HEADER + runout_rows().replace(",2.7,", ",abc,"), "line 4, column 'value': 'abc' is not a number"),
+        (HEADER + runout_rows().replace(",1.5,", ",nan,"), "line 4, column 'x': 'nan' is not finite"),
+        (HEADER + runout_rows().replace("runout,2.0", "runout,1.0"), "line 5, column 'x'.*does not increase"),
+        (HEADER + runout_rows().replace("runout,3.0", "runoff,3.0"), "line 7, column 'kind'"),
+        (HEADER + runout_rows().replace("quartz", "sand"), "line 2, column 'material': unknown material 'sand'"),
+        (HEADER + runout_rows(L_i=20), "line 2, column 'L_i'.*mm"),
+        (
+            HEADER + runout_rows()[:-1] + "\nq,quartz,5.0,0.02,runout,4.0,6.0,\n",
+            "line 9, column 'aspect_ratio'.*differs",
+        ),
+        (HEADER + runout_rows(values=[0.3], times=[1.0]), "has 1 t/t\\* point"),
+        (HEADER + runout_rows(std="0"), "line 2, column 'std'.*exact measurement"),
+        (
+            HEADER + runout_rows(std="0.1").replace("runout,2.0,4.2,0.1", "runout,2.0,4.2,"),
+            "line 5, column 'std'.*every runout row",
+        ),
+        (HEADER, "no data rows"),
+        ("# only a comment\n", "empty file"),
+    ],
+)
 def test_bad_files_name_file_line_and_column(tmp_path, text, where):
     path = write(tmp_path, text)
     with pytest.raises(MeasuredDataError, match=where) as info:

@@ -1,7 +1,7 @@
 """The candidate mechanisms beyond the paper's model, each against a known answer."""
+
 import math
 
-import numpy as np
 import pytest
 
 from dem.case import GRAVITY, CollapseCase
@@ -41,7 +41,7 @@ def test_rolling_resistance_stops_a_rolling_disc_at_predicted_distance():
     state = grain_on_floor()
     state.v[0, 0], state.spin[0] = v0, -v0 / RADIUS
     distance, _ = travel_until_stopped(state, ContactLaw.from_case(case), case.time_step, 1.0)
-    assert distance == pytest.approx(7 * v0 ** 2 / (10 * mu_r * GRAVITY), rel=0.03)
+    assert distance == pytest.approx(7 * v0**2 / (10 * mu_r * GRAVITY), rel=0.03)
     # and without it the disc rolls on
     free = grain_on_floor()
     free.v[0, 0], free.spin[0] = v0, -v0 / RADIUS
@@ -58,8 +58,7 @@ def test_cohesive_grain_leaves_the_floor_only_above_jkr_pull_off(pull_over_pull_
     pull_off = 1.5 * math.pi * w * RADIUS
     pull_acceleration = pull_over_pull_off * pull_off / state.mass[0]
     # "gravity" pointing up: a pull of pull_acceleration * m away from the floor
-    run(state, ContactLaw.from_case(case), FLOOR_ONLY, BIG_BOX, case.time_step, 20000,
-        gravity=-pull_acceleration)
+    run(state, ContactLaw.from_case(case), FLOOR_ONLY, BIG_BOX, case.time_step, 20000, gravity=-pull_acceleration)
     lifted = state.x[0, 1] > 2 * RADIUS
     assert lifted == separates
 
@@ -73,7 +72,7 @@ def test_sidewall_friction_stops_a_sliding_grain_at_predicted_distance():
     state.v[0, 0] = v0
     distance, _ = travel_until_stopped(state, ContactLaw.from_case(case), case.time_step, 1.0)
     deceleration = mu_sw * (2 * RADIUS / width) * GRAVITY
-    assert distance == pytest.approx(v0 ** 2 / (2 * deceleration), rel=0.03)
+    assert distance == pytest.approx(v0**2 / (2 * deceleration), rel=0.03)
 
 
 def test_basal_friction_is_the_floor_friction_alone():

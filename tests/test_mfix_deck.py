@@ -1,6 +1,7 @@
 """MFIX deck rendering (golden files, keywords and types) and the .vtp particle reader, tested on
 real .vtp files written by a real solver (LIGGGHTS `dump custom/vtk`). The MFIX run path itself
 cannot be tested here (MFIX is not installable); see mfix_templates/README.md."""
+
 import math
 import os
 import re
@@ -18,9 +19,18 @@ from dem.engines.mfix import MAX_PHASES, MfixEngine, read_vtp, read_vtp_frames, 
 from dem.trajectory import Trajectory
 
 GOLDEN = Path(__file__).parent / "golden"
-UPDATE = os.environ.get("UPDATE_GOLDEN") == "1"   # UPDATE_GOLDEN=1 pytest ... rewrites the golden files
-CASE = CollapseCase("quartz", 0.006, 1.0, friction=0.4, restitution=0.7, friction_wall=0.3,
-                    restitution_wall=0.5, size_scale=3.0, name="golden")
+UPDATE = os.environ.get("UPDATE_GOLDEN") == "1"  # UPDATE_GOLDEN=1 pytest ... rewrites the golden files
+CASE = CollapseCase(
+    "quartz",
+    0.006,
+    1.0,
+    friction=0.4,
+    restitution=0.7,
+    friction_wall=0.3,
+    restitution_wall=0.5,
+    size_scale=3.0,
+    name="golden",
+)
 
 
 def lattice_packing(case: CollapseCase) -> Trajectory:
@@ -58,7 +68,11 @@ def parse_mfx(text: str) -> dict:
     values = {}
     for line in text.splitlines():
         line = line.split("#")[0].split("!")[0]
-        for key, value in re.findall(r"([A-Za-z_][A-Za-z0-9_]*(?:\([0-9:, ]+\))?)\s*=\s*(.*?)(?=\s+[A-Za-z_][A-Za-z0-9_]*(?:\([0-9:, ]+\))?\s*=|$)", line):
+        for key, value in re.findall(
+            r"([A-Za-z_][A-Za-z0-9_]*(?:\([0-9:, ]+\))?)\s*=\s*"
+            r"(.*?)(?=\s+[A-Za-z_][A-Za-z0-9_]*(?:\([0-9:, ]+\))?\s*=|$)",
+            line,
+        ):
             values[key.upper()] = value.strip()
     return values
 
@@ -77,17 +91,88 @@ def fortran(value: str):
 
 
 # MFIX 23.x keywords the template may use (names as in the MFIX 23 user guide's keyword list)
-KNOWN = {"RUN_NAME", "DESCRIPTION", "UNITS", "RUN_TYPE", "TIME", "TSTOP", "DT", "DT_MAX", "DT_MIN",
-         "ENERGY_EQ", "SPECIES_EQ", "MOMENTUM_X_EQ", "MOMENTUM_Y_EQ", "MOMENTUM_Z_EQ", "GRAVITY_X",
-         "GRAVITY_Y", "GRAVITY_Z", "COORDINATES", "X_MIN", "X_MAX", "Y_MIN", "Y_MAX", "Z_MIN", "Z_MAX",
-         "NO_K", "IMAX", "JMAX", "RO_G0", "MU_G0", "MMAX", "SOLIDS_MODEL", "D_P0", "RO_S0",
-         "DES_COLL_MODEL", "DES_INTG_METHOD", "DES_INTERP_ON", "KN", "KN_W", "KT_FAC", "KT_W_FAC",
-         "DES_ETAT_FAC", "DES_ETAT_W_FAC", "DES_EN_INPUT", "DES_EN_WALL_INPUT", "MEW", "MEW_W",
-         "DTSOLID_FACTOR", "NFACTOR", "DES_NEIGHBOR_SEARCH", "NEIGHBOR_SEARCH_N", "GENER_PART_CONFIG",
-         "PARTICLES", "BC_X_W", "BC_X_E", "BC_Y_S", "BC_Y_N", "BC_TYPE", "IC_X_W", "IC_X_E", "IC_Y_S",
-         "IC_Y_N", "IC_EP_G", "IC_U_G", "IC_V_G", "IC_P_G", "IC_T_G", "WRITE_VTK_FILES",
-         "TIME_DEPENDENT_FILENAME", "VTK_X_W", "VTK_X_E", "VTK_Y_S", "VTK_Y_N", "VTK_Z_B", "VTK_Z_T",
-         "VTK_FILEBASE", "VTK_DATA", "VTK_DT", "VTK_PART_DIAMETER", "VTK_PART_VEL", "RES_DT"}
+KNOWN = {
+    "RUN_NAME",
+    "DESCRIPTION",
+    "UNITS",
+    "RUN_TYPE",
+    "TIME",
+    "TSTOP",
+    "DT",
+    "DT_MAX",
+    "DT_MIN",
+    "ENERGY_EQ",
+    "SPECIES_EQ",
+    "MOMENTUM_X_EQ",
+    "MOMENTUM_Y_EQ",
+    "MOMENTUM_Z_EQ",
+    "GRAVITY_X",
+    "GRAVITY_Y",
+    "GRAVITY_Z",
+    "COORDINATES",
+    "X_MIN",
+    "X_MAX",
+    "Y_MIN",
+    "Y_MAX",
+    "Z_MIN",
+    "Z_MAX",
+    "NO_K",
+    "IMAX",
+    "JMAX",
+    "RO_G0",
+    "MU_G0",
+    "MMAX",
+    "SOLIDS_MODEL",
+    "D_P0",
+    "RO_S0",
+    "DES_COLL_MODEL",
+    "DES_INTG_METHOD",
+    "DES_INTERP_ON",
+    "KN",
+    "KN_W",
+    "KT_FAC",
+    "KT_W_FAC",
+    "DES_ETAT_FAC",
+    "DES_ETAT_W_FAC",
+    "DES_EN_INPUT",
+    "DES_EN_WALL_INPUT",
+    "MEW",
+    "MEW_W",
+    "DTSOLID_FACTOR",
+    "NFACTOR",
+    "DES_NEIGHBOR_SEARCH",
+    "NEIGHBOR_SEARCH_N",
+    "GENER_PART_CONFIG",
+    "PARTICLES",
+    "BC_X_W",
+    "BC_X_E",
+    "BC_Y_S",
+    "BC_Y_N",
+    "BC_TYPE",
+    "IC_X_W",
+    "IC_X_E",
+    "IC_Y_S",
+    "IC_Y_N",
+    "IC_EP_G",
+    "IC_U_G",
+    "IC_V_G",
+    "IC_P_G",
+    "IC_T_G",
+    "WRITE_VTK_FILES",
+    "TIME_DEPENDENT_FILENAME",
+    "VTK_X_W",
+    "VTK_X_E",
+    "VTK_Y_S",
+    "VTK_Y_N",
+    "VTK_Z_B",
+    "VTK_Z_T",
+    "VTK_FILEBASE",
+    "VTK_DATA",
+    "VTK_DT",
+    "VTK_PART_DIAMETER",
+    "VTK_PART_VEL",
+    "RES_DT",
+}
 
 
 def test_mfix_deck_keywords_and_types():
@@ -122,8 +207,13 @@ def test_particle_input_holds_the_packing():
     packing = lattice_packing(CASE)
     deck, particles = render_deck(CASE, packing)
     n_phases = int(fortran(parse_mfx(deck)["MMAX"]))
-    rows = np.array([[float(v) for v in line.split()] for line in particles.splitlines()
-                     if line and not line.startswith("!") and "=" not in line and not line[0].isalpha()])
+    rows = np.array(
+        [
+            [float(v) for v in line.split()]
+            for line in particles.splitlines()
+            if line and not line.startswith("!") and "=" not in line and not line[0].isalpha()
+        ]
+    )
     assert rows.shape == (CASE.n_particles, 7)
     np.testing.assert_array_equal(rows[:, :2], packing.positions[0].astype(float))
     np.testing.assert_allclose(rows[:, 3], 2 * packing.radius, rtol=1e-15)
@@ -166,12 +256,13 @@ def test_vtp_reader_reads_real_solver_output(liggghts_vtp):
     positions, radius = read_vtp_frames(files, case.n_frames, case.n_particles)
     dump_positions, dump_radius = read_dump_frames(work / FRAMES, case.n_frames, case.n_particles)
     np.testing.assert_allclose(radius, dump_radius, rtol=1e-8)
-    np.testing.assert_allclose(positions, dump_positions, rtol=0, atol=1e-8)   # Points are Float32 in the file
-    assert np.ptp(positions[:, :, 1]) > 0   # the grains moved: not the same frame read again
+    np.testing.assert_allclose(positions, dump_positions, rtol=0, atol=1e-8)  # Points are Float32 in the file
+    assert np.ptp(positions[:, :, 1]) > 0  # the grains moved: not the same frame read again
     points, data = read_vtp(files[0])
     assert points.shape == (case.n_particles, 3) and {"id", "radius", "mass"} <= set(data)
-    np.testing.assert_allclose(data["mass"][np.argsort(data["id"])],
-                               [case.sphere_mass(2 * r) for r in radius], rtol=1e-6)
+    np.testing.assert_allclose(
+        data["mass"][np.argsort(data["id"])], [case.sphere_mass(2 * r) for r in radius], rtol=1e-6
+    )
 
 
 def test_vtp_reader_refuses_truncated_and_foreign_files(liggghts_vtp, tmp_path):
@@ -189,7 +280,7 @@ def test_vtp_reader_refuses_truncated_and_foreign_files(liggghts_vtp, tmp_path):
     with pytest.raises(EngineError, match="expected 9 particle .vtp frames, found 2"):
         read_vtp_frames([truncated, foreign], 9, case.n_particles)
     garbled = tmp_path / "PARTICLES_0003.vtp"
-    garbled.write_text(text.replace("format=\"ascii\"", "format=\"binary\"", 1))
+    garbled.write_text(text.replace('format="ascii"', 'format="binary"', 1))
     with pytest.raises(EngineError, match="PARTICLES_0003.vtp: unreadable VTK data"):
         read_vtp(garbled)
 

@@ -1,4 +1,5 @@
 """The shared calibration objective: runout MSE at the measured t/t* points."""
+
 import math
 
 import numpy as np
@@ -28,11 +29,29 @@ def front_trajectory(front, L_i=0.02, aspect_ratio=6.0, t_star=0.11, dt_frame=No
         stack = np.column_stack([np.full(8, L - radius), radius * (3 + 2 * np.arange(8))])
         frames.append(np.vstack([chain, stack]))
     n = n_chain + 8
-    attrs = dict(engine="synthetic", engine_version="0", L_i=L_i, H_i=aspect_ratio * L_i, aspect_ratio=aspect_ratio,
-                 material="quartz", dt_frame=dt_frame or t_star / 4, t_star=t_star, x_min=0.0, x_max=0.5,
-                 y_min=0.0, y_max=0.35, seed=0, friction=0.5, restitution=0.6)
-    return Trajectory(positions=np.array(frames, np.float32), radius=np.full(n, radius),
-                      particle_type=np.zeros(n, np.int32), attrs=attrs)
+    attrs = dict(
+        engine="synthetic",
+        engine_version="0",
+        L_i=L_i,
+        H_i=aspect_ratio * L_i,
+        aspect_ratio=aspect_ratio,
+        material="quartz",
+        dt_frame=dt_frame or t_star / 4,
+        t_star=t_star,
+        x_min=0.0,
+        x_max=0.5,
+        y_min=0.0,
+        y_max=0.35,
+        seed=0,
+        friction=0.5,
+        restitution=0.6,
+    )
+    return Trajectory(
+        positions=np.array(frames, np.float32),
+        radius=np.full(n, radius),
+        particle_type=np.zeros(n, np.int32),
+        attrs=attrs,
+    )
 
 
 def test_runout_mse_value():

@@ -1,4 +1,5 @@
 """The builtin engine against known answers: restitution, sliding to rolling, energy, rest, runout."""
+
 import math
 
 import numpy as np
@@ -12,7 +13,7 @@ from dem.runout import runout_curve
 
 RADIUS = 212.5e-6
 DENSITY = 2650.0
-FREE = (0.0, 1.0, 0.0, math.inf)   # left, right, floor, no gate
+FREE = (0.0, 1.0, 0.0, math.inf)  # left, right, floor, no gate
 BIG_BOX = (-1.0, 2.0, -1.0, 2.0)
 
 
@@ -81,8 +82,15 @@ def test_energy_is_conserved_without_damping_or_friction(small_case):
 def test_settled_column_stays_at_rest_behind_gate(small_case):
     packing = settle_column(small_case)
     state = state_from_packing(small_case, packing)
-    frames, _ = record(state, ContactLaw.from_case(small_case), walls_with_gate(small_case),
-                       blowup_box(small_case), small_case.time_step, small_case.t_star, 3)
+    frames, _ = record(
+        state,
+        ContactLaw.from_case(small_case),
+        walls_with_gate(small_case),
+        blowup_box(small_case),
+        small_case.time_step,
+        small_case.t_star,
+        3,
+    )
     moved = np.linalg.norm(frames[-1] - frames[0], axis=1) / small_case.diameter
     # restarting from the stored packing resets the tangential springs: a few grains re-seat once
     assert np.percentile(moved, 99) < 0.005 and moved.max() < 0.05

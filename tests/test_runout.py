@@ -6,6 +6,7 @@ Scenes are square lattices of touching grains (diameter D): a lattice grain has 
 neighbours at 1, 1.41, 2, 2.24, 2.83, ... D, none near the dense rule's 2.4 D, so each neighbour
 count below is exact.
 """
+
 from __future__ import annotations
 
 import json
@@ -20,24 +21,32 @@ import yaml
 
 from calibration.design_runs import Library
 from calibration.diagnosis import DiagnosisSettings
+from calibration.measured import MeasuredColumn
 from calibration.observables import LibraryError, Observables
 from calibration.residuals import DiagnosisError
-from pipeline.inverse import model_error_from_evaluation
-from calibration.measured import MeasuredColumn
 from dem.case import CollapseCase
-from dem.runout import (METHODS, RunoutError, RunoutMethod, check_same_method, dense_mask, deposit_mask, runout_at,
-                        runout_curve)
+from dem.runout import (
+    METHODS,
+    RunoutError,
+    RunoutMethod,
+    check_same_method,
+    dense_mask,
+    deposit_mask,
+    runout_at,
+    runout_curve,
+)
 from dem.trajectory import Trajectory, read_trajectory, write_trajectory
 from doe.study import read_responses
 from gns.runout import soft_front_position
 from pipeline.config import ConfigError, validate_config
+from pipeline.inverse import model_error_from_evaluation
 
 ROOT = Path(__file__).resolve().parents[1]
 SCHEMA = ROOT / "workflow" / "schemas" / "config.schema.yaml"
-R = 1e-3                   # grain radius (m)
-D = 2 * R                  # grain diameter (m)
-ROWS = 6                   # height of the dense block (grains)
-PARKED_X = 0.5             # stray grains wait out of the way here, 10 D apart: nobody's neighbours
+R = 1e-3  # grain radius (m)
+D = 2 * R  # grain diameter (m)
+ROWS = 6  # height of the dense block (grains)
+PARKED_X = 0.5  # stray grains wait out of the way here, 10 D apart: nobody's neighbours
 
 
 def scene(width, floor, n_total=None, stray=()):
@@ -70,8 +79,8 @@ def test_dense_front_is_the_farthest_grain_of_the_dense_body():
     radius = np.full(len(positions), R)
     dense = dense_mask(positions, radius)
     block, layer, loners = dense[:60].reshape(10, ROWS), dense[60:70], dense[70:]
-    assert not layer.any() and not loners.any()            # a single layer has at most 7 such neighbours
-    assert block[9, 0] and block[9, 1:5].all() and not block[9, 5]   # the edge column, but its top corner
+    assert not layer.any() and not loners.any()  # a single layer has at most 7 such neighbours
+    assert block[9, 0] and block[9, 1:5].all() and not block[9, 5]  # the edge column, but its top corner
     assert RunoutMethod("dense_front").front_position(positions, radius) == pytest.approx(10 * D)
     # the connected deposit holds block and layer, not the loners: mean x + r of floor grains 13..20
     assert deposit_mask(positions, radius)[:70].all() and not deposit_mask(positions, radius)[70:].any()
@@ -84,6 +93,7 @@ def test_dense_front_is_the_farthest_grain_of_the_dense_body():
 def test_dense_rule_counts_other_centres_within_the_radius_centre_to_centre():
     """A grain ringed by k grains at distance rho (in D): dense iff k >= n_neighbours (itself not
     counted) and rho <= neighbour_radius (centre to centre, not gap)."""
+
     def ring(k, rho):
         angles = 2 * np.pi * np.arange(k) / k
         centre = np.array([[0.05, 0.02]])
@@ -94,11 +104,15 @@ def test_dense_rule_counts_other_centres_within_the_radius_centre_to_centre():
     radius = np.full(len(positions), R)
     assert dense_mask(positions, radius).tolist() == [True] + [False] * 8
     assert method.front_position(positions, radius) == pytest.approx(0.05 + R)
-    for k, rho in ((7, 2.3), (8, 2.5)):            # one neighbour short (the grain itself does not count); too far
+    for k, rho in ((7, 2.3), (8, 2.5)):  # one neighbour short (the grain itself does not count); too far
         with pytest.raises(RunoutError, match="where it was"):
             method.front_position(ring(k, rho), np.full(k + 1, R), where="where it was")
-    assert RunoutMethod("dense_front", neighbour_radius=2.6).front_position(ring(8, 2.5), radius) == pytest.approx(0.05 + R)
-    assert RunoutMethod("dense_front", n_neighbours=7).front_position(ring(7, 2.3), radius[:8]) == pytest.approx(0.05 + R)
+    assert RunoutMethod("dense_front", neighbour_radius=2.6).front_position(ring(8, 2.5), radius) == pytest.approx(
+        0.05 + R
+    )
+    assert RunoutMethod("dense_front", n_neighbours=7).front_position(ring(7, 2.3), radius[:8]) == pytest.approx(
+        0.05 + R
+    )
 
 
 def test_reached_curves_are_the_running_maximum_and_never_decrease():
@@ -109,13 +123,13 @@ def test_reached_curves_are_the_running_maximum_and_never_decrease():
     traj = trajectory([scene(w, f, n_total=n) for w, f in zip(widths, floors)])
     L_i = 3 * D
     t, dense = runout_curve(traj, "dense_front")
-    assert dense == pytest.approx((np.array(widths) * D - L_i) / L_i)            # the block's edge, w D
+    assert dense == pytest.approx((np.array(widths) * D - L_i) / L_i)  # the block's edge, w D
     _, connected = runout_curve(traj, "connected_front")
     # 8 leading floor grains end at (w + f - 3.5) D on average; frame 3 (2 floor grains): 59 / 8 D
     expected = np.array([8.5, 10.5, 13.5, 59 / 8, 12.5, 14.5]) * D
     assert connected == pytest.approx((expected - L_i) / L_i)
     for front, instantaneous in (("dense_front", dense), ("connected_front", connected)):
-        assert np.any(np.diff(instantaneous) < 0)                                # it does move back
+        assert np.any(np.diff(instantaneous) < 0)  # it does move back
         t_reached, reached = runout_curve(traj, front + "_reached")
         assert np.array_equal(t_reached, t) and np.all(np.diff(reached) >= 0)
         assert reached == pytest.approx(np.maximum.accumulate(instantaneous))
@@ -132,15 +146,17 @@ def test_lengths_are_in_grain_diameters(method):
     gap_tolerance and neighbour_radius are counted in mean diameters, not metres."""
     rng = np.random.default_rng(3)
     n = 10 * ROWS + 12
-    frames = [scene(w, f, n_total=n, stray=(0.1,)) + rng.normal(0, 0.05 * D, (n, 2))
-              for w, f in [(6, 4), (8, 6), (10, 2), (9, 11)]]
+    frames = [
+        scene(w, f, n_total=n, stray=(0.1,)) + rng.normal(0, 0.05 * D, (n, 2))
+        for w, f in [(6, 4), (8, 6), (10, 2), (9, 11)]
+    ]
     radius = R * rng.uniform(0.9, 1.1, n)
     small = trajectory(frames, radius)
     large = trajectory(2 * np.array(frames), 2 * radius, L_i=2 * small.attrs["L_i"])
     t, runout = runout_curve(small, method)
     t2, runout2 = runout_curve(large, method)
     assert np.array_equal(t, t2) and runout2 == pytest.approx(runout, rel=1e-9, abs=1e-12)
-    assert np.ptp(runout) > 0.5                     # fronts that move were compared
+    assert np.ptp(runout) > 0.5  # fronts that move were compared
 
 
 def test_method_names_and_labels():
@@ -155,16 +171,19 @@ def test_method_names_and_labels():
 
 
 # -- bad settings and frames without a front ---------------------------------------------------------------
-@pytest.mark.parametrize("changes, key", [
-    (dict(method="nope"), "runout.method"),
-    (dict(neighbour_radius=-1.0), "runout.neighbour_radius"),
-    (dict(neighbour_radius=float("nan")), "runout.neighbour_radius"),
-    (dict(n_neighbours=0), "runout.n_neighbours"),
-    (dict(n_neighbours=2.5), "runout.n_neighbours"),
-    (dict(n_leading=0), "runout.n_leading"),
-    (dict(n_leading=True), "runout.n_leading"),
-    (dict(gap_tolerance=0.0), "runout.gap_tolerance"),
-])
+@pytest.mark.parametrize(
+    "changes, key",
+    [
+        (dict(method="nope"), "runout.method"),
+        (dict(neighbour_radius=-1.0), "runout.neighbour_radius"),
+        (dict(neighbour_radius=float("nan")), "runout.neighbour_radius"),
+        (dict(n_neighbours=0), "runout.n_neighbours"),
+        (dict(n_neighbours=2.5), "runout.n_neighbours"),
+        (dict(n_leading=0), "runout.n_leading"),
+        (dict(n_leading=True), "runout.n_leading"),
+        (dict(gap_tolerance=0.0), "runout.gap_tolerance"),
+    ],
+)
 def test_bad_runout_settings_name_the_key(changes, key):
     with pytest.raises(RunoutError, match=key.replace(".", r"\.")):
         RunoutMethod(**changes)
@@ -181,13 +200,16 @@ def load_config():
     return yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
 
 
-@pytest.mark.parametrize("section, key", [
-    ({"method": "nope"}, "runout.method"),
-    ({"neighbour_radius": -1}, "runout.neighbour_radius"),
-    ({"n_neighbours": 0}, "runout.n_neighbours"),
-    ({"gap_tolerance": 0}, "runout.gap_tolerance"),
-    ({"neighbor_radius": 2.4}, "runout.neighbor_radius"),
-])
+@pytest.mark.parametrize(
+    "section, key",
+    [
+        ({"method": "nope"}, "runout.method"),
+        ({"neighbour_radius": -1}, "runout.neighbour_radius"),
+        ({"n_neighbours": 0}, "runout.n_neighbours"),
+        ({"gap_tolerance": 0}, "runout.gap_tolerance"),
+        ({"neighbor_radius": 2.4}, "runout.neighbor_radius"),
+    ],
+)
 def test_config_runout_section_is_validated(section, key):
     config = load_config()
     config["runout"] = section
@@ -207,8 +229,9 @@ def test_config_defaults_are_the_classes_defaults():
     assert RunoutMethod.from_config(filled) == RunoutMethod() and filled == RunoutMethod().to_config()
     config = load_config()
     config["runout"] = {"method": "connected_front_reached", "n_leading": 4}
-    assert RunoutMethod.from_config(validate_config(config, SCHEMA)["runout"]) == \
-        RunoutMethod("connected_front_reached", n_leading=4)
+    assert RunoutMethod.from_config(validate_config(config, SCHEMA)["runout"]) == RunoutMethod(
+        "connected_front_reached", n_leading=4
+    )
 
 
 def _sparse_file(path, dense_frames=0, n_frames=3):
@@ -234,11 +257,15 @@ def test_a_frame_too_sparse_for_the_dense_rule_is_an_error_naming_file_and_frame
     later = _sparse_file(tmp_path / "later.h5", dense_frames=2)
     with pytest.raises(RunoutError, match=r"later\.h5, frame 2:"):
         runout_curve(later, method)
-    assert np.isfinite(runout_curve(traj, "connected_front")[1]).all()   # the connected front always has one
+    assert np.isfinite(runout_curve(traj, "connected_front")[1]).all()  # the connected front always has one
     # the differentiable twin refuses the same frame
     with pytest.raises(RunoutError, match="frame 7: no grain qualifies"):
-        soft_front_position(torch.as_tensor(traj.positions[0], dtype=torch.float64), torch.as_tensor(traj.radius),
-                            RunoutMethod(method), where="frame 7")
+        soft_front_position(
+            torch.as_tensor(traj.positions[0], dtype=torch.float64),
+            torch.as_tensor(traj.radius),
+            RunoutMethod(method),
+            where="frame 7",
+        )
 
 
 # -- numbers read by another method are refused ------------------------------------------------------------
@@ -254,8 +281,13 @@ def test_check_same_method():
 
 
 def _responses(path, methods):
-    table = pd.DataFrame({"run_id": [f"run_{k}" for k in range(len(methods))], "friction": 0.5,
-                          "mse": np.linspace(0.1, 0.2, len(methods))})
+    table = pd.DataFrame(
+        {
+            "run_id": [f"run_{k}" for k in range(len(methods))],
+            "friction": 0.5,
+            "mse": np.linspace(0.1, 0.2, len(methods)),
+        }
+    )
     if methods[0] is not None:
         table["runout_method"] = [json.dumps(RunoutMethod.from_config(m).to_config(), sort_keys=True) for m in methods]
     table.to_csv(path, index=False)
@@ -296,7 +328,7 @@ def test_run_library_read_by_another_method_is_refused():
     connected = Observables(_columns(), RunoutMethod("connected_front"))
     assert connected.signature()["runout"] == RunoutMethod("connected_front").to_config()
     library = Library(connected.signature(), {"size_scale": 4.0}, {})
-    library.check(Observables(_columns(), "connected_front"), [])           # the same method, named: fine
+    library.check(Observables(_columns(), "connected_front"), [])  # the same method, named: fine
     with pytest.raises(LibraryError, match="runout method.*connected_front.*asked for.*dense_front_reached"):
         library.check(Observables(_columns()), [])
     unrecorded = {k: v for k, v in connected.signature().items() if k != "runout"}

@@ -12,6 +12,7 @@ temporary folder, on free ports. What works with this plugin (2.8.0) and no acco
 Where the daemons cannot start (not root, not installed, no munge), the test skips saying why.
 The dry run with the SLURM profile is in test_workflow.py and needs none of this.
 """
+
 import contextlib
 import os
 import shutil
@@ -85,8 +86,7 @@ def slurm_cluster(tmp_path):
         if not key.exists():
             subprocess.run(["mungekey", "--create"], capture_output=True, timeout=30)
         # default paths (/run/munge, /var/log/munge): the munge user cannot write to tmp_path
-        started = subprocess.run(["runuser", "-u", "munge", "--", "munged"], capture_output=True, text=True,
-                                 timeout=30)
+        started = subprocess.run(["runuser", "-u", "munge", "--", "munged"], capture_output=True, text=True, timeout=30)
         started_munged = started.returncode == 0
         if not wait_for(munge_works, 10):
             if started_munged:
@@ -130,8 +130,13 @@ PartitionName=test Nodes={host} Default=YES MaxTime=INFINITE State=UP
         ctld = subprocess.run(["slurmctld", "-i"], env=daemon_env, capture_output=True, text=True, timeout=30)
         if ctld.returncode != 0:
             pytest.skip(f"slurmctld cannot start: {ctld.stderr.strip()[-500:]}")
-        slurmd = subprocess.run(["slurmd", "--conf-server", f"{host}:{ctld_port}"], env=client_env,
-                                capture_output=True, text=True, timeout=30)
+        slurmd = subprocess.run(
+            ["slurmd", "--conf-server", f"{host}:{ctld_port}"],
+            env=client_env,
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
         if slurmd.returncode != 0:
             pytest.skip(f"slurmd cannot start: {slurmd.stderr.strip()[-500:]}")
 
@@ -140,8 +145,11 @@ PartitionName=test Nodes={host} Default=YES MaxTime=INFINITE State=UP
             return out.returncode == 0 and "idle" in out.stdout
 
         if not wait_for(idle, 30):
-            logs = "".join((root / "log" / f).read_text()[-800:] for f in ("slurmctld.log", "slurmd.log")
-                           if (root / "log" / f).exists())
+            logs = "".join(
+                (root / "log" / f).read_text()[-800:]
+                for f in ("slurmctld.log", "slurmd.log")
+                if (root / "log" / f).exists()
+            )
             pytest.skip(f"the test SLURM node never became idle:\n{logs}")
         yield subprocess.run(["sinfo"], env=client_env, capture_output=True, text=True).stdout
     finally:
@@ -156,11 +164,29 @@ PartitionName=test Nodes={host} Default=YES MaxTime=INFINITE State=UP
 def test_tiny_dag_runs_through_the_slurm_executor(slurm_cluster, tmp_path):
     workdir = copy_workflow(tmp_path / "wf")
     target = "results/dem/tiny_multiple/trajectories/case_000.h5"
-    cmd = [sys.executable, "-m", "snakemake", "--configfile", "config/test.yaml",
-           "--profile", "workflow/profiles/slurm", "--slurm-no-account", "--slurm-status-command", "squeue",
-           "--slurm-init-seconds-before-status-checks", "1",
-           "--default-resources", "slurm_partition=test", "mem_mb=500", "runtime=10",
-           "--set-resources", "dem_packing:mem_mb=500", "dem_run:mem_mb=500", "--", target]
+    cmd = [
+        sys.executable,
+        "-m",
+        "snakemake",
+        "--configfile",
+        "config/test.yaml",
+        "--profile",
+        "workflow/profiles/slurm",
+        "--slurm-no-account",
+        "--slurm-status-command",
+        "squeue",
+        "--slurm-init-seconds-before-status-checks",
+        "1",
+        "--default-resources",
+        "slurm_partition=test",
+        "mem_mb=500",
+        "runtime=10",
+        "--set-resources",
+        "dem_packing:mem_mb=500",
+        "dem_run:mem_mb=500",
+        "--",
+        target,
+    ]
     run_env = {k: v for k, v in env().items() if k != "SLURM_CONF"}
     proc = subprocess.run(cmd, cwd=workdir, capture_output=True, text=True, timeout=400, env=run_env)
     assert proc.returncode == 0, proc.stderr[-4000:]
@@ -169,6 +195,7 @@ def test_tiny_dag_runs_through_the_slurm_executor(slurm_cluster, tmp_path):
     # the packing and the run went through sbatch (the deck is a local rule); the plugin deletes
     # the SLURM logs of successful jobs, so the evidence is its submit messages and the queue
     assert proc.stderr.count("has been submitted with SLURM jobid") == 2, proc.stderr[-4000:]
-    queue = subprocess.run(["squeue", "--states=all", "-h", "-o", "%j %T"], capture_output=True, text=True,
-                           env=run_env).stdout
+    queue = subprocess.run(
+        ["squeue", "--states=all", "-h", "-o", "%j %T"], capture_output=True, text=True, env=run_env
+    ).stdout
     assert queue.count("COMPLETED") >= 2, queue

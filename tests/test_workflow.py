@@ -5,6 +5,7 @@ default profile, once for the module; the rerun test works on a copy of that fin
 and .snakemake kept). The targets stop at this stage's outputs, so later stages (GNS, DoE, ...)
 are not trained here; the report rule is checked by dry run and pipeline.report on these outputs.
 """
+
 import contextlib
 import os
 import re
@@ -20,14 +21,17 @@ import yaml
 
 from dem.dataset import load_dataset_metadata
 from dem.grid import read_deck
-from pipeline.report import assemble_report
 from dem.trajectory import read_attrs, read_trajectory
+from pipeline.report import assemble_report
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.slow
 # this stage's outputs for config/test.yaml: the report fragment (needs both datasets) and figures
-TARGETS = ["results/report/dataset.md"] + [f"results/dem/tiny_friction/figures/case_{k:03d}.png" for k in range(5)] \
+TARGETS = (
+    ["results/report/dataset.md"]
+    + [f"results/dem/tiny_friction/figures/case_{k:03d}.png" for k in range(5)]
     + [f"results/dem/tiny_multiple/figures/case_{k:03d}.png" for k in range(3)]
+)
 
 
 def copy_workflow(dest: Path) -> Path:
@@ -48,12 +52,23 @@ def env():
 
 def snakemake(workdir, *args, timeout=300, check=True):
     # --configfile takes several values: it goes before the options, targets go last
-    cmd = [sys.executable, "-m", "snakemake", "--configfile", "config/test.yaml", "--profile",
-           "workflow/profiles/default", "--cores", "2", *args]
+    cmd = [
+        sys.executable,
+        "-m",
+        "snakemake",
+        "--configfile",
+        "config/test.yaml",
+        "--profile",
+        "workflow/profiles/default",
+        "--cores",
+        "2",
+        *args,
+    ]
     proc = subprocess.run(cmd, cwd=workdir, capture_output=True, text=True, timeout=timeout, env=env())
     if check and proc.returncode != 0:
-        raise AssertionError(f"snakemake {' '.join(args)} failed ({proc.returncode}):\n"
-                             f"{proc.stdout[-3000:]}\n{proc.stderr[-5000:]}")
+        raise AssertionError(
+            f"snakemake {' '.join(args)} failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-5000:]}"
+        )
     return proc
 
 
@@ -93,8 +108,13 @@ def test_tiny_dag_builds_datasets_figures_and_report(finished):
         for k in range(spec["n_cases"]):
             assert (results / "dem" / name / "figures" / f"case_{k:03d}.png").stat().st_size > 10_000
     # the report as the report rule assembles it, from this stage's fragment and benchmarks
-    assemble_report([("DEM datasets", results / "report/dataset.md")], results / "benchmarks",
-                    results / "report.md", "Test", results / "report/time_per_stage.png")
+    assemble_report(
+        [("DEM datasets", results / "report/dataset.md")],
+        results / "benchmarks",
+        results / "report.md",
+        "Test",
+        results / "report/time_per_stage.png",
+    )
     report = (results / "report.md").read_text()
     assert "## DEM datasets" in report and "## Time per stage" in report
     assert "| tiny_friction | 3/1/1 |" in report
@@ -105,7 +125,9 @@ def test_tiny_dag_builds_datasets_figures_and_report(finished):
     for rule in ("dem_deck", "dem_packing", "dem_run", "dem_figure"):
         assert len(list((results / "benchmarks" / "dem" / rule).rglob("*.tsv"))) == 8, rule
         assert len(list((results / "logs" / "dem" / rule).rglob("*.log"))) == 8, rule
-    assert "collapse tiny_friction/case_000: 100%" in (results / "logs/dem/dem_run/tiny_friction/case_000.log").read_text()
+    assert (
+        "collapse tiny_friction/case_000: 100%" in (results / "logs/dem/dem_run/tiny_friction/case_000.log").read_text()
+    )
     for rule in ("dataset", "dataset_summary"):
         assert len(list((results / "benchmarks" / "dataset" / rule).glob("*.tsv"))) == 2
 
@@ -122,15 +144,28 @@ def test_changing_one_case_reruns_only_its_jobs_and_dependents(finished, tmp_pat
     before = mtimes(workdir / "results")
 
     dry = snakemake(workdir, "-n", *TARGETS)
-    assert job_stats(dry.stdout) == {"dem_deck": 1, "dem_packing": 1, "dem_run": 1, "dem_figure": 1, "dataset": 1,
-                                     "dataset_summary": 1, "dataset_section": 1}
+    assert job_stats(dry.stdout) == {
+        "dem_deck": 1,
+        "dem_packing": 1,
+        "dem_run": 1,
+        "dem_figure": 1,
+        "dataset": 1,
+        "dataset_summary": 1,
+        "dataset_section": 1,
+    }
     snakemake(workdir, *TARGETS)
     after = mtimes(workdir / "results")
     changed = {str(p) for p in before if after.get(p) != before[p]}
-    expected = {f"dem/tiny_friction/{kind}/case_001.{ext}" for kind, ext in
-                (("decks", "json"), ("packings", "h5"), ("trajectories", "h5"), ("figures", "png"))}
-    expected |= {"datasets/tiny_friction/metadata.json", "datasets/tiny_friction/summary.png",
-                 "datasets/tiny_friction/cases.csv", "report/dataset.md"}
+    expected = {
+        f"dem/tiny_friction/{kind}/case_001.{ext}"
+        for kind, ext in (("decks", "json"), ("packings", "h5"), ("trajectories", "h5"), ("figures", "png"))
+    }
+    expected |= {
+        "datasets/tiny_friction/metadata.json",
+        "datasets/tiny_friction/summary.png",
+        "datasets/tiny_friction/cases.csv",
+        "report/dataset.md",
+    }
     outputs = {p for p in changed if not p.startswith(("logs/", "benchmarks/"))}
     assert outputs == expected
     assert read_attrs(workdir / "results/dem/tiny_friction/trajectories/case_001.h5")["friction"] == 0.5
@@ -141,13 +176,24 @@ def test_killed_run_resumes_recomputing_only_incomplete_jobs(tmp_path):
     workdir = copy_workflow(tmp_path / "killed")
     target = "results/datasets/tiny_friction/metadata.json"
     trajectories = workdir / "results/dem/tiny_friction/trajectories"
-    cmd = [sys.executable, "-m", "snakemake", "--configfile", "config/test.yaml", "--profile",
-           "workflow/profiles/default", "--cores", "2", target]
+    cmd = [
+        sys.executable,
+        "-m",
+        "snakemake",
+        "--configfile",
+        "config/test.yaml",
+        "--profile",
+        "workflow/profiles/default",
+        "--cores",
+        "2",
+        target,
+    ]
     log_path = tmp_path / "killed.log"
     finished_runs = 0
     with open(log_path, "w") as log:
-        proc = subprocess.Popen(cmd, cwd=workdir, stdout=log, stderr=subprocess.STDOUT, env=env(),
-                                start_new_session=True)
+        proc = subprocess.Popen(
+            cmd, cwd=workdir, stdout=log, stderr=subprocess.STDOUT, env=env(), start_new_session=True
+        )
         try:
             deadline = time.time() + 240
             while finished_runs == 0 and time.time() < deadline and proc.poll() is None:
@@ -161,7 +207,8 @@ def test_killed_run_resumes_recomputing_only_incomplete_jobs(tmp_path):
             proc.wait()
     existing = sorted(p.name for p in trajectories.glob("case_*.h5"))
     assert finished_runs >= 1 and len(existing) < 5, (
-        f"kill came too early or too late to test a resume: {existing}\n{log_path.read_text()[-2000:]}")
+        f"kill came too early or too late to test a resume: {existing}\n{log_path.read_text()[-2000:]}"
+    )
     for name in existing:  # whatever lies under an output name is a whole trajectory (atomic writes)
         case, _ = read_deck(workdir / "results/dem/tiny_friction/decks" / name.replace(".h5", ".json"))
         assert read_trajectory(trajectories / name).n_frames == case.n_frames
@@ -183,14 +230,22 @@ def test_killed_run_resumes_recomputing_only_incomplete_jobs(tmp_path):
             read_trajectory(workdir / path)
 
 
-@pytest.mark.parametrize("edit, message", [
-    (lambda c: c["dem"].update(thread=2), "dem.thread: unknown key; allowed keys here: ['engine', 'figures', "),
-    (lambda c: c["dem"].update(threads="two"), "dem.threads: 'two' has the wrong type; expected integer"),
-    (lambda c: c["datasets"]["tiny_multiple"].update(restitution={"range": [0.3, 1.2]}),
-     "datasets.tiny_multiple.restitution.range.1: 1.2 is out of range; allowed: > 0 and <= 1"),
-    (lambda c: c["gns"].update(datasets=["tiny_frction"]),
-     "config key gns.datasets: 'tiny_frction' is not a dataset (datasets: ['tiny_friction', 'tiny_multiple'])"),
-], ids=["unknown-key", "wrong-type", "out-of-range", "cross-key"])
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (lambda c: c["dem"].update(thread=2), "dem.thread: unknown key; allowed keys here: ['engine', 'figures', "),
+        (lambda c: c["dem"].update(threads="two"), "dem.threads: 'two' has the wrong type; expected integer"),
+        (
+            lambda c: c["datasets"]["tiny_multiple"].update(restitution={"range": [0.3, 1.2]}),
+            "datasets.tiny_multiple.restitution.range.1: 1.2 is out of range; allowed: > 0 and <= 1",
+        ),
+        (
+            lambda c: c["gns"].update(datasets=["tiny_frction"]),
+            "config key gns.datasets: 'tiny_frction' is not a dataset (datasets: ['tiny_friction', 'tiny_multiple'])",
+        ),
+    ],
+    ids=["unknown-key", "wrong-type", "out-of-range", "cross-key"],
+)
 def test_bad_config_fails_before_any_job_runs(tmp_path, edit, message):
     workdir = copy_workflow(tmp_path / "bad")
     config = yaml.safe_load((workdir / "config" / "test.yaml").read_text())
@@ -216,8 +271,16 @@ def test_paper_config_dry_run_has_700_cases(tmp_path):
 def test_slurm_profile_dry_run(tmp_path):
     """The SLURM profile parses and plans the DAG on any machine (no SLURM needed for -n)."""
     workdir = copy_workflow(tmp_path / "slurm_dry")
-    cmd = [sys.executable, "-m", "snakemake", "-n", "--profile", "workflow/profiles/slurm",
-           "--configfile", "config/test.yaml"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "snakemake",
+        "-n",
+        "--profile",
+        "workflow/profiles/slurm",
+        "--configfile",
+        "config/test.yaml",
+    ]
     proc = subprocess.run(cmd, cwd=workdir, capture_output=True, text=True, timeout=300, env=env())
     assert proc.returncode == 0, proc.stderr[-3000:]
     stats = job_stats(proc.stdout)
@@ -244,11 +307,21 @@ def test_report_rebases_fragment_links_and_sums_benchmarks(tmp_path):
     header = "s\th:m:s\tmax_rss\tmax_vms\tmax_uss\tmax_pss\tio_in\tio_out\tmean_load\tcpu_time\n"
     for k, seconds in enumerate((1.5, 2.5)):
         (bench / f"case_{k}.tsv").write_text(header + f"{seconds}\t0:00:01\t100.0\t1\t1\t1\t0\t0\t0\t1\n")
-    text = assemble_report([("Stage", fragment)], tmp_path / "results/benchmarks", tmp_path / "results/report.md",
-                           "T", tmp_path / "results/report/time.png")
+    text = assemble_report(
+        [("Stage", fragment)],
+        tmp_path / "results/benchmarks",
+        tmp_path / "results/report.md",
+        "T",
+        tmp_path / "results/report/time.png",
+    )
     assert "![fig](stage/fig.png)" in text and "(https://example.org/x.png)" in text and "(#time-per-stage)" in text
     assert "| stage | rule_a | 2 | 4.0 | 2.00 | 2.50 | 100 |" in text
     (bench / "broken.tsv").write_text("not a benchmark\n")
     with pytest.raises(ValueError, match=r"broken\.tsv: not a Snakemake benchmark file"):
-        assemble_report([("Stage", fragment)], tmp_path / "results/benchmarks", tmp_path / "results/report.md",
-                        "T", tmp_path / "results/report/time.png")
+        assemble_report(
+            [("Stage", fragment)],
+            tmp_path / "results/benchmarks",
+            tmp_path / "results/report.md",
+            "T",
+            tmp_path / "results/report/time.png",
+        )

@@ -11,6 +11,7 @@ DEM run of the pipeline goes through here or through the DEM stage's own rules.
 a solver not configured is looked up on PATH. `auto` picks MFIX where its solver is found, else
 LIGGGHTS, else the builtin engine, and logs which and why.
 """
+
 from __future__ import annotations
 
 import logging
@@ -25,9 +26,18 @@ log = logging.getLogger(__name__)
 
 ENGINES = {"builtin": BuiltinEngine, "liggghts": LiggghtsEngine, "mfix": MfixEngine}
 AUTO_ORDER = ("mfix", "liggghts", "builtin")
-BUILTIN = {"engine": "builtin"}   # simulate_case's config for runs that need the builtin engine's features
+BUILTIN = {"engine": "builtin"}  # simulate_case's config for runs that need the builtin engine's features
 
-__all__ = ["BUILTIN", "ENGINES", "Engine", "EngineError", "EngineNotInstalled", "get_engine", "simulate_case", "solver_paths"]
+__all__ = [
+    "BUILTIN",
+    "ENGINES",
+    "Engine",
+    "EngineError",
+    "EngineNotInstalled",
+    "get_engine",
+    "simulate_case",
+    "solver_paths",
+]
 
 
 def solver_paths(config) -> dict:

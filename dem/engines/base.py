@@ -12,6 +12,7 @@ from the solvers, not from the packings. An engine works in its own folder `work
 running a subprocess with its log kept, and binning polydisperse grains into size classes so that
 per-class damping keeps the restitution coefficient within a tolerance.
 """
+
 from __future__ import annotations
 
 import math
@@ -41,7 +42,7 @@ class Engine:
     """One DEM engine. Subclasses set `name`, `install_hint` and implement render/run/read."""
 
     name = "engine"
-    executable = None        # default solver command (looked up on PATH) or None for in-process
+    executable = None  # default solver command (looked up on PATH) or None for in-process
     install_hint = ""
 
     def __init__(self, solver_path: str | None = None):
@@ -61,15 +62,20 @@ class Engine:
         path = self.find_solver()
         where = self.solver_path or self.executable
         if path is None:
-            return False, f"{self.name}: solver {where!r} not found ({'configured path' if self.solver_path else 'not on PATH'})"
+            return (
+                False,
+                f"{self.name}: solver {where!r} not found ({'configured path' if self.solver_path else 'not on PATH'})",
+            )
         return True, f"{self.name}: solver found at {path}"
 
     def require_solver(self) -> str:
         path = self.find_solver()
         if path is None:
             where = self.solver_path or self.executable
-            raise EngineNotInstalled(f"engine {self.name!r} was asked for but its solver {where!r} is not "
-                                     f"installed or not executable. {self.install_hint}")
+            raise EngineNotInstalled(
+                f"engine {self.name!r} was asked for but its solver {where!r} is not "
+                f"installed or not executable. {self.install_hint}"
+            )
         return path
 
     def version(self) -> str:
@@ -88,14 +94,16 @@ class Engine:
         """The solver's output in work_dir as a Trajectory (case.n_frames frames)."""
         raise NotImplementedError
 
-    def simulate(self, case: CollapseCase, packing: Trajectory | None, work_dir, progress=None,
-                 output=None) -> Trajectory:
+    def simulate(
+        self, case: CollapseCase, packing: Trajectory | None, work_dir, progress=None, output=None
+    ) -> Trajectory:
         """Render, run and read; write the trajectory HDF5 to `output` when given.
 
         packing None: settle the column with the builtin settling step first.
         """
         if packing is None:
             from dem.packing import settle_column
+
             packing = settle_column(case)
         check_packing(case, packing)
         deck = self.render(case, packing, work_dir)
@@ -113,12 +121,15 @@ class Engine:
 def check_packing(case: CollapseCase, packing: Trajectory) -> None:
     """The packing must hold the case's grains inside its box."""
     if packing.n_particles != case.n_particles:
-        raise TrajectoryError(f"packing has {packing.n_particles} grains, case {case.name or '?'} needs "
-                              f"{case.n_particles}: it was settled for another case")
+        raise TrajectoryError(
+            f"packing has {packing.n_particles} grains, case {case.name or '?'} needs "
+            f"{case.n_particles}: it was settled for another case"
+        )
     x = packing.positions[-1]
     if x[:, 0].min() < 0 or x[:, 0].max() > case.box_width or x[:, 1].min() < 0:
-        raise TrajectoryError(f"packing for case {case.name or '?'}: grains outside the box "
-                              f"[0, {case.box_width}] x [0, ...]")
+        raise TrajectoryError(
+            f"packing for case {case.name or '?'}: grains outside the box [0, {case.box_width}] x [0, ...]"
+        )
 
 
 # -- running a solver ----------------------------------------------------------------------------
@@ -131,8 +142,9 @@ def tail(path, n: int = LOG_TAIL_LINES) -> str:
     return "\n".join(lines[-n:])
 
 
-def run_solver(command: list[str], deck: Path, log: Path, name: str, progress=None,
-               progress_of=None, poll_s: float = 0.5) -> None:
+def run_solver(
+    command: list[str], deck: Path, log: Path, name: str, progress=None, progress_of=None, poll_s: float = 0.5
+) -> None:
     """Run `command` in the deck's folder, stdout and stderr to `log`.
 
     progress_of: callable() -> fraction done (e.g. from output files counted), polled every
@@ -146,8 +158,9 @@ def run_solver(command: list[str], deck: Path, log: Path, name: str, progress=No
         command = ["stdbuf", "-oL", "-eL", *command]
     with open(log, "w") as log_file:
         try:
-            process = subprocess.Popen(command, cwd=deck.parent, stdout=log_file,
-                                       stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+            process = subprocess.Popen(
+                command, cwd=deck.parent, stdout=log_file, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL
+            )
         except OSError as exc:
             raise EngineError(f"{name}: could not start {command[0]!r} for deck {deck}: {exc}") from exc
         while process.poll() is None:
@@ -155,28 +168,30 @@ def run_solver(command: list[str], deck: Path, log: Path, name: str, progress=No
             if progress is not None and progress_of is not None:
                 progress(min(1.0, progress_of()))
     if process.returncode != 0:
-        raise EngineError(f"{name} failed (exit status {process.returncode}) on deck {deck}; "
-                          f"log {log}, last lines:\n{tail(log)}")
+        raise EngineError(
+            f"{name} failed (exit status {process.returncode}) on deck {deck}; log {log}, last lines:\n{tail(log)}"
+        )
 
 
 def check_frames_written(name: str, deck: Path, log: Path, written: int, expected: int) -> None:
     """A solver that exited cleanly but wrote too few frames fails like a crash: deck, log tail."""
     if written != expected:
-        raise EngineError(f"{name} wrote {written} of {expected} output frames for deck {deck}; "
-                          f"log {log}, last lines:\n{tail(log)}")
+        raise EngineError(
+            f"{name} wrote {written} of {expected} output frames for deck {deck}; log {log}, last lines:\n{tail(log)}"
+        )
 
 
 # -- polydisperse grains: size classes for per-pair damping -------------------------------------
 def restitution_from_damping_ratio(ratio):
     """e of a linear spring-dashpot with damping ratio zeta = eta / (2 sqrt(m_eff kn))."""
     ratio = np.asarray(ratio, float)
-    return np.exp(-math.pi * ratio / np.sqrt(1.0 - ratio ** 2))
+    return np.exp(-math.pi * ratio / np.sqrt(1.0 - ratio**2))
 
 
 def damping_ratio(restitution: float) -> float:
     """zeta = |ln e| / sqrt(pi^2 + ln^2 e) (the builtin's `restitution_factor`)."""
     log_e = abs(math.log(restitution))
-    return log_e / math.sqrt(math.pi ** 2 + log_e ** 2)
+    return log_e / math.sqrt(math.pi**2 + log_e**2)
 
 
 def worst_restitution_error(restitution: float, mass_factor: float) -> float:
@@ -232,13 +247,16 @@ def runout_agreement(runout, runout_reference) -> dict:
     """
     runout, runout_reference = np.asarray(runout, float), np.asarray(runout_reference, float)
     if runout.shape != runout_reference.shape:
-        raise ValueError(f"runout_agreement: curves of {runout.shape} and {runout_reference.shape} frames: "
-                         "not the same case")
+        raise ValueError(
+            f"runout_agreement: curves of {runout.shape} and {runout_reference.shape} frames: not the same case"
+        )
     final, final_ref = float(runout[-1]), float(runout_reference[-1])
-    return {"final_runout": final, "final_runout_reference": final_ref,
-            "final_relative_difference": (final - final_ref) / final_ref,
-            "rms_curve_difference_over_final": float(np.sqrt(np.mean((runout - runout_reference) ** 2))
-                                                     / abs(final_ref))}
+    return {
+        "final_runout": final,
+        "final_runout_reference": final_ref,
+        "final_relative_difference": (final - final_ref) / final_ref,
+        "rms_curve_difference_over_final": float(np.sqrt(np.mean((runout - runout_reference) ** 2)) / abs(final_ref)),
+    }
 
 
 # Case fields beyond the paper's contact model (candidate mechanisms), with their "off" values.
@@ -250,11 +268,17 @@ def refuse_unsupported(case: CollapseCase, engine: str, supported=()) -> None:
 
     friction_base counts as on only when it differs from the side walls' friction.
     """
-    on = {"rolling_friction": case.rolling_friction > 0, "cohesion_energy": case.cohesion_energy > 0,
-          "friction_base": case.base_friction != case.wall_friction,
-          "sidewall_friction": case.sidewall_friction > 0, "gate_lift_speed": case.gate_lift_speed > 0}
+    on = {
+        "rolling_friction": case.rolling_friction > 0,
+        "cohesion_energy": case.cohesion_energy > 0,
+        "friction_base": case.base_friction != case.wall_friction,
+        "sidewall_friction": case.sidewall_friction > 0,
+        "gate_lift_speed": case.gate_lift_speed > 0,
+    }
     missing = [name for name in MECHANISMS if on[name] and name not in supported]
     if missing:
-        raise EngineError(f"case {case.name or '?'}: engine {engine!r} does not model {', '.join(missing)} "
-                          f"(it models {', '.join(supported) or 'none of the candidate mechanisms'}); "
-                          "run such cases with dem.engine: builtin")
+        raise EngineError(
+            f"case {case.name or '?'}: engine {engine!r} does not model {', '.join(missing)} "
+            f"(it models {', '.join(supported) or 'none of the candidate mechanisms'}); "
+            "run such cases with dem.engine: builtin"
+        )

@@ -3,6 +3,7 @@
 Its "deck" is case.json (the case) beside packing.h5 (the settled packing); running it integrates
 in this process and writes trajectory.h5 and a log (builtin.log) into the same folder.
 """
+
 from __future__ import annotations
 
 import json
@@ -33,6 +34,7 @@ class BuiltinEngine(Engine):
 
     def version(self) -> str:
         from dem.integrate import ENGINE_VERSION
+
         return ENGINE_VERSION
 
     def render(self, case: CollapseCase, packing: Trajectory, work_dir) -> Path:
@@ -55,8 +57,13 @@ class BuiltinEngine(Engine):
             spec = json.loads(deck.read_text())
             case = CollapseCase.from_dict(spec["case"])
             packing = read_trajectory(deck.parent / spec["packing"])
-            logger.info("builtin engine %s: case %s, %d grains, %d frames", self.version(), case.name,
-                        case.n_particles, case.n_frames)
+            logger.info(
+                "builtin engine %s: case %s, %d grains, %d frames",
+                self.version(),
+                case.name,
+                case.n_particles,
+                case.n_frames,
+            )
             last = [0.0]
 
             def report(fraction):
@@ -68,8 +75,11 @@ class BuiltinEngine(Engine):
 
             t0 = time.perf_counter()
             trajectory = simulate_collapse(case, packing, progress=report)
-            logger.info("done in %.1f s (%.3g particle-steps/s)", time.perf_counter() - t0,
-                        trajectory.attrs.get("particle_steps_per_second", float("nan")))
+            logger.info(
+                "done in %.1f s (%.3g particle-steps/s)",
+                time.perf_counter() - t0,
+                trajectory.attrs.get("particle_steps_per_second", float("nan")),
+            )
             write_trajectory(deck.parent / OUTPUT, trajectory)
         except Exception as exc:
             logger.error("%s: %s", type(exc).__name__, exc)
@@ -85,6 +95,9 @@ class BuiltinEngine(Engine):
         except TrajectoryError as exc:
             raise read_error(path, str(exc)) from exc
         if trajectory.n_frames != case.n_frames or trajectory.n_particles != case.n_particles:
-            raise read_error(path, f"{trajectory.n_frames} frames of {trajectory.n_particles} grains, the case "
-                                   f"needs {case.n_frames} of {case.n_particles}")
+            raise read_error(
+                path,
+                f"{trajectory.n_frames} frames of {trajectory.n_particles} grains, the case "
+                f"needs {case.n_frames} of {case.n_particles}",
+            )
         return trajectory

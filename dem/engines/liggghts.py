@@ -22,6 +22,7 @@ The deck reproduces the builtin physics (ARCHITECTURE.md, "Engines"):
   gate: the collapse starts from the settled packing with the gate removed at t = 0.
 - The time step divides the frame interval exactly, never above case.time_step (as the builtin).
 """
+
 from __future__ import annotations
 
 import math
@@ -32,18 +33,24 @@ from pathlib import Path
 import numpy as np
 
 from dem.case import GRAVITY, CollapseCase
-from dem.engines.base import (Engine, check_frames_written, damping_ratio, read_error, refuse_unsupported,
-                              run_solver, size_classes)
+from dem.engines.base import (
+    Engine,
+    check_frames_written,
+    damping_ratio,
+    read_error,
+    refuse_unsupported,
+    run_solver,
+    size_classes,
+)
 from dem.integrate import frame_steps
-from dem.trajectory import engine_attrs
-from dem.trajectory import GRAIN, Trajectory
+from dem.trajectory import GRAIN, Trajectory, engine_attrs
 
-RESTITUTION_TOLERANCE = 0.005   # worst relative error of e from size-class damping
-SUPPORTED = ("rolling_friction", "friction_base")   # candidate mechanisms this deck reproduces
+RESTITUTION_TOLERANCE = 0.005  # worst relative error of e from size-class damping
+SUPPORTED = ("rolling_friction", "friction_base")  # candidate mechanisms this deck reproduces
 MAX_SIZE_CLASSES = 60
 DECK = "in.collapse"
 DATA = "packing.data"
-FRAMES = "frames"               # one dump file per frame: frames/frame.<step>.txt
+FRAMES = "frames"  # one dump file per frame: frames/frame.<step>.txt
 LOG = "log.liggghts"
 DUMP_COLUMNS = ("id", "type", "x", "y", "radius", "mass")
 
@@ -51,8 +58,10 @@ DUMP_COLUMNS = ("id", "type", "x", "y", "radius", "mass")
 class LiggghtsEngine(Engine):
     name = "liggghts"
     executable = "liggghts"
-    install_hint = ("Install LIGGGHTS 3.8 (Debian/Ubuntu: `apt-get install liggghts`), or set the solver "
-                    "path in the config (dem.solvers.liggghts).")
+    install_hint = (
+        "Install LIGGGHTS 3.8 (Debian/Ubuntu: `apt-get install liggghts`), or set the solver "
+        "path in the config (dem.solvers.liggghts)."
+    )
 
     def version(self) -> str:
         """'LIGGGHTS-PUBLIC 3.8.0' from the solver's help banner."""
@@ -78,30 +87,43 @@ class LiggghtsEngine(Engine):
         deck = Path(deck)
         n_frames = int(re.search(r"^# frames: (\d+)", deck.read_text(), re.M).group(1))
         frames = deck.parent / FRAMES
-        run_solver([solver, "-in", deck.name, "-log", "none", "-nocite"], deck, deck.parent / LOG,
-                   self.name, progress, lambda: len(list(frames.glob("frame.*.txt"))) / n_frames)
+        run_solver(
+            [solver, "-in", deck.name, "-log", "none", "-nocite"],
+            deck,
+            deck.parent / LOG,
+            self.name,
+            progress,
+            lambda: len(list(frames.glob("frame.*.txt"))) / n_frames,
+        )
         check_frames_written(self.name, deck, deck.parent / LOG, len(list(frames.glob("frame.*.txt"))), n_frames)
 
     def read(self, case: CollapseCase, packing: Trajectory, work_dir) -> Trajectory:
         work_dir = Path(work_dir)
         positions, radius = read_dump_frames(work_dir / FRAMES, case.n_frames, case.n_particles)
         if not np.allclose(radius, packing.radius, rtol=1e-6):
-            raise read_error(work_dir / FRAMES, "grain radii differ from the packing's: these frames "
-                                                "belong to another case")
+            raise read_error(
+                work_dir / FRAMES, "grain radii differ from the packing's: these frames belong to another case"
+            )
         attrs = engine_attrs(case, self.name, self.version())
         steps, dt = frame_steps(case.frame_interval, case.time_step)
-        attrs.update(dt=dt, steps=steps * (case.n_frames - 1),
-                     settled_height=packing.attrs.get("settled_height", np.nan), **loop_time(work_dir / LOG))
-        return Trajectory(positions=positions, radius=radius,
-                          particle_type=np.full(len(radius), GRAIN, np.int32), attrs=attrs)
+        attrs.update(
+            dt=dt,
+            steps=steps * (case.n_frames - 1),
+            settled_height=packing.attrs.get("settled_height", np.nan),
+            **loop_time(work_dir / LOG),
+        )
+        return Trajectory(
+            positions=positions, radius=radius, particle_type=np.full(len(radius), GRAIN, np.int32), attrs=attrs
+        )
 
 
 # -- deck -----------------------------------------------------------------------------------------
 def grain_types(case: CollapseCase, radius):
     """Atom type per grain (1..K, size classes), class masses [K] (kg), worst error of e."""
     mass = case.density * math.pi * (2 * np.asarray(radius, float)) ** 3 / 6.0
-    index, class_mass, worst = size_classes(mass, (case.restitution, case.wall_restitution),
-                                            RESTITUTION_TOLERANCE, MAX_SIZE_CLASSES)
+    index, class_mass, worst = size_classes(
+        mass, (case.restitution, case.wall_restitution), RESTITUTION_TOLERANCE, MAX_SIZE_CLASSES
+    )
     return index + 1, class_mass, worst
 
 
@@ -113,18 +135,20 @@ def pair_tables(case: CollapseCase, class_mass) -> dict:
     m_eff = np.full((k + 2, k + 2), class_mass.mean())  # wall-wall entries are never used
     m_eff[:k, :k] = np.outer(class_mass, class_mass) / np.add.outer(class_mass, class_mass)
     for wall in (k, k + 1):
-        m_eff[:k, wall] = m_eff[wall, :k] = class_mass     # a wall contact: m_eff = m
+        m_eff[:k, wall] = m_eff[wall, :k] = class_mass  # a wall contact: m_eff = m
     zeta = np.full((k + 2, k + 2), damping_ratio(case.wall_restitution))
     zeta[:k, :k] = damping_ratio(case.restitution)
     mu = np.full((k + 2, k + 2), case.wall_friction)
     mu[:k, :k] = case.friction
     mu[:, k + 1] = mu[k + 1, :] = case.base_friction
-    gamman = 2.0 * np.sqrt(kn / m_eff) * zeta       # LIGGGHTS multiplies it by m_eff again
-    tables = {"kn": np.full((k + 2, k + 2), kn),
-              "kt": np.full((k + 2, k + 2), case.tangential_stiffness_ratio * kn),
-              "gamman": gamman,
-              "gammat": case.tangential_damping_ratio * gamman,
-              "coefficientFriction": mu}
+    gamman = 2.0 * np.sqrt(kn / m_eff) * zeta  # LIGGGHTS multiplies it by m_eff again
+    tables = {
+        "kn": np.full((k + 2, k + 2), kn),
+        "kt": np.full((k + 2, k + 2), case.tangential_stiffness_ratio * kn),
+        "gamman": gamman,
+        "gammat": case.tangential_damping_ratio * gamman,
+        "coefficientFriction": mu,
+    }
     if case.rolling_friction > 0:
         tables["coefficientRollingFriction"] = np.full((k + 2, k + 2), case.rolling_friction)
     return tables
@@ -155,24 +179,41 @@ def render_deck(case: CollapseCase, packing: Trajectory, vtk: bool = False) -> t
     side_wall_type, floor_type = n_types - 1, n_types
     steps_per_frame, dt = frame_steps(case.frame_interval, case.time_step)
     n_steps = steps_per_frame * (case.n_frames - 1)
-    skin = 0.4 * float(radius.mean())     # as the builtin's pair-list skin
+    skin = 0.4 * float(radius.mean())  # as the builtin's pair-list skin
     depth = 2 * float(radius.max())
-    data = [f"LIGGGHTS data: settled packing of case {case.name or '?'} ({len(radius)} grains)", "",
-            f"{len(radius)} atoms", f"{n_types} atom types", "",
-            f"0 {_num(case.box_width)} xlo xhi", f"0 {_num(case.box_height)} ylo yhi",
-            f"{_num(-depth / 2)} {_num(depth / 2)} zlo zhi", "", "Atoms", ""]
+    data = [
+        f"LIGGGHTS data: settled packing of case {case.name or '?'} ({len(radius)} grains)",
+        "",
+        f"{len(radius)} atoms",
+        f"{n_types} atom types",
+        "",
+        f"0 {_num(case.box_width)} xlo xhi",
+        f"0 {_num(case.box_height)} ylo yhi",
+        f"{_num(-depth / 2)} {_num(depth / 2)} zlo zhi",
+        "",
+        "Atoms",
+        "",
+    ]
     # columns: id type diameter density x y z; in 3D the mass is the sphere's, rho pi d^3 / 6
     for i, ((x, y), r, t) in enumerate(zip(positions, radius, types), start=1):
         data.append(f"{i} {t} {_num(2 * r)} {_num(case.density)} {_num(x)} {_num(y)} 0")
     tables = pair_tables(case, class_mass)
     # keyword order: tangential, cohesion, rolling_friction
-    model = "model hooke/stiffness tangential history" + (" rolling_friction epsd2" if case.rolling_friction > 0 else "")
+    model = "model hooke/stiffness tangential history" + (
+        " rolling_friction epsd2" if case.rolling_friction > 0 else ""
+    )
     wall = f"all wall/gran {model} primitive type"
-    vtk_dump = (f"dump            particles all custom/vtk {steps_per_frame} {FRAMES}/particles_*.vtp "
-                "id type x y z radius mass vx vy\n") if vtk else ""
+    vtk_dump = (
+        (
+            f"dump            particles all custom/vtk {steps_per_frame} {FRAMES}/particles_*.vtp "
+            "id type x y z radius mass vx vy\n"
+        )
+        if vtk
+        else ""
+    )
     properties = "\n".join(_matrix_lines(name, table) for name, table in tables.items())
     deck = f"""# LIGGGHTS 3.8 input: 2D granular column collapse, rendered by dem/engines/liggghts.py
-# case: {case.name or '?'}; {len(radius)} grains from the settled packing ({DATA}); gate removed at t = 0
+# case: {case.name or "?"}; {len(radius)} grains from the settled packing ({DATA}); gate removed at t = 0
 # frames: {case.n_frames}
 # grain types 1..{n_types - 2}: size classes (damping per class pair keeps e within {worst:.2%});
 # type {side_wall_type}: left and right walls; type {floor_type}: floor
@@ -219,8 +260,10 @@ dump_modify     frames sort id format "%d %d %.9g %.9g %.9g %.9g"
 def loop_time(log) -> dict:
     """{wall_time_s, particle_steps_per_second} of the run from the log's 'Loop time' line ({} if none)."""
     log = Path(log)
-    match = re.search(r"Loop time of ([\d.eE+-]+) on \d+ procs for (\d+) steps with (\d+) atoms",
-                      log.read_text(errors="replace") if log.exists() else "")
+    match = re.search(
+        r"Loop time of ([\d.eE+-]+) on \d+ procs for (\d+) steps with (\d+) atoms",
+        log.read_text(errors="replace") if log.exists() else "",
+    )
     if match is None:
         return {}
     seconds, steps, atoms = float(match.group(1)), int(match.group(2)), int(match.group(3))
@@ -234,8 +277,10 @@ def read_dump_frames(folder, n_frames: int, n_particles: int):
     folder = Path(folder)
     files = sorted(folder.glob("frame.*.txt"), key=_step_of)
     if len(files) != n_frames:
-        raise read_error(folder, f"expected {n_frames} dump frames, found {len(files)} "
-                                 "(the run stopped early or belongs to another case)")
+        raise read_error(
+            folder,
+            f"expected {n_frames} dump frames, found {len(files)} (the run stopped early or belongs to another case)",
+        )
     positions = np.empty((n_frames, n_particles, 2), np.float32)
     radius = None
     for k, path in enumerate(files):
@@ -269,8 +314,11 @@ def read_dump_file(path, n_particles: int) -> np.ndarray:
         raise read_error(path, f"line 4: {count} atoms, the case has {n_particles}")
     columns = lines[8].split()[2:] if len(lines) > 8 and lines[8].startswith("ITEM: ATOMS") else None
     if columns != list(DUMP_COLUMNS):
-        raise read_error(path, f"line 9: expected 'ITEM: ATOMS {' '.join(DUMP_COLUMNS)}', got "
-                               f"{lines[8] if len(lines) > 8 else 'end of file'!r}")
+        raise read_error(
+            path,
+            f"line 9: expected 'ITEM: ATOMS {' '.join(DUMP_COLUMNS)}', got "
+            f"{lines[8] if len(lines) > 8 else 'end of file'!r}",
+        )
     rows = lines[9:]
     if len(rows) != count:
         raise read_error(path, f"truncated: {len(rows)} atom lines after line 9, header says {count}")

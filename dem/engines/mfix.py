@@ -10,6 +10,7 @@ Coulomb friction MEW; MFIX computes the damping per solids-phase pair from the p
 RO_S0, so polydisperse grains are split into size-class phases (at most MAX_PHASES, MFIX's default
 DIM_M) as in the LIGGGHTS deck; the worst error in e that leaves is written in the deck header.
 """
+
 from __future__ import annotations
 
 import math
@@ -22,27 +23,35 @@ from string import Template
 import numpy as np
 
 from dem.case import GRAVITY, CollapseCase
-from dem.engines.base import (Engine, EngineError, check_frames_written, read_error, refuse_unsupported,
-                              run_solver, size_classes)
-from dem.trajectory import engine_attrs
-from dem.trajectory import GRAIN, Trajectory
+from dem.engines.base import (
+    Engine,
+    EngineError,
+    check_frames_written,
+    read_error,
+    refuse_unsupported,
+    run_solver,
+    size_classes,
+)
+from dem.trajectory import GRAIN, Trajectory, engine_attrs
 
 TEMPLATE = Path(__file__).resolve().parents[2] / "mfix_templates" / "collapse_2d.mfx"
 DECK = "collapse.mfx"
 PARTICLES = "particle_input.dat"
 VTK_FILEBASE = "PARTICLES"
 LOG = "mfix.log"
-MAX_PHASES = 10                  # MFIX's default DIM_M
+MAX_PHASES = 10  # MFIX's default DIM_M
 RESTITUTION_TOLERANCE = 0.005
-GRID_CELL_DIAMETERS = 4.0        # fluid-grid cell size in largest grain diameters (no gas is solved)
+GRID_CELL_DIAMETERS = 4.0  # fluid-grid cell size in largest grain diameters (no gas is solved)
 
 
 class MfixEngine(Engine):
     name = "mfix"
     executable = "mfixsolver"
-    install_hint = ("MFIX 23.x is distributed as a conda package after registration on NETL's MFIX site: "
-                    "create its conda environment (e.g. `conda create -n mfix-23.4 mfix=23.4`), and either put "
-                    "`mfixsolver` on PATH or set the solver path in the config (dem.solvers.mfix).")
+    install_hint = (
+        "MFIX 23.x is distributed as a conda package after registration on NETL's MFIX site: "
+        "create its conda environment (e.g. `conda create -n mfix-23.4 mfix=23.4`), and either put "
+        "`mfixsolver` on PATH or set the solver path in the config (dem.solvers.mfix)."
+    )
 
     def version(self) -> str:
         """The solver's own version line; output read where no solver is installed says so."""
@@ -71,20 +80,29 @@ class MfixEngine(Engine):
         solver = self.require_solver()
         deck = Path(deck)
         n_frames = int(re.search(r"^# frames: (\d+)", deck.read_text(), re.M).group(1))
-        run_solver([solver, "-f", deck.name], deck, deck.parent / LOG, self.name, progress,
-                   lambda: len(list(deck.parent.glob(f"{VTK_FILEBASE}_*.vtp"))) / n_frames)
-        check_frames_written(self.name, deck, deck.parent / LOG,
-                             len(list(deck.parent.glob(f"{VTK_FILEBASE}_*.vtp"))), n_frames)
+        run_solver(
+            [solver, "-f", deck.name],
+            deck,
+            deck.parent / LOG,
+            self.name,
+            progress,
+            lambda: len(list(deck.parent.glob(f"{VTK_FILEBASE}_*.vtp"))) / n_frames,
+        )
+        check_frames_written(
+            self.name, deck, deck.parent / LOG, len(list(deck.parent.glob(f"{VTK_FILEBASE}_*.vtp"))), n_frames
+        )
 
     def read(self, case: CollapseCase, packing: Trajectory, work_dir) -> Trajectory:
-        positions, radius = read_vtp_frames(sorted(Path(work_dir).glob(f"{VTK_FILEBASE}_*.vtp")),
-                                            case.n_frames, case.n_particles)
+        positions, radius = read_vtp_frames(
+            sorted(Path(work_dir).glob(f"{VTK_FILEBASE}_*.vtp")), case.n_frames, case.n_particles
+        )
         if not np.allclose(radius, packing.radius, rtol=1e-5):
             raise read_error(work_dir, "grain diameters in the .vtp files differ from the packing's")
         attrs = engine_attrs(case, self.name, self.version())
         attrs.update(settled_height=packing.attrs.get("settled_height", np.nan))
-        return Trajectory(positions=positions, radius=radius,
-                          particle_type=np.full(len(radius), GRAIN, np.int32), attrs=attrs)
+        return Trajectory(
+            positions=positions, radius=radius, particle_type=np.full(len(radius), GRAIN, np.int32), attrs=attrs
+        )
 
 
 # -- deck -----------------------------------------------------------------------------------------
@@ -96,8 +114,9 @@ def _real(value) -> str:
 def phases(case: CollapseCase, radius):
     """Phase (1..M) per grain, phase diameters [M] (m) and worst relative error of e."""
     mass = case.density * math.pi * (2 * np.asarray(radius, float)) ** 3 / 6.0
-    index, class_mass, worst = size_classes(mass, (case.restitution, case.wall_restitution),
-                                            RESTITUTION_TOLERANCE, MAX_PHASES)
+    index, class_mass, worst = size_classes(
+        mass, (case.restitution, case.wall_restitution), RESTITUTION_TOLERANCE, MAX_PHASES
+    )
     diameter = (6 * class_mass / (math.pi * case.density)) ** (1 / 3)
     return index + 1, diameter, worst
 
@@ -109,40 +128,65 @@ def render_deck(case: CollapseCase, packing: Trajectory) -> tuple[str, str]:
     radius = np.asarray(packing.radius, float)
     phase, phase_diameter, worst = phases(case, radius)
     n_phases = len(phase_diameter)
-    solids = "".join(f"  {f'SOLIDS_MODEL({m})':<19}= 'DEM'\n  {f'D_P0({m})':<19}= {_real(d)}\n"
-                     f"  {f'RO_S0({m})':<19}= {_real(case.density)}\n"
-                     for m, d in enumerate(phase_diameter, start=1))
-    n_pairs = n_phases * (n_phases + 1) // 2   # upper triangle 11 12 .. 1M 22 .. MM
+    solids = "".join(
+        f"  {f'SOLIDS_MODEL({m})':<19}= 'DEM'\n  {f'D_P0({m})':<19}= {_real(d)}\n"
+        f"  {f'RO_S0({m})':<19}= {_real(case.density)}\n"
+        for m, d in enumerate(phase_diameter, start=1)
+    )
+    n_pairs = n_phases * (n_phases + 1) // 2  # upper triangle 11 12 .. 1M 22 .. MM
     cell = GRID_CELL_DIAMETERS * 2 * float(radius.max())
     values = dict(
-        case_name=case.name or "?", run_name=re.sub(r"[^A-Za-z0-9_]", "_", case.name or "COLLAPSE")[:60],
-        n_particles=len(radius), n_phases=n_phases, restitution_error=f"{worst:.2%}", n_frames=case.n_frames,
-        column_length=_real(case.column_length), aspect_ratio=_real(case.aspect_ratio),
-        duration=_real((case.n_frames - 1) * case.frame_interval), frame_interval=_real(case.frame_interval),
-        gravity=_real(GRAVITY), box_width=_real(case.box_width), box_height=_real(case.box_height),
-        depth=_real(case.diameter), imax=max(1, int(case.box_width / cell)),
-        jmax=max(1, int(case.box_height / cell)), solids_phases=solids,
-        kn=_real(case.normal_stiffness), kt_fac=_real(case.tangential_stiffness_ratio),
+        case_name=case.name or "?",
+        run_name=re.sub(r"[^A-Za-z0-9_]", "_", case.name or "COLLAPSE")[:60],
+        n_particles=len(radius),
+        n_phases=n_phases,
+        restitution_error=f"{worst:.2%}",
+        n_frames=case.n_frames,
+        column_length=_real(case.column_length),
+        aspect_ratio=_real(case.aspect_ratio),
+        duration=_real((case.n_frames - 1) * case.frame_interval),
+        frame_interval=_real(case.frame_interval),
+        gravity=_real(GRAVITY),
+        box_width=_real(case.box_width),
+        box_height=_real(case.box_height),
+        depth=_real(case.diameter),
+        imax=max(1, int(case.box_width / cell)),
+        jmax=max(1, int(case.box_height / cell)),
+        solids_phases=solids,
+        kn=_real(case.normal_stiffness),
+        kt_fac=_real(case.tangential_stiffness_ratio),
         etat_fac=_real(case.tangential_damping_ratio),
         en_input=" ".join([_real(case.restitution)] * n_pairs),
         en_wall_input=" ".join([_real(case.wall_restitution)] * n_phases),
-        mew=_real(case.friction), mew_w=_real(case.wall_friction),
-        dtsolid_factor=_real(1.0 / case.dt_over_contact_time), vtk_filebase=VTK_FILEBASE)
+        mew=_real(case.friction),
+        mew_w=_real(case.wall_friction),
+        dtsolid_factor=_real(1.0 / case.dt_over_contact_time),
+        vtk_filebase=VTK_FILEBASE,
+    )
     deck = Template(TEMPLATE.read_text()).substitute(values)
-    lines = ["! MFiX particle input file, version 2.0, written by dem/engines/mfix.py",
-             f"! settled packing of case {case.name or '?'}: {len(radius)} grains in 2D",
-             "!", "Version = 2.0", "Dimension = 2", f"Particles = {len(radius)}", "!",
-             "! Variable     Read  Default",
-             "Phase_ID       T     1",
-             "Diameter       T     0.0",
-             "Density        T     0.0",
-             "Velocity       T     0.0 0.0",
-             "Temperature    F     293.15",
-             "Species        F     1.0",
-             "User_scalar    F     0.0",
-             "!", "! x y phase_id diameter density u v"]
-    lines += [f"{_real(x)} {_real(y)} {m} {_real(2 * r)} {_real(case.density)} 0.0 0.0"
-              for (x, y), r, m in zip(positions, radius, phase)]
+    lines = [
+        "! MFiX particle input file, version 2.0, written by dem/engines/mfix.py",
+        f"! settled packing of case {case.name or '?'}: {len(radius)} grains in 2D",
+        "!",
+        "Version = 2.0",
+        "Dimension = 2",
+        f"Particles = {len(radius)}",
+        "!",
+        "! Variable     Read  Default",
+        "Phase_ID       T     1",
+        "Diameter       T     0.0",
+        "Density        T     0.0",
+        "Velocity       T     0.0 0.0",
+        "Temperature    F     293.15",
+        "Species        F     1.0",
+        "User_scalar    F     0.0",
+        "!",
+        "! x y phase_id diameter density u v",
+    ]
+    lines += [
+        f"{_real(x)} {_real(y)} {m} {_real(2 * r)} {_real(case.density)} 0.0 0.0"
+        for (x, y), r, m in zip(positions, radius, phase)
+    ]
     return deck, "\n".join(lines) + "\n"
 
 
@@ -163,7 +207,7 @@ def read_vtp(path) -> tuple[np.ndarray, dict]:
         except ET.ParseError as exc:
             if b"<AppendedData" not in path.read_bytes():
                 raise read_error(path, f"not a complete XML file ({exc}); truncated or not VTK") from None
-            root = _parse_raw_binary(str(path))   # raw appended binary, as MFIX writes
+            root = _parse_raw_binary(str(path))  # raw appended binary, as MFIX writes
         if root.tag != "VTKFile" or root.get("type") != "PolyData":
             raise read_error(path, f"not a VTK PolyData (.vtp) file (root <{root.tag} type={root.get('type')!r}>)")
         decoder = VtuReader.__new__(VtuReader)
@@ -193,8 +237,9 @@ def read_vtp(path) -> tuple[np.ndarray, dict]:
     except EngineError:
         raise
     except Exception as exc:  # meshio ReadError, base64/zlib errors, bad attributes: all mean a bad file
-        raise read_error(path, f"unreadable VTK data ({type(exc).__name__}: {exc}); truncated or not a .vtp "
-                               "particle file") from None
+        raise read_error(
+            path, f"unreadable VTK data ({type(exc).__name__}: {exc}); truncated or not a .vtp particle file"
+        ) from None
 
 
 def _frame_number(path: Path) -> int:

@@ -54,3 +54,59 @@ def case_row(wildcards):
 def dataset_cases(dataset):
     """Rows of one dataset, in case_id order."""
     return [row for key, row in CASES.items() if row["dataset"] == dataset]
+
+
+# Helpers of the stages, kept here so that no stage file mixes functions with rules (snakemake
+# --lint). They run after every .smk is parsed (input functions, params), or, for gns_test_cases,
+# at parse time of runout.smk; so they may read names the stage files define (GNS_SETTINGS,
+# DOE_NAMES, ...).
+
+
+def dataset_trajectories(dataset):
+    """{split: [trajectory paths]} of a dataset, from the case table (dataset.smk)."""
+    splits = {"train": [], "valid": [], "test": []}
+    for row in dataset_cases(dataset):
+        splits[row["split"]].append(f"results/dem/{dataset}/trajectories/{row['case_id']}.h5")
+    return splits
+
+
+def gns_settings(dataset):
+    """Training settings of one dataset: the gns section with gns.per_dataset[dataset] laid over it (gns.smk)."""
+    return {**GNS_SETTINGS, **GNS.get("per_dataset", {}).get(dataset, {})}
+
+
+def gns_test_cases(dataset):
+    """case_ids of a dataset's test split, in case_id order (gns.smk, runout.smk)."""
+    return [row["case_id"] for row in dataset_cases(dataset) if row["split"] == "test"]
+
+
+def inverse_gns(name, what):
+    """model / metadata / evaluation file of the GNS that calibrates measured column `name` (inverse.smk)."""
+    dataset = INVERSE_DATASET[name]
+    return {
+        "model": f"results/gns/{dataset}/train/model_best.pt",
+        "metadata": f"results/datasets/{dataset}/metadata.json",
+        "evaluation": f"results/gns/{dataset}/evaluation/summary.json",
+    }[what]
+
+
+def inverse_benchmarks(name):
+    """Benchmark files of every job each calibration route of `name` ran (the comparison's times; inverse.smk)."""
+    dataset = INVERSE_DATASET[name]
+    cases = [row["case_id"] for row in dataset_cases(dataset)]
+    dem_jobs = lambda ds, ids: [
+        f"results/benchmarks/dem/{rule}/{ds}/{c}.tsv" for rule in ("dem_packing", "dem_run") for c in ids
+    ]
+    files = {
+        "start": [f"results/benchmarks/inverse/inverse_start/{name}.tsv"],
+        "gns_dataset": dem_jobs(dataset, cases) + [f"results/benchmarks/dataset/dataset/{dataset}.tsv"],
+        "gns_training": [f"results/benchmarks/gns/gns_train/{dataset}.tsv"],
+        "gns_validation": [f"results/benchmarks/inverse/inverse_validate/{name}.tsv"],
+        "bayesopt": [f"results/benchmarks/inverse/inverse_bayesopt/{name}.tsv"],
+    }
+    if name in DOE_NAMES:
+        files["doe"] = dem_jobs(f"doe_{name}", DOE_RUNS) + [
+            f"results/benchmarks/doe/{rule}/{name}.tsv" for rule in ("doe_design", "doe_analyse")
+        ]
+        files["doe_validation"] = {m: [f"results/benchmarks/doe/doe_validate/{name}/{m}.tsv"] for m in DOE["validate"]}
+    return files

@@ -1,13 +1,5 @@
 # Dataset stage: the trajectories of each named dataset -> metadata JSON (splits, normalisation
-# statistics) -> summary figure + case table CSV -> report section.
-
-
-def dataset_trajectories(dataset):
-    """{split: [trajectory paths]} of a dataset, from the case table."""
-    splits = {"train": [], "valid": [], "test": []}
-    for row in dataset_cases(dataset):
-        splits[row["split"]].append(f"results/dem/{dataset}/trajectories/{row['case_id']}.h5")
-    return splits
+# statistics) -> summary figure + case table CSV -> report section. dataset_trajectories: common.smk.
 
 
 rule dataset:
@@ -15,15 +7,17 @@ rule dataset:
         lambda w: [p for paths in dataset_trajectories(w.dataset).values() for p in paths],
     output:
         "results/datasets/{dataset}/metadata.json",
-    params:
-        splits=lambda w: dataset_trajectories(w.dataset),
     log:
         "results/logs/dataset/dataset/{dataset}.log",
     benchmark:
         "results/benchmarks/dataset/dataset/{dataset}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
     resources:
         runtime=60,
         mem_mb=2000,
+    params:
+        splits=lambda w: dataset_trajectories(w.dataset),
     script:
         "../scripts/dataset.py"
 
@@ -34,16 +28,18 @@ rule dataset_summary:
     output:
         figure="results/datasets/{dataset}/summary.png",
         cases="results/datasets/{dataset}/cases.csv",
-    params:
-        rows=lambda w: dataset_cases(w.dataset),
-        runout=RUNOUT,
     log:
         "results/logs/dataset/dataset_summary/{dataset}.log",
     benchmark:
         "results/benchmarks/dataset/dataset_summary/{dataset}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
     resources:
         runtime=60,
         mem_mb=2000,
+    params:
+        rows=lambda w: dataset_cases(w.dataset),
+        runout=RUNOUT,
     script:
         "../scripts/dataset_summary.py"
 
@@ -60,6 +56,8 @@ rule dataset_section:
     benchmark:
         "results/benchmarks/dataset/dataset_section.tsv"
     localrule: True
+    conda:
+        "../envs/pipeline.yaml"
     script:
         "../scripts/dataset_section.py"
 

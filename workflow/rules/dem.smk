@@ -8,13 +8,15 @@
 rule dem_deck:
     output:
         "results/dem/{dataset}/decks/{case_id}.json",
-    params:
-        row=case_row,
     log:
         "results/logs/dem/dem_deck/{dataset}/{case_id}.log",
     benchmark:
         "results/benchmarks/dem/dem_deck/{dataset}/{case_id}.tsv"
     localrule: True
+    conda:
+        "../envs/pipeline.yaml"
+    params:
+        row=case_row,
     script:
         "../scripts/dem_deck.py"
 
@@ -28,6 +30,8 @@ rule dem_packing:
         "results/logs/dem/dem_packing/{dataset}/{case_id}.log",
     benchmark:
         "results/benchmarks/dem/dem_packing/{dataset}/{case_id}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
     threads: config["dem"]["threads"]
     resources:
         runtime=60,
@@ -42,19 +46,21 @@ rule dem_run:
         packing="results/dem/{dataset}/packings/{case_id}.h5",
     output:
         "results/dem/{dataset}/trajectories/{case_id}.h5",
+    log:
+        "results/logs/dem/dem_run/{dataset}/{case_id}.log",
+    benchmark:
+        "results/benchmarks/dem/dem_run/{dataset}/{case_id}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
+    threads: config["dem"]["threads"]
+    resources:
+        runtime=240,
+        mem_mb=2000,
     params:
         engine=config["dem"]["engine"],
         solvers=config["dem"]["solvers"],
         keep_work=config["dem"]["keep_work"],
         work_dir="results/dem/{dataset}/work/{case_id}",
-    log:
-        "results/logs/dem/dem_run/{dataset}/{case_id}.log",
-    benchmark:
-        "results/benchmarks/dem/dem_run/{dataset}/{case_id}.tsv"
-    threads: config["dem"]["threads"]
-    resources:
-        runtime=240,
-        mem_mb=2000,
     script:
         "../scripts/dem_run.py"
 
@@ -64,15 +70,17 @@ rule dem_figure:
         "results/dem/{dataset}/trajectories/{case_id}.h5",
     output:
         "results/dem/{dataset}/figures/{case_id}.png",
-    params:
-        runout=RUNOUT,
     log:
         "results/logs/dem/dem_figure/{dataset}/{case_id}.log",
     benchmark:
         "results/benchmarks/dem/dem_figure/{dataset}/{case_id}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
     resources:
         runtime=15,
         mem_mb=1000,
+    params:
+        runout=RUNOUT,
     script:
         "../scripts/dem_figure.py"
 

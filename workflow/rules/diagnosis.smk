@@ -16,16 +16,18 @@ rule diagnosis_library:
         measured=lambda w: config["measured"][w.name],
     output:
         "results/diagnosis/{name}/library.npz",
-    params:
-        settings=DIAGNOSIS_LIBRARY,
-        runout=RUNOUT,
     log:
         "results/logs/diagnosis/diagnosis_library/{name}.log",
     benchmark:
         "results/benchmarks/diagnosis/diagnosis_library/{name}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
     resources:
         runtime=240,
         mem_mb=2000,
+    params:
+        settings=DIAGNOSIS_LIBRARY,
+        runout=RUNOUT,
     script:
         "../scripts/diagnosis_library.py"
 
@@ -38,16 +40,18 @@ rule diagnosis:
         diagnosis="results/diagnosis/{name}/diagnosis.json",
         residuals="results/diagnosis/{name}/residuals.png",
         candidates="results/diagnosis/{name}/candidates.png",
-    params:
-        settings=DIAGNOSIS,
-        runout=RUNOUT,
     log:
         "results/logs/diagnosis/diagnosis/{name}.log",
     benchmark:
         "results/benchmarks/diagnosis/diagnosis/{name}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
     resources:
         runtime=240,
         mem_mb=2000,
+    params:
+        settings=DIAGNOSIS,
+        runout=RUNOUT,
     script:
         "../scripts/diagnosis.py"
 
@@ -57,13 +61,15 @@ rule diagnosis_section:
         expand("results/diagnosis/{name}/diagnosis.json", name=DIAGNOSIS_NAMES),
     output:
         "results/report/diagnosis.md",
-    params:
-        names=DIAGNOSIS_NAMES,
     log:
         "results/logs/diagnosis/diagnosis_section.log",
     benchmark:
         "results/benchmarks/diagnosis/diagnosis_section.tsv"
     localrule: True
+    conda:
+        "../envs/pipeline.yaml"
+    params:
+        names=DIAGNOSIS_NAMES,
     script:
         "../scripts/diagnosis_section.py"
 

@@ -16,8 +16,9 @@ DOE_CASE_FIELDS = {"size_scale": DOE["size_scale"], "duration_over_tstar": DOE["
 # doe.measured is checked in common.smk (each a `measured` entry; no dataset named doe_<name>)
 for _name in DOE_NAMES:
     # the design runs join the case table, so dem_deck/dem_packing/dem_run build them like any case
-    for _row in doe.study.case_rows(DOE_DESIGN, load_column(config["measured"][_name]), f"doe_{_name}",
-                                    **DOE_CASE_FIELDS):
+    for _row in doe.study.case_rows(
+        DOE_DESIGN, load_column(config["measured"][_name]), f"doe_{_name}", **DOE_CASE_FIELDS
+    ):
         CASES[f"doe_{_name}/{_row['case_id']}"] = _row
 
 
@@ -30,13 +31,15 @@ rule doe_design:
         measured=lambda w: config["measured"][w.name],
     output:
         "results/doe/{name}/design.csv",
-    params:
-        doe=DOE,
     log:
         "results/logs/doe/doe_design/{name}.log",
     benchmark:
         "results/benchmarks/doe/doe_design/{name}.tsv"
     localrule: True
+    conda:
+        "../envs/pipeline.yaml"
+    params:
+        doe=DOE,
     script:
         "../scripts/doe_design.py"
 
@@ -50,16 +53,18 @@ rule doe_analyse:
         responses="results/doe/{name}/responses.csv",
         analysis="results/doe/{name}/analysis.json",
         surface="results/doe/{name}/response_surface.png",
-    params:
-        doe=DOE,
-        runout=RUNOUT,
     log:
         "results/logs/doe/doe_analyse/{name}.log",
     benchmark:
         "results/benchmarks/doe/doe_analyse/{name}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
     resources:
         runtime=30,
         mem_mb=2000,
+    params:
+        doe=DOE,
+        runout=RUNOUT,
     script:
         "../scripts/doe_analyse.py"
 
@@ -70,18 +75,20 @@ rule doe_validate:
         measured=lambda w: config["measured"][w.name],
     output:
         "results/doe/{name}/validation/{doe_model}.h5",
-    params:
-        case_fields=dict(DOE_CASE_FIELDS, seed=DOE["seed"]),
-        runout=RUNOUT,
-        dem=DEM_ENGINE,
     log:
         "results/logs/doe/doe_validate/{name}/{doe_model}.log",
     benchmark:
         "results/benchmarks/doe/doe_validate/{name}/{doe_model}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
     threads: config["dem"]["threads"]
     resources:
         runtime=240,
         mem_mb=2000,
+    params:
+        case_fields=dict(DOE_CASE_FIELDS, seed=DOE["seed"]),
+        runout=RUNOUT,
+        dem=DEM_ENGINE,
     script:
         "../scripts/doe_validate.py"
 
@@ -92,25 +99,33 @@ rule doe_section:
         analysis=expand("results/doe/{name}/analysis.json", name=DOE_NAMES),
         responses=expand("results/doe/{name}/responses.csv", name=DOE_NAMES),
         surfaces=expand("results/doe/{name}/response_surface.png", name=DOE_NAMES),
-        centre=expand("results/dem/doe_{name}/trajectories/{run}.h5", name=DOE_NAMES,
-                      run=doe.design.centre_run_id(DOE_DESIGN)),
-        validation=expand("results/doe/{name}/validation/{doe_model}.h5", name=DOE_NAMES,
-                          doe_model=DOE["validate"]),
+        centre=expand(
+            "results/dem/doe_{name}/trajectories/{run}.h5", name=DOE_NAMES, run=doe.design.centre_run_id(DOE_DESIGN)
+        ),
+        validation=expand("results/doe/{name}/validation/{doe_model}.h5", name=DOE_NAMES, doe_model=DOE["validate"]),
     output:
         section="results/report/doe.md",
         runout=expand("results/doe/{name}/runout.png", name=DOE_NAMES),
-    params:
-        names=DOE_NAMES,
-        models=DOE["validate"],
-        runout=RUNOUT,
-        benchmarks=lambda w: {n: [f"results/benchmarks/dem/{rule}/doe_{n}/{run}.tsv" for rule in ("dem_packing", "dem_run")
-                                  for run in DOE_RUNS] + [f"results/benchmarks/doe/doe_validate/{n}/{m}.tsv"
-                                                          for m in DOE["validate"]] for n in DOE_NAMES},
     log:
         "results/logs/doe/doe_section.log",
     benchmark:
         "results/benchmarks/doe/doe_section.tsv"
     localrule: True
+    conda:
+        "../envs/pipeline.yaml"
+    params:
+        names=DOE_NAMES,
+        models=DOE["validate"],
+        runout=RUNOUT,
+        benchmarks=lambda w: {
+            n: [
+                f"results/benchmarks/dem/{rule}/doe_{n}/{run}.tsv"
+                for rule in ("dem_packing", "dem_run")
+                for run in DOE_RUNS
+            ]
+            + [f"results/benchmarks/doe/doe_validate/{n}/{m}.tsv" for m in DOE["validate"]]
+            for n in DOE_NAMES
+        },
     script:
         "../scripts/doe_section.py"
 

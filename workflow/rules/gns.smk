@@ -9,14 +9,7 @@ GNS_THREADS = GNS["threads"]
 GNS_SETTINGS = {k: v for k, v in GNS.items() if k not in ("datasets", "threads", "per_dataset")}
 GNS_DATASETS = pipeline.config.gns_datasets(config)  # gns.datasets, checked in common.smk
 
-
-def gns_settings(dataset):
-    """Training settings of one dataset: the gns section with gns.per_dataset[dataset] laid over it."""
-    return {**GNS_SETTINGS, **GNS.get("per_dataset", {}).get(dataset, {})}
-
-
-def gns_test_cases(dataset):
-    return [row["case_id"] for row in dataset_cases(dataset) if row["split"] == "test"]
+# gns_settings and gns_test_cases: common.smk
 
 
 rule gns_train:
@@ -26,17 +19,19 @@ rule gns_train:
         model="results/gns/{dataset}/train/model_best.pt",
         metrics="results/gns/{dataset}/train/metrics.csv",
         figure="results/gns/{dataset}/train/loss_curve.png",
-    params:
-        settings=lambda w: gns_settings(w.dataset),
-        runout=RUNOUT,
     log:
         "results/logs/gns/gns_train/{dataset}.log",
     benchmark:
         "results/benchmarks/gns/gns_train/{dataset}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
     threads: GNS_THREADS
     resources:
         runtime=240,
         mem_mb=4000,
+    params:
+        settings=lambda w: gns_settings(w.dataset),
+        runout=RUNOUT,
     script:
         "../scripts/gns_train.py"
 
@@ -52,6 +47,8 @@ rule gns_rollout:
         "results/logs/gns/gns_rollout/{dataset}/{case_id}.log",
     benchmark:
         "results/benchmarks/gns/gns_rollout/{dataset}/{case_id}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
     threads: GNS_THREADS
     resources:
         runtime=30,
@@ -62,23 +59,27 @@ rule gns_rollout:
 
 rule gns_evaluate:
     input:
-        dem=lambda w: expand("results/dem/{dataset}/trajectories/{case_id}.h5", dataset=w.dataset,
-                             case_id=gns_test_cases(w.dataset)),
-        gns=lambda w: expand("results/gns/{dataset}/rollouts/{case_id}.h5", dataset=w.dataset,
-                             case_id=gns_test_cases(w.dataset)),
+        dem=lambda w: expand(
+            "results/dem/{dataset}/trajectories/{case_id}.h5", dataset=w.dataset, case_id=gns_test_cases(w.dataset)
+        ),
+        gns=lambda w: expand(
+            "results/gns/{dataset}/rollouts/{case_id}.h5", dataset=w.dataset, case_id=gns_test_cases(w.dataset)
+        ),
     output:
         summary="results/gns/{dataset}/evaluation/summary.json",
         metrics="results/gns/{dataset}/evaluation/metrics.csv",
         figure="results/gns/{dataset}/evaluation/runout_curves.png",
-    params:
-        runout=RUNOUT,
     log:
         "results/logs/gns/gns_evaluate/{dataset}.log",
     benchmark:
         "results/benchmarks/gns/gns_evaluate/{dataset}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
     resources:
         runtime=30,
         mem_mb=2000,
+    params:
+        runout=RUNOUT,
     script:
         "../scripts/gns_evaluate.py"
 
@@ -90,13 +91,15 @@ rule gns_section:
         metrics=expand("results/gns/{dataset}/train/metrics.csv", dataset=GNS_DATASETS),
     output:
         "results/report/gns.md",
-    params:
-        datasets=GNS_DATASETS,
     log:
         "results/logs/gns/gns_section.log",
     benchmark:
         "results/benchmarks/gns/gns_section.tsv"
     localrule: True
+    conda:
+        "../envs/pipeline.yaml"
+    params:
+        datasets=GNS_DATASETS,
     script:
         "../scripts/gns_section.py"
 

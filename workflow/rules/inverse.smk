@@ -11,33 +11,8 @@ INVERSE_RECOVERY = INVERSE["recovery_datasets"]
 INVERSE_BO_BOUNDS = [INVERSE["friction"] or [0.3, 0.9], INVERSE["restitution"] or [0.3, 0.9]]
 # INVERSE_DATASET (common.smk): {name: the dataset whose GNS calibrates it}; inverse.measured,
 # inverse.dataset (the column lies in that GNS's trained geometry) and inverse.recovery_datasets
-# are checked there, before any job runs (pipeline.config.check_cross_keys).
-
-
-def inverse_gns(name, what):
-    """model / metadata / evaluation file of the GNS that calibrates measured column `name`."""
-    dataset = INVERSE_DATASET[name]
-    return {"model": f"results/gns/{dataset}/train/model_best.pt",
-            "metadata": f"results/datasets/{dataset}/metadata.json",
-            "evaluation": f"results/gns/{dataset}/evaluation/summary.json"}[what]
-
-
-def inverse_benchmarks(name):
-    """Benchmark files of every job each calibration route of `name` ran (the comparison's times)."""
-    dataset = INVERSE_DATASET[name]
-    cases = [row["case_id"] for row in dataset_cases(dataset)]
-    dem_jobs = lambda ds, ids: [f"results/benchmarks/dem/{rule}/{ds}/{c}.tsv" for rule in ("dem_packing", "dem_run")
-                                for c in ids]
-    files = {"start": [f"results/benchmarks/inverse/inverse_start/{name}.tsv"],
-             "gns_dataset": dem_jobs(dataset, cases) + [f"results/benchmarks/dataset/dataset/{dataset}.tsv"],
-             "gns_training": [f"results/benchmarks/gns/gns_train/{dataset}.tsv"],
-             "gns_validation": [f"results/benchmarks/inverse/inverse_validate/{name}.tsv"],
-             "bayesopt": [f"results/benchmarks/inverse/inverse_bayesopt/{name}.tsv"]}
-    if name in DOE_NAMES:
-        files["doe"] = dem_jobs(f"doe_{name}", DOE_RUNS) + [f"results/benchmarks/doe/{rule}/{name}.tsv"
-                                                            for rule in ("doe_design", "doe_analyse")]
-        files["doe_validation"] = {m: [f"results/benchmarks/doe/doe_validate/{name}/{m}.tsv"] for m in DOE["validate"]}
-    return files
+# are checked there, before any job runs (pipeline.config.check_cross_keys). inverse_gns and
+# inverse_benchmarks: common.smk.
 
 
 rule inverse_start:
@@ -46,18 +21,20 @@ rule inverse_start:
         metadata=lambda w: inverse_gns(w.name, "metadata"),
     output:
         "results/inverse/{name}/start.h5",
+    log:
+        "results/logs/inverse/inverse_start/{name}.log",
+    benchmark:
+        "results/benchmarks/inverse/inverse_start/{name}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
+    resources:
+        runtime=120,
+        mem_mb=2000,
     params:
         start=INVERSE["start"],
         seed=INVERSE["seed"],
         runout=RUNOUT,
         dem=DEM_ENGINE,
-    log:
-        "results/logs/inverse/inverse_start/{name}.log",
-    benchmark:
-        "results/benchmarks/inverse/inverse_start/{name}.tsv"
-    resources:
-        runtime=120,
-        mem_mb=2000,
     script:
         "../scripts/inverse_dem_run.py"
 
@@ -74,17 +51,19 @@ rule inverse_design:
         result="results/inverse/{name}/inverse.json",
         paths="results/inverse/{name}/paths.png",
         deposits="results/inverse/{name}/deposits.png",
-    params:
-        settings=INVERSE,
-        runout=RUNOUT,
     log:
         "results/logs/inverse/inverse_design/{name}.log",
     benchmark:
         "results/benchmarks/inverse/inverse_design/{name}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
     threads: INVERSE["threads"]
     resources:
         runtime=120,
         mem_mb=4000,
+    params:
+        settings=INVERSE,
+        runout=RUNOUT,
     script:
         "../scripts/inverse_design.py"
 
@@ -96,17 +75,19 @@ rule inverse_validate:
         metadata=lambda w: inverse_gns(w.name, "metadata"),
     output:
         "results/inverse/{name}/validation.h5",
-    params:
-        seed=INVERSE["seed"],
-        runout=RUNOUT,
-        dem=DEM_ENGINE,
     log:
         "results/logs/inverse/inverse_validate/{name}.log",
     benchmark:
         "results/benchmarks/inverse/inverse_validate/{name}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
     resources:
         runtime=120,
         mem_mb=2000,
+    params:
+        seed=INVERSE["seed"],
+        runout=RUNOUT,
+        dem=DEM_ENGINE,
     script:
         "../scripts/inverse_dem_run.py"
 
@@ -119,19 +100,21 @@ rule inverse_bayesopt:
         result="results/inverse/{name}/bayesopt.json",
         figure="results/inverse/{name}/bayesopt.png",
         best="results/inverse/{name}/bayesopt_best.h5",
+    log:
+        "results/logs/inverse/inverse_bayesopt/{name}.log",
+    benchmark:
+        "results/benchmarks/inverse/inverse_bayesopt/{name}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
+    resources:
+        runtime=600,
+        mem_mb=2000,
     params:
         bounds=INVERSE_BO_BOUNDS,
         budget=INVERSE["bayesopt_budget"],
         seed=INVERSE["seed"],
         runout=RUNOUT,
         dem=DEM_ENGINE,
-    log:
-        "results/logs/inverse/inverse_bayesopt/{name}.log",
-    benchmark:
-        "results/benchmarks/inverse/inverse_bayesopt/{name}.tsv"
-    resources:
-        runtime=600,
-        mem_mb=2000,
     script:
         "../scripts/inverse_bayesopt.py"
 
@@ -144,21 +127,26 @@ rule inverse_compare:
         start="results/inverse/{name}/start.h5",
         bayesopt=lambda w: [f"results/inverse/{w.name}/bayesopt.json"] if INVERSE["bayesopt_budget"] else [],
         bayesopt_best=lambda w: [f"results/inverse/{w.name}/bayesopt_best.h5"] if INVERSE["bayesopt_budget"] else [],
-        doe_validation=lambda w: expand("results/doe/{name}/validation/{model}.h5", name=w.name,
-                                        model=DOE["validate"]) if w.name in DOE_NAMES else [],
+        doe_validation=lambda w: (
+            expand("results/doe/{name}/validation/{model}.h5", name=w.name, model=DOE["validate"])
+            if w.name in DOE_NAMES
+            else []
+        ),
     output:
         table="results/inverse/{name}/comparison.csv",
         figure="results/inverse/{name}/comparison.png",
         runout="results/inverse/{name}/runout.png",
-    params:
-        benchmarks=lambda w: inverse_benchmarks(w.name),
-        dem_runs=lambda w: {"gns_dataset": len(dataset_cases(INVERSE_DATASET[w.name])), "doe": len(DOE_RUNS)},
-        runout=RUNOUT,
     log:
         "results/logs/inverse/inverse_compare/{name}.log",
     benchmark:
         "results/benchmarks/inverse/inverse_compare/{name}.tsv"
     localrule: True
+    conda:
+        "../envs/pipeline.yaml"
+    params:
+        benchmarks=lambda w: inverse_benchmarks(w.name),
+        dem_runs=lambda w: {"gns_dataset": len(dataset_cases(INVERSE_DATASET[w.name])), "doe": len(DOE_RUNS)},
+        runout=RUNOUT,
     script:
         "../scripts/inverse_compare.py"
 
@@ -171,18 +159,20 @@ rule inverse_recovery:
     output:
         result="results/inverse_recovery/{dataset}/recovery.json",
         figure="results/inverse_recovery/{dataset}/recovery.png",
-    params:
-        settings=INVERSE,
-        runout=RUNOUT,
-        dem=DEM_ENGINE,
     log:
         "results/logs/inverse/inverse_recovery/{dataset}.log",
     benchmark:
         "results/benchmarks/inverse/inverse_recovery/{dataset}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
     threads: INVERSE["threads"]
     resources:
         runtime=600,
         mem_mb=4000,
+    params:
+        settings=INVERSE,
+        runout=RUNOUT,
+        dem=DEM_ENGINE,
     script:
         "../scripts/inverse_recovery.py"
 
@@ -192,21 +182,26 @@ rule inverse_section:
         measured=[config["measured"][n] for n in INVERSE_NAMES],
         results=expand("results/inverse/{name}/inverse.json", name=INVERSE_NAMES),
         tables=expand("results/inverse/{name}/comparison.csv", name=INVERSE_NAMES),
-        figures=expand("results/inverse/{name}/{figure}.png", name=INVERSE_NAMES,
-                       figure=["paths", "deposits", "runout", "comparison"]),
+        figures=expand(
+            "results/inverse/{name}/{figure}.png",
+            name=INVERSE_NAMES,
+            figure=["paths", "deposits", "runout", "comparison"],
+        ),
         bayesopt=expand("results/inverse/{name}/bayesopt.png", name=INVERSE_NAMES) if INVERSE["bayesopt_budget"] else [],
         recovery=expand("results/inverse_recovery/{dataset}/recovery.json", dataset=INVERSE_RECOVERY),
         recovery_figures=expand("results/inverse_recovery/{dataset}/recovery.png", dataset=INVERSE_RECOVERY),
     output:
         "results/report/inverse.md",
-    params:
-        names=INVERSE_NAMES,
-        bayesopt=INVERSE["bayesopt_budget"] > 0,
     log:
         "results/logs/inverse/inverse_section.log",
     benchmark:
         "results/benchmarks/inverse/inverse_section.tsv"
     localrule: True
+    conda:
+        "../envs/pipeline.yaml"
+    params:
+        names=INVERSE_NAMES,
+        bayesopt=INVERSE["bayesopt_budget"] > 0,
     script:
         "../scripts/inverse_section.py"
 

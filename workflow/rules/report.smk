@@ -10,14 +10,16 @@ rule report:
     output:
         report="results/report.md",
         time_figure="results/report/time_per_stage.png",
-    params:
-        titles=lambda w: [title for title, _ in REPORT_SECTIONS],
-        title=config["report"]["title"],
-        benchmarks="results/benchmarks",
     log:
         "results/logs/report/report.log",
     benchmark:
         "results/benchmarks/report/report.tsv"
     localrule: True
+    conda:
+        "../envs/pipeline.yaml"
+    params:
+        titles=lambda w: [title for title, _ in REPORT_SECTIONS],
+        title=config["report"]["title"],
+        benchmarks="results/benchmarks",
     script:
         "../scripts/report.py"

@@ -3,8 +3,12 @@
 # frame-to-frame flicker and the chaos floor, with the GNS rollouts where a case has one. The table
 # in results/report/runout.md is the evidence for the configured `runout.method`.
 RUNOUT_CASES = {f"{d} {c}": f"results/dem/{d}/trajectories/{c}.h5" for d in GNS_DATASETS for c in gns_test_cases(d)}
-RUNOUT_CASES.update({f"DoE {n} centre": f"results/dem/doe_{n}/trajectories/{doe.design.centre_run_id(DOE_DESIGN)}.h5"
-                     for n in DOE_NAMES})
+RUNOUT_CASES.update(
+    {
+        f"DoE {n} centre": f"results/dem/doe_{n}/trajectories/{doe.design.centre_run_id(DOE_DESIGN)}.h5"
+        for n in DOE_NAMES
+    }
+)
 RUNOUT_ROLLOUTS = {f"{d} {c}": f"results/gns/{d}/rollouts/{c}.h5" for d in GNS_DATASETS for c in gns_test_cases(d)}
 
 
@@ -16,17 +20,19 @@ rule runout_methods:
         study="results/runout/methods.json",
         figure="results/runout/methods.png",
         section="results/report/runout.md",
-    params:
-        labels=list(RUNOUT_CASES),
-        rollouts=RUNOUT_ROLLOUTS,
-        runout=RUNOUT,
     log:
         "results/logs/runout/runout_methods.log",
     benchmark:
         "results/benchmarks/runout/runout_methods.tsv"
+    conda:
+        "../envs/pipeline.yaml"
     resources:
         runtime=60,
         mem_mb=2000,
+    params:
+        labels=list(RUNOUT_CASES),
+        rollouts=RUNOUT_ROLLOUTS,
+        runout=RUNOUT,
     script:
         "../scripts/runout_methods.py"
 

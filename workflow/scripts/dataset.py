@@ -1,8 +1,9 @@
 """Build one dataset's metadata JSON (splits, normalisation statistics) from its trajectories."""
+
 import logging
 
 from pipeline.dataset import build
 
-logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")  # noqa: F821
-build(snakemake.params.splits, snakemake.output[0], snakemake.wildcards.dataset)  # noqa: F821
-logging.info("wrote %s", snakemake.output[0])  # noqa: F821
+logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
+build(snakemake.params.splits, snakemake.output[0], snakemake.wildcards.dataset)
+logging.info("wrote %s", snakemake.output[0])

@@ -1,8 +1,9 @@
 """The report section on the DEM datasets (results/report/dataset.md)."""
+
 import logging
 
 from pipeline.dataset import write_section
 
-logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")  # noqa: F821
-write_section(snakemake.input.metadata, snakemake.input.figures, snakemake.output[0])  # noqa: F821
-logging.info("wrote %s", snakemake.output[0])  # noqa: F821
+logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
+write_section(snakemake.input.metadata, snakemake.input.figures, snakemake.output[0])
+logging.info("wrote %s", snakemake.output[0])

@@ -1,8 +1,9 @@
 """Write one case's deck (engine-neutral JSON) from its case-table row (params.row)."""
+
 import logging
 
 from pipeline.dem import write_deck
 
-logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")  # noqa: F821
-write_deck(dict(snakemake.params.row), snakemake.output[0])  # noqa: F821
-logging.info("wrote %s", snakemake.output[0])  # noqa: F821
+logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
+write_deck(dict(snakemake.params.row), snakemake.output[0])
+logging.info("wrote %s", snakemake.output[0])

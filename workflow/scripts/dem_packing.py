@@ -1,8 +1,9 @@
 """Pour and settle one case's column behind the gate (builtin engine); a one-frame trajectory."""
+
 import logging
 
 from pipeline.dem import settle
 
-logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")  # noqa: F821
-settle(snakemake.input.deck, snakemake.output[0])  # noqa: F821
-logging.info("wrote %s", snakemake.output[0])  # noqa: F821
+logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
+settle(snakemake.input.deck, snakemake.output[0])
+logging.info("wrote %s", snakemake.output[0])

@@ -1,8 +1,9 @@
 """The diagnosis report section (results/report/diagnosis.md) from every diagnosis.json."""
+
 import logging
 
 from pipeline.diagnosis import run_section
 
-logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")  # noqa: F821
-results = run_section(snakemake.params.names, snakemake.input, snakemake.output[0])  # noqa: F821
-logging.info("wrote %s (%d data sets)", snakemake.output[0], len(results))  # noqa: F821
+logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
+results = run_section(snakemake.params.names, snakemake.input, snakemake.output[0])
+logging.info("wrote %s (%d data sets)", snakemake.output[0], len(results))

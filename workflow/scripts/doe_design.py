@@ -1,8 +1,9 @@
 """Write the DoE design table of one measured column (checked against its geometry)."""
+
 import logging
 
 from pipeline.doe import design
 
-logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")  # noqa: F821
-design(snakemake.input.measured, snakemake.params.doe, snakemake.output[0])  # noqa: F821
-logging.info("wrote %s", snakemake.output[0])  # noqa: F821
+logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
+design(snakemake.input.measured, snakemake.params.doe, snakemake.output[0])
+logging.info("wrote %s", snakemake.output[0])
