@@ -36,7 +36,15 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from dem.runout import METHODS, RunoutMethod  # noqa: E402
-from dem.runout_study import phase_means  # noqa: E402
+
+
+def rounded(value, digits: int = 4):
+    """A JSON-ready copy with every float rounded to `digits` (the benchmark prints its figures)."""
+    if isinstance(value, dict):
+        return {k: rounded(v, digits) for k, v in value.items()}
+    if isinstance(value, list):
+        return [rounded(v, digits) for v in value]
+    return round(value, digits) if isinstance(value, float) else value
 
 
 def main():
@@ -55,7 +63,7 @@ def main():
     os.environ["NUMBA_NUM_THREADS"] = str(args.threads)
     import torch
 
-    from dem.runout_study import perturbed_reruns
+    from dem.runout_study import chaos_floor, perturbed_reruns
     from dem.trajectory import read_trajectory
     from gns.data import read_metadata, split_paths
     from gns.rollout import rollout_trajectory
@@ -73,32 +81,23 @@ def main():
         reruns = np.array(
             [method.curve(r)[1] for r in perturbed_reruns(dem, args.reruns, args.perturbation, args.seed + k)]
         )
-        runs = np.vstack([original, reruns])
-        variance = np.var(runs, axis=0, ddof=1)  # [T], across the realisations
-        row = {
-            "case": Path(path).stem,
-            "friction": float(dem.attrs["friction"]),
-            "restitution": float(dem.attrs["restitution"]),
-            "rerun_mse": round(float(np.mean((reruns - original) ** 2)), 4),
-            "rerun_mse_each": [round(float(np.mean((r - original) ** 2)), 4) for r in reruns],
-            "ideal_mse": round(float(np.mean(variance)), 4),
-            "ideal_mse_by_phase": {p: round(v, 4) for p, v in phase_means(t, variance).items()},
-            "final_runout_spread": round(float(np.std(runs[:, -1], ddof=1)), 3),
-        }
-        gns_curve = None
+        gns_curve, problem = None, None
         if simulator is not None:
             gns = rollout_trajectory(simulator, dem, on_invalid="flag")
             if gns.attrs["rollout_valid"]:
                 gns_curve = method.curve(gns)[1]
-                row.update(
-                    gns_mse=round(float(np.mean((gns_curve - original) ** 2)), 4),
-                    gns_mse_to_mean=round(float(np.mean((gns_curve - runs.mean(axis=0)) ** 2)), 4),
-                    gns_mse_by_phase={p: round(v, 4) for p, v in phase_means(t, (gns_curve - original) ** 2).items()},
-                )
             else:
-                row["gns_problem"] = gns.attrs["rollout_problem"]
+                problem = gns.attrs["rollout_problem"]
+        row = {
+            "case": Path(path).stem,
+            "friction": float(dem.attrs["friction"]),
+            "restitution": float(dem.attrs["restitution"]),
+            **rounded(chaos_floor(t, original, reruns, gns_curve)),
+        }
+        if problem:
+            row["gns_problem"] = problem
         cases.append(row)
-        plotted.append((row["case"], t, runs, gns_curve))
+        plotted.append((row["case"], t, np.vstack([original, reruns]), gns_curve))
         print(json.dumps({k: row[k] for k in ("case", "rerun_mse", "ideal_mse")}), file=sys.stderr, flush=True)
 
     mean = lambda key: round(float(np.mean([c[key] for c in cases])), 4) if all(key in c for c in cases) else None  # noqa: E731

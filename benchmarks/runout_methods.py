@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import sys
 import time
@@ -39,11 +40,14 @@ def main():
     import yaml
 
     from calibration.measured import load_column
-    from dem.collapse import simulate_collapse
+    from dem.engines import BUILTIN, simulate_case
     from dem.grid import case_from_row, case_table
+    from dem.progress import progress_logger
     from dem.runout_study import compare_methods, markdown_table, plot_methods
     from doe.design import centre_run_id, design_cases, design_from_config
-    from pipeline.config import validate_config
+    from pipeline.config import gns_datasets, validate_config
+
+    logging.basicConfig(stream=sys.stderr, level=logging.INFO, format="%(asctime)s %(message)s")
 
     config = validate_config(
         yaml.safe_load(Path(args.config).read_text()), ROOT / "workflow/schemas/config.schema.yaml"
@@ -51,7 +55,7 @@ def main():
     started = time.perf_counter()
     cases, models = {}, {}
     for row in case_table(config).values():
-        if row["split"] == "test" and row["dataset"] in config["gns"].get("datasets", config["datasets"]):
+        if row["split"] == "test" and row["dataset"] in gns_datasets(config):
             cases[f"{row['dataset']} {row['case_id']}"] = case_from_row(row)
             models[f"{row['dataset']} {row['case_id']}"] = row["dataset"]
     doe = config["doe"]
@@ -62,14 +66,14 @@ def main():
             design, measured, size_scale=doe["size_scale"], duration_over_tstar=doe["duration_over_tstar"]
         )[centre_run_id(design)]
         cases[f"DoE {name} centre"] = centre
-    trajectories = {label: simulate_collapse(case) for label, case in cases.items()}
+    trajectories = {label: simulate_case(case, BUILTIN) for label, case in cases.items()}
     rollouts = gns_rollouts(trajectories, models, Path(args.results), args.threads)
-    study, runs = compare_methods(
+    study, curves = compare_methods(
         trajectories,
         n_packings=args.packings,
         n_reruns=args.reruns,
         rollouts=rollouts,
-        progress=lambda what: print(what, file=sys.stderr, flush=True),
+        progress=progress_logger("runout methods: DEM runs"),
     )
     study.update(
         config=str(args.config),
@@ -78,7 +82,7 @@ def main():
         gns_scored=sorted(rollouts),
     )
     if args.figure:
-        plot_methods(runs, study, args.figure)
+        plot_methods(curves, args.figure)
     print(markdown_table(study), file=sys.stderr)
     print(json.dumps(study, indent=1))
 

@@ -49,23 +49,24 @@ def phase_means(t, values) -> dict:
     }
 
 
-def packing_runs(case, n_packings: int = PACKINGS, progress=None) -> list:
-    """n_packings builtin runs of `case`, packing seeds case.seed + 1000 + j (each settles its own)."""
+def packing_runs(case, n_packings: int = PACKINGS, after_run=None) -> list:
+    """n_packings builtin runs of `case`, packing seeds case.seed + 1000 + j (each settles its own).
+    after_run: called with no argument after each run (progress)."""
     from dem.engines import BUILTIN, simulate_case
 
     runs = []
     for j in range(n_packings):
         runs.append(simulate_case(case.replace(seed=case.seed + 1000 + j, name=f"{case.name}_packing_{j}"), BUILTIN))
-        if progress:
-            progress(f"{case.name}: packing {j + 1}/{n_packings}")
+        if after_run:
+            after_run()
     return runs
 
 
 def perturbed_reruns(
-    trajectory, n_reruns: int = RERUNS, perturbation: float = PERTURBATION, seed: int = 0, progress=None
+    trajectory, n_reruns: int = RERUNS, perturbation: float = PERTURBATION, seed: int = 0, after_run=None
 ) -> list:
     """n_reruns builtin reruns of a builtin trajectory from its own first frame, every grain moved
-    by a normal of std `perturbation` mean diameters (seeded)."""
+    by a normal of std `perturbation` mean diameters (seeded). after_run: as packing_runs."""
     from dem.engines import BUILTIN, simulate_case  # reruns of builtin runs, moved by 0.001 d
     from dem.trajectory import Trajectory
 
@@ -73,29 +74,27 @@ def perturbed_reruns(
     rng = np.random.default_rng(seed)
     diameter = 2.0 * float(np.mean(trajectory.radius))
     runs = []
-    for j in range(n_reruns):
+    for _ in range(n_reruns):
         moved = trajectory.positions[:1] + rng.normal(0.0, perturbation * diameter, trajectory.positions[:1].shape)
         packing = Trajectory(
             moved.astype(np.float32), trajectory.radius, trajectory.particle_type, dict(trajectory.attrs)
         )
         runs.append(simulate_case(case, BUILTIN, packing=packing))
-        if progress:
-            progress(f"{case.name}: rerun {j + 1}/{n_reruns}")
+        if after_run:
+            after_run()
     return runs
 
 
-def method_statistics(runs, method: RunoutMethod) -> dict:
-    """Packing scatter per phase, flicker and final L* of runs of one case read by `method`.
+def method_statistics(t, curves) -> dict:
+    """Packing scatter per phase, flicker and final L* of one case's runs read by one method.
 
-    runs: trajectories of one case (other packings). Scatter: std of L* across runs (ddof 1) per
+    t [T] t/t*; curves [P, T]: L* of P packings. Scatter: std of L* across packings (ddof 1) per
     frame, averaged over each phase. Flicker: the largest backward step of L* between frames,
     over every run.
     """
-    t = runs[0].t_over_tstar
-    curves = np.array([method.curve(r)[1] for r in runs])
     std = np.std(curves, axis=0, ddof=1)
     return {
-        "packings": len(runs),
+        "packings": len(curves),
         "scatter_by_phase": phase_means(t, std),
         "scatter_mean": float(np.mean(std)),
         "flicker": float(max(0.0, np.max(-np.diff(curves, axis=1)))),
@@ -104,22 +103,26 @@ def method_statistics(runs, method: RunoutMethod) -> dict:
     }
 
 
-def chaos_floor(original, reruns, method: RunoutMethod, rollout=None) -> dict:
-    """The chaos floor of one case by `method` (see the module text); with a GNS `rollout` of the
-    case, also its MSE against the original run and against the mean of all runs."""
-    t, first = method.curve(original)
-    others = np.array([method.curve(r)[1] for r in reruns])
+def chaos_floor(t, first, others, gns=None) -> dict:
+    """The chaos floor of one case read by one method (see the module text).
+
+    t [T] t/t*; first [T]: L* of the run; others [R, T]: its perturbed reruns; gns [T] or None: a
+    GNS rollout of the run, then also scored against the run and against the mean of all runs.
+    """
     runs = np.vstack([first, others])
-    variance = np.var(runs, axis=0, ddof=1)
+    variance = np.var(runs, axis=0, ddof=1)  # [T], across the realisations
     out = {
         "rerun_mse": float(np.mean((others - first) ** 2)),
+        "rerun_mse_each": [float(np.mean((r - first) ** 2)) for r in others],
         "ideal_mse": float(np.mean(variance)),
         "ideal_mse_by_phase": phase_means(t, variance),
+        "final_runout_spread": float(np.std(runs[:, -1], ddof=1)),
     }
-    if rollout is not None and rollout.n_frames == original.n_frames:
-        gns = method.curve(rollout)[1]
+    if gns is not None:
         out.update(
-            gns_mse=float(np.mean((gns - first) ** 2)), gns_mse_to_mean=float(np.mean((gns - runs.mean(0)) ** 2))
+            gns_mse=float(np.mean((gns - first) ** 2)),
+            gns_mse_to_mean=float(np.mean((gns - runs.mean(0)) ** 2)),
+            gns_mse_by_phase=phase_means(t, (gns - first) ** 2),
         )
     return out
 
@@ -134,25 +137,40 @@ def compare_methods(
     seed: int = 0,
     progress=None,
 ) -> tuple[dict, dict]:
-    """Every method on every case: (study, runs). study: {"cases": {label: {method: statistics
-    (+ floor)}}, "mean": {method: ...}, settings}; runs: {label: [packing runs]} (for the figure).
+    """Every method on every case: (study, curves). study: {"cases": {label: {method: statistics
+    (+ floor)}}, "mean": {method: ...}, settings}; curves: {label: {method: (t [T], L* [P, T])}} of
+    the packings (for the figure).
 
     cases: {label: builtin DEM trajectory}: the scatter comes from n_packings new packings of its
     case, the chaos floor from n_reruns perturbed reruns of the trajectory itself (0: no floor).
-    rollouts: {label: GNS rollout of that trajectory}, scored against the floor where given.
-    methods: names or RunoutMethods (with their parameters).
+    rollouts: {label: GNS rollout of that trajectory}, scored against the floor where given (a
+    rollout with another frame count is left out). methods: names or RunoutMethods (with their
+    parameters). progress: callable(fraction of the DEM runs done), e.g. dem.progress.progress_logger.
     """
     methods = [RunoutMethod.from_config(m) for m in methods]
-    out, runs = {}, {}
+    total, done = len(cases) * (n_packings + n_reruns), [0]
+
+    def after_run():
+        done[0] += 1
+        if progress:
+            progress(done[0] / total)
+
+    out, curves = {}, {}
     for k, (label, trajectory) in enumerate(cases.items()):
-        packings = runs[label] = packing_runs(case_of(trajectory), n_packings, progress)
-        reruns = perturbed_reruns(trajectory, n_reruns, perturbation, seed + k, progress) if n_reruns else []
+        packings = packing_runs(case_of(trajectory), n_packings, after_run)
+        reruns = perturbed_reruns(trajectory, n_reruns, perturbation, seed + k, after_run) if n_reruns else []
         rollout = (rollouts or {}).get(label)
-        out[label] = {}
-        for method in methods:
-            row = method_statistics(packings, method)
+        if rollout is not None and rollout.n_frames != trajectory.n_frames:
+            rollout = None
+        t = trajectory.t_over_tstar
+        out[label], curves[label] = {}, {}
+        for method in methods:  # every run is read once per method
+            packing_curves = _curves(method, packings)
+            curves[label][method.method] = (t, packing_curves)
+            row = method_statistics(t, packing_curves)
             if reruns:
-                row["floor"] = chaos_floor(trajectory, reruns, method, rollout)
+                gns = None if rollout is None else _curves(method, [rollout])[0]
+                row["floor"] = chaos_floor(t, _curves(method, [trajectory])[0], _curves(method, reruns), gns)
             out[label][method.method] = row
         log.info("%s: %s", label, {m: round(r["scatter_mean"], 3) for m, r in out[label].items()})
     return {
@@ -162,7 +180,12 @@ def compare_methods(
         "perturbation_diameters": perturbation,
         "cases": out,
         "mean": _means(out, methods),
-    }, runs
+    }, curves
+
+
+def _curves(method: RunoutMethod, runs) -> np.ndarray:
+    """[R, T] L* of R trajectories read by `method`."""
+    return np.array([method.curve(r)[1] for r in runs])
 
 
 def _means(cases: dict, methods) -> dict:
@@ -203,21 +226,17 @@ def markdown_table(study: dict) -> str:
     return "\n".join(lines)
 
 
-def plot_methods(runs: dict, study: dict, path) -> None:
-    """L*(t/t*) of every packing of each case (runs {label: [trajectories]}), one panel per case,
-    one colour per method."""
+def plot_methods(curves: dict, path) -> None:
+    """L*(t/t*) of every packing of each case, one panel per case, one colour per method.
+    curves: compare_methods' {label: {method: (t [T], L* [P, T])}}."""
     from dem.plots import plt, save_figure
 
-    fig, axes = plt.subplots(1, len(runs), figsize=(4.4 * len(runs), 3.8), squeeze=False)
-    colours = dict(zip(METHODS, ("tab:blue", "tab:orange", "tab:green", "tab:red")))
-    for ax, (label, packings) in zip(axes[0], runs.items()):
-        for config in study["methods"]:
-            method = RunoutMethod.from_config(config)
-            for j, run in enumerate(packings):
-                t, curve = method.curve(run)
-                ax.plot(
-                    t, curve, color=colours[method.method], lw=0.7, alpha=0.6, label=method.method if j == 0 else None
-                )
+    fig, axes = plt.subplots(1, len(curves), figsize=(4.4 * len(curves), 3.8), squeeze=False)
+    colours = dict(zip(METHODS, ("tab:blue", "tab:orange", "tab:green", "tab:red"), strict=True))
+    for ax, (label, by_method) in zip(axes[0], curves.items(), strict=True):
+        for method, (t, packing_curves) in by_method.items():
+            for j, curve in enumerate(packing_curves):
+                ax.plot(t, curve, color=colours[method], lw=0.7, alpha=0.6, label=method if j == 0 else None)
         ax.set(title=label, xlabel="t / t*", ylabel="L*")
         ax.grid(alpha=0.3)
     axes[0, 0].legend(fontsize=7)

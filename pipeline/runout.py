@@ -13,6 +13,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from dem.atomic import write_text
+from dem.progress import progress_logger
 from dem.runout import RunoutMethod
 from dem.runout_study import PACKINGS, PERTURBATION, RERUNS, compare_methods, markdown_table, plot_methods
 from dem.trajectory import read_trajectory
@@ -40,17 +41,13 @@ def run_runout_methods(
     runout = RunoutMethod.from_config(runout)
     cases = {label: read_trajectory(path) for label, path in zip(labels, trajectory_paths)}
     rollouts = {label: read_trajectory(path) for label, path in rollout_paths.items()}
-    done = [0]
-    total = len(cases) * (n_packings + n_reruns)
-
-    def progress(what):
-        done[0] += 1
-        log.info("%s (%d/%d DEM runs, %.0f%%)", what, done[0], total, 100 * done[0] / total)
-
-    study, runs = compare_methods(cases, n_packings=n_packings, n_reruns=n_reruns, rollouts=rollouts, progress=progress)
+    progress = progress_logger(f"runout methods, {len(cases) * (n_packings + n_reruns)} DEM runs", log)
+    study, curves = compare_methods(
+        cases, n_packings=n_packings, n_reruns=n_reruns, rollouts=rollouts, progress=progress
+    )
     study["configured"] = runout.to_config()
     write_text(out_json, json.dumps(study, indent=1) + "\n")
-    plot_methods(runs, study, out_figure)
+    plot_methods(curves, out_figure)
     figure = Path(os.path.relpath(out_figure, Path(out_section).parent)).as_posix()
     text = "\n".join(
         [

@@ -343,3 +343,25 @@ def test_diagnosis_settings_take_the_config_runout_section():
     assert DiagnosisSettings.from_config({}).runout == RunoutMethod()
     with pytest.raises(DiagnosisError, match=r"unknown setting\(s\) \['n_bases'\]"):
         DiagnosisSettings.from_config({"n_bases": 6})
+
+
+def test_runout_study_statistics_have_known_answers():
+    """dem.runout_study on hand-made curves: scatter, flicker, the chaos floor and the GNS's scores."""
+    from dem.runout_study import chaos_floor, method_statistics
+
+    t = np.array([0.5, 2.0, 3.0])  # one frame per phase: free fall, spreading, stopping
+    first, others = np.array([0.0, 1.0, 2.0]), np.array([[0.0, 1.0, 3.0], [0.0, 1.0, 1.0]])
+    floor = chaos_floor(t, first, others, gns=np.array([0.0, 1.0, 2.0]) + 0.5)
+    assert floor["rerun_mse"] == pytest.approx(1 / 3) and floor["rerun_mse_each"] == pytest.approx([1 / 3, 1 / 3])
+    assert floor["ideal_mse"] == pytest.approx(1 / 3)  # variance 0, 0, 1 across the three runs
+    assert floor["ideal_mse_by_phase"] == pytest.approx({"free_fall": 0.0, "spreading": 0.0, "stopping": 1.0})
+    assert floor["final_runout_spread"] == pytest.approx(1.0)
+    assert floor["gns_mse"] == pytest.approx(0.25) and floor["gns_mse_to_mean"] == pytest.approx(0.25)
+    assert "gns_mse" not in chaos_floor(t, first, others)
+
+    curves = np.array([[0.0, 2.0, 1.5], [0.0, 1.0, 3.0]])  # the first run's front moves back by 0.5
+    stats = method_statistics(t, curves)
+    assert stats["flicker"] == pytest.approx(0.5) and stats["packings"] == 2
+    assert stats["scatter_by_phase"]["spreading"] == pytest.approx(np.std([2.0, 1.0], ddof=1))
+    assert stats["final_mean"] == pytest.approx(2.25)
+    assert method_statistics(t, np.maximum.accumulate(curves, axis=1))["flicker"] == 0.0
