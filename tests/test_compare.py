@@ -190,6 +190,22 @@ def _benchmark(path, seconds):
     return str(path)
 
 
+def _bayesopt_json(path, runout):
+    """A bayesopt.json of 12 DEM runs, best (0.6, 0.6) at 0.02, stating the runout method `runout`."""
+    data = {
+        "names": ["friction", "restitution"],
+        "params": [[0.6, 0.6]],
+        "values": [0.02],
+        "seconds": [1.0],
+        "best_params": [0.6, 0.6],
+        "best_value": 0.02,
+        "dem_runs": 12,
+        "runout": runout,
+    }
+    path.write_text(json.dumps(data))
+    return path
+
+
 def _inverse_json(path, params, online_s=12.5, runout="default"):
     """The parts of an inverse.json the comparison and the report read; runout: the runout method
     it states ("default": RUNOUT's, None: none, as before the runout contract)."""
@@ -257,21 +273,7 @@ def test_comparison_table_figures_and_report_section(tiny, tmp_path):
         "doe_validation": {"quadratic": [_benchmark(bench / "doe_validate.tsv", 1.5)]},
         "bayesopt": [_benchmark(bench / "bo.tsv", 30.0)],
     }
-    bayesopt = tmp_path / "bayesopt.json"
-    bayesopt.write_text(
-        json.dumps(
-            {
-                "names": ["friction", "restitution"],
-                "params": [[0.6, 0.6]],
-                "values": [0.02],
-                "seconds": [1.0],
-                "best_params": [0.6, 0.6],
-                "best_value": 0.02,
-                "dem_runs": 12,
-                "runout": RUNOUT.to_config(),
-            }
-        )
-    )
+    bayesopt = _bayesopt_json(tmp_path / "bayesopt.json", RUNOUT.to_config())
     inverse = _inverse_json(tmp_path / "inverse.json", [0.5, 0.6])
     out = tmp_path / "out"
     routes = run_comparison(
@@ -363,21 +365,7 @@ def test_comparison_refuses_results_scored_with_another_runout_method(tiny, tmp_
         compare(_inverse_json(tmp_path / "inverse_other.json", [0.5, 0.6], runout=other))
     with pytest.raises(RunoutError, match=r"inverse_none\.json: states no runout method"):
         compare(_inverse_json(tmp_path / "inverse_none.json", [0.5, 0.6], runout=None))
-    bayesopt = tmp_path / "bayesopt.json"
-    bayesopt.write_text(
-        json.dumps(
-            {
-                "names": ["friction", "restitution"],
-                "params": [[0.6, 0.6]],
-                "values": [0.02],
-                "seconds": [1.0],
-                "best_params": [0.6, 0.6],
-                "best_value": 0.02,
-                "dem_runs": 12,
-                "runout": dict(RUNOUT.to_config(), neighbour_radius=3.0),
-            }
-        )
-    )
+    bayesopt = _bayesopt_json(tmp_path / "bayesopt.json", dict(RUNOUT.to_config(), neighbour_radius=3.0))
     with pytest.raises(RunoutError, match=r"Bayesian optimisation .*bayesopt\.json.*scored with runout"):
         compare(_inverse_json(tmp_path / "inverse.json", [0.5, 0.6]), str(bayesopt))
     assert not (tmp_path / "out").exists()  # refused before anything was written
