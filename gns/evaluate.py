@@ -21,14 +21,16 @@ from dem.trajectory import Trajectory, read_trajectory
 SNAPSHOT_TSTAR = (0.0, 1.0, 1.5, 2.0, 4.0)
 
 
-def rollout_runout_mse(dem: Trajectory, gns: Trajectory, runout: RunoutMethod) -> float:
-    """Mean over frames of (L*_gns - L*_dem)^2, both read by `runout`; both must cover the same frames."""
+def rollout_runout_mse(dem: Trajectory, gns: Trajectory, runout: RunoutMethod, curves=None) -> float:
+    """Mean over frames of (L*_gns - L*_dem)^2, both read by `runout`; both must cover the same frames.
+    curves: (L*_dem [T], L*_gns [T]) when the caller has already read them (not read again)."""
     if gns.n_frames != dem.n_frames:
         raise ValueError(
             f"GNS rollout has {gns.n_frames} frames, DEM {dem.n_frames}: a rollout that stopped "
             f"early ({gns.attrs.get('rollout_problem', '')}) has no full runout curve"
         )
-    return float(np.mean((runout_curve(gns, runout)[1] - runout_curve(dem, runout)[1]) ** 2))
+    runout_dem, runout_gns = curves or (runout_curve(dem, runout)[1], runout_curve(gns, runout)[1])
+    return float(np.mean((runout_gns - runout_dem) ** 2))
 
 
 def position_mse(dem: Trajectory, gns: Trajectory, n_input_frames: int) -> float:
@@ -80,7 +82,7 @@ def evaluate_rollouts(pairs, out_dir, runout: RunoutMethod | dict | str, n_input
             row.update(valid=0, problem=f"{row['problem']}; no runout: {exc}".lstrip("; "))
             t_gns, runout_gns = t_dem[:1], np.full(1, math.nan)
         row.update(
-            runout_mse=rollout_runout_mse(dem, gns, runout) if valid else math.nan,
+            runout_mse=rollout_runout_mse(dem, gns, runout, curves=(runout_dem, runout_gns)) if valid else math.nan,
             final_runout_dem=float(runout_dem[-1]),
             final_runout_gns=float(runout_gns[-1]) if valid else math.nan,
         )

@@ -189,6 +189,8 @@ def test_evaluation_rolls_out_test_cases_and_scores_them(trained, dataset, tmp_p
     assert (tmp_path / "eval" / "snapshots" / f"{Path(dem_path).stem}.png").exists()
     dem = read_trajectory(dem_path)
     assert rollout_runout_mse(dem, dem, CONNECTED) == 0.0
+    # the evaluation scores the curves it drew; read afresh from the files they give the same MSE
+    assert summary["runout_mse"] == pytest.approx(rollout_runout_mse(dem, written, CONNECTED), rel=1e-12)
     assert summary["runout"] == CONNECTED.to_config()  # the summary states how it read L*
     assert json.loads((tmp_path / "eval" / "summary.json").read_text())["runout"] == CONNECTED.to_config()
     # the stage's jobs: the same scores from the path lists, and the report section linking its figures
