@@ -53,6 +53,9 @@ class BuiltinEngine(Engine):
         logger = logging.getLogger(f"dem.engines.builtin.{deck.parent.name}")
         logger.addHandler(handler)
         logger.setLevel(logging.INFO)
+        # the run's own log file, like a solver's: not repeated into the caller's log, where a
+        # diagnosis or a runout study runs hundreds of cases (callers report progress themselves)
+        logger.propagate = False
         try:
             spec = json.loads(deck.read_text())
             case = CollapseCase.from_dict(spec["case"])
