@@ -8,6 +8,7 @@ import pytest
 from statsmodels.stats.anova import anova_lm
 
 from calibration.measured import load_column
+from calibration.objective import objective
 from doe.design import FACTORS, DesignError, Factor, design_cases, full_factorial
 from doe.plots import plot_response_surfaces, plot_runout_comparison
 from doe.regression import analyse, fit_surface, lack_of_fit, prediction_expression, pure_error
@@ -214,10 +215,10 @@ def test_study_on_synthetic_trajectories(tmp_path):
     assert "](../doe/response_surface.png)" in text and (folder / "runout.png").stat().st_size > 10_000
 
 
-def test_stage_jobs_on_synthetic_trajectories(tmp_path, monkeypatch):
+def test_stage_jobs_on_synthetic_trajectories(tmp_path):
     """pipeline.doe's entry functions, one per Snakemake job, on the files the rules name: design
-    table, responses + analysis (runout recorded) + surface, validation run (DEM stubbed: the
-    case, the engine config and the progress reporter reach it), section from the files alone."""
+    table, responses + analysis (runout recorded) + surface, a real DEM validation run at the
+    optimum with the configured engine, section from the files alone."""
     from test_objective import front_trajectory
 
     import pipeline.doe
@@ -257,15 +258,8 @@ def test_stage_jobs_on_synthetic_trajectories(tmp_path, monkeypatch):
     assert written["runout"] == connected.to_config() == summary["runout"]
     assert written["n_runs"] == len(table) and (folder / "response_surface.png").stat().st_size > 10_000
 
-    calls = []
-
-    def fake_simulate(case, config, progress=None):
-        calls.append((case, config))
-        progress(1.0)
-        return run(case.friction, case.restitution)
-
-    monkeypatch.setattr(pipeline.doe, "simulate_case", fake_simulate)
-    fields = {"size_scale": 4.0, "duration_over_tstar": 4.0, "seed": 0}
+    # a real (coarse: size_scale 8, ~230 grains) DEM run at the quadratic model's optimum
+    fields = {"size_scale": 8.0, "duration_over_tstar": 4.0, "seed": 0}
     mse = pipeline.doe.validate(
         folder / "analysis.json",
         measured_path,
@@ -275,12 +269,13 @@ def test_stage_jobs_on_synthetic_trajectories(tmp_path, monkeypatch):
         connected.to_config(),
         folder / "validation/quadratic.h5",
     )
-    case, config = calls[0]
-    assert config == {"engine": "builtin"} and case.name == "doe_validation_quadratic"
+    validation = read_trajectory(folder / "validation/quadratic.h5")
     optimum = written["models"]["quadratic"]["optimum"]["natural"]
-    assert (case.friction, case.restitution) == pytest.approx((optimum["friction"], optimum["restitution"]))
-    assert read_trajectory(folder / "validation/quadratic.h5").attrs["friction"] == pytest.approx(case.friction)
-    assert mse == pytest.approx(0.0, abs=1e-3)
+    assert validation.attrs["engine"] == "builtin" and validation.attrs["size_scale"] == 8.0
+    assert (validation.attrs["friction"], validation.attrs["restitution"]) == pytest.approx(
+        (optimum["friction"], optimum["restitution"])
+    )
+    assert mse == pytest.approx(objective(validation, measured, connected), rel=1e-12) and mse > 0
 
     section = tmp_path / "results/report/doe.md"
     text = pipeline.doe.write_section(
@@ -294,5 +289,5 @@ def test_stage_jobs_on_synthetic_trajectories(tmp_path, monkeypatch):
         section,
         runout=connected.to_config(),
     )
-    assert section.read_text() == text and "**MSE = 0.000**" in text
+    assert section.read_text() == text and f"**MSE = {mse:.3f}**" in text  # the validation run's score
     assert "](../doe/quartz/response_surface.png)" in text and (folder / "runout.png").stat().st_size > 10_000
