@@ -35,7 +35,7 @@ def main():
         duration_over_tstar=args.duration,
         name="benchmark",
     )
-    simulate_collapse(case.replace(column_length=0.005, duration_over_tstar=0.1))  # compile first
+    simulate_collapse(case.replace(L_i=0.005, duration_over_tstar=0.1))  # compile first
     t0 = time.perf_counter()
     packing = settle_column(case)
     settle_time = time.perf_counter() - t0

@@ -46,7 +46,7 @@ def crossval_pair(liggghts, mu, e, args, scratch):
     for seed in range(args.seeds):
         case = CollapseCase(
             "quartz",
-            args.column_length,
+            args.L_i,
             args.aspect_ratio,
             mu,
             e,
@@ -130,7 +130,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size-scale", type=float, default=3.0)
     parser.add_argument("--aspect-ratio", type=float, default=1.0)
-    parser.add_argument("--column-length", type=float, default=0.02)
+    parser.add_argument("--L-i", type=float, default=0.02, help="initial column length L_i (m)")
     parser.add_argument("--seeds", type=int, default=10, help="packings per (mu, e) pair")
     parser.add_argument("--throughput-duration", type=float, default=0.5, help="t* simulated for the throughput")
     args = parser.parse_args()
@@ -156,7 +156,7 @@ def main():
                 "liggghts_version": liggghts.version(),
                 "crossval_case": {
                     "material": "quartz",
-                    "L_i": args.column_length,
+                    "L_i": args.L_i,
                     "aspect_ratio": args.aspect_ratio,
                     "size_scale": args.size_scale,
                     "seeds": args.seeds,

@@ -42,7 +42,7 @@ class ComparisonError(ValueError):
 # case fields that say which column and which run it is, not which DEM model
 NOT_MODEL_FIELDS = (
     "material",
-    "column_length",
+    "L_i",
     "aspect_ratio",
     "friction",
     "restitution",
@@ -84,7 +84,7 @@ def case_like(
     """The case of a trajectory's column and DEM model at other (mu, e) and packing seed."""
     return CollapseCase(
         material=str(attrs["material"]),
-        column_length=float(attrs["L_i"]),
+        L_i=float(attrs["L_i"]),
         aspect_ratio=float(attrs["aspect_ratio"]),
         friction=friction,
         restitution=restitution,

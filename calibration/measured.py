@@ -77,7 +77,7 @@ class MeasuredColumn:
         """
         case = CollapseCase(
             material=self.material,
-            column_length=self.L_i,
+            L_i=self.L_i,
             aspect_ratio=self.aspect_ratio,
             friction=friction,
             restitution=restitution,

@@ -1,6 +1,6 @@
 """Run one collapse case end to end with the builtin engine: trajectory HDF5 + figure.
 
-    python -m dem --material quartz --column-length 0.02 --aspect-ratio 2 --friction 0.5 \
+    python -m dem --material quartz --L-i 0.02 --aspect-ratio 2 --friction 0.5 \
         --restitution 0.65 --size-scale 3 --out results/one_case/case.h5
 """
 
@@ -22,7 +22,7 @@ log = logging.getLogger("dem")
 def main(argv=None):
     parser = argparse.ArgumentParser(prog="python -m dem", description=__doc__.splitlines()[0])
     parser.add_argument("--material", default="quartz")
-    parser.add_argument("--column-length", type=float, default=0.02, help="L_i (m)")
+    parser.add_argument("--L-i", type=float, default=0.02, help="initial column length L_i (m)")
     parser.add_argument("--aspect-ratio", type=float, default=2.0, help="a = H_i / L_i")
     parser.add_argument("--friction", type=float, default=0.5)
     parser.add_argument("--restitution", type=float, default=0.65)
@@ -40,7 +40,7 @@ def main(argv=None):
     try:
         case = CollapseCase(
             args.material,
-            args.column_length,
+            args.L_i,
             args.aspect_ratio,
             args.friction,
             args.restitution,

@@ -13,6 +13,8 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 
+from dem.fields import from_mapping
+
 GRAVITY = 9.81  # m/s^2
 
 
@@ -75,11 +77,11 @@ class CollapseCase:
     """
 
     material: Material
-    column_length: float  # L_i (m)
+    L_i: float  # initial column length (m)
     aspect_ratio: float  # a = H_i / L_i
     friction: float  # mu, particle-particle
     restitution: float  # e, particle-particle
-    friction_wall: float | None = None  # mu_w; None: follows `friction` (see wall_friction)
+    friction_wall: float | None = None  # None: follows `friction` (see resolved_friction_wall)
     restitution_wall: float | None = None
     seed: int = 0
     size_scale: float = 1.0  # coarse-graining factor on the grain diameter
@@ -93,7 +95,7 @@ class CollapseCase:
     # Candidate mechanisms beyond the paper's model, each off by default (see README):
     rolling_friction: float = 0.0  # mu_r of a type-C (EPSD2) rolling resistance
     cohesion_energy: float = 0.0  # w (J/m^2): pull-off force 1.5 pi w R* while in contact
-    friction_base: float | None = None  # floor friction; None: follows wall_friction
+    friction_base: float | None = None  # floor friction; None: follows the wall friction
     sidewall_friction: float = 0.0  # mu of the front/back walls of a quasi-2D channel
     channel_width: float = 0.01  # m, width of that channel (used when sidewall_friction > 0)
     gate_lift_speed: float = 0.0  # m/s of the gate's lower edge; 0: the gate vanishes at t = 0
@@ -104,7 +106,7 @@ class CollapseCase:
     def __post_init__(self):
         object.__setattr__(self, "material", get_material(self.material))
         positive = (
-            "column_length",
+            "L_i",
             "aspect_ratio",
             "size_scale",
             "box_width",
@@ -160,45 +162,44 @@ class CollapseCase:
                 )
         if not isinstance(self.seed, int) or self.seed < 0:
             raise CaseError(f"seed must be a non-negative integer, got {self.seed!r}")
-        if self.column_length > 0.8 * self.box_width:
+        if self.L_i > 0.8 * self.box_width:
             raise CaseError(
-                f"column_length = {self.column_length} m leaves no room to flow in a "
-                f"{self.box_width} m box (at most 80% of box_width)"
+                f"L_i = {self.L_i} m leaves no room to flow in a {self.box_width} m box (at most 80% of box_width)"
             )
-        if self.initial_height * FILL_HEIGHT_FACTOR > self.box_height:
+        if self.H_i * FILL_HEIGHT_FACTOR > self.box_height:
             raise CaseError(
-                f"column of height {self.initial_height:.4g} m (aspect_ratio x column_length) does not "
+                f"column of height {self.H_i:.4g} m (aspect_ratio x L_i) does not "
                 f"fit the {self.box_height} m box once poured (needs {FILL_HEIGHT_FACTOR} x its height)"
             )
-        if self.column_length < 4 * self.diameter:
-            raise CaseError(
-                f"column_length = {self.column_length} m is under 4 grain diameters ({self.diameter:.3g} m)"
-            )
+        if self.L_i < 4 * self.diameter:
+            raise CaseError(f"L_i = {self.L_i} m is under 4 grain diameters ({self.diameter:.3g} m)")
 
     # -- resolved wall contact parameters (a wall value left None follows the grain value) -----
     @property
-    def wall_friction(self) -> float:
+    def resolved_friction_wall(self) -> float:
+        """friction_wall, or friction where it is None."""
         return self.friction if self.friction_wall is None else self.friction_wall
 
     @property
-    def base_friction(self) -> float:
-        """Friction of the floor (basal friction)."""
-        return self.wall_friction if self.friction_base is None else self.friction_base
+    def resolved_friction_base(self) -> float:
+        """Friction of the floor (basal friction): friction_base, or the wall friction where it is None."""
+        return self.resolved_friction_wall if self.friction_base is None else self.friction_base
 
     @property
-    def wall_restitution(self) -> float:
+    def resolved_restitution_wall(self) -> float:
+        """restitution_wall, or restitution where it is None."""
         return self.restitution if self.restitution_wall is None else self.restitution_wall
 
     # -- derived geometry and scales ---------------------------------------------------------
     @property
-    def initial_height(self) -> float:
+    def H_i(self) -> float:
         """H_i = a L_i (m)."""
-        return self.aspect_ratio * self.column_length
+        return self.aspect_ratio * self.L_i
 
     @property
     def t_star(self) -> float:
         """Free-fall time scale sqrt(H_i / g) (s)."""
-        return math.sqrt(self.initial_height / GRAVITY)
+        return math.sqrt(self.H_i / GRAVITY)
 
     @property
     def diameter(self) -> float:
@@ -248,7 +249,7 @@ class CollapseCase:
         This is how a 2D MFIX DEM deck (no_k, domain depth one diameter) fills a region at a given
         solids volume fraction; the settled 2D packing then sets the actual column height.
         """
-        volume = self.column_length * self.initial_height * self.diameter
+        volume = self.L_i * self.H_i * self.diameter
         return max(1, int(round(self.material.solid_fraction * volume / (math.pi * self.diameter**3 / 6.0))))
 
     # -- serialisation ------------------------------------------------------------------------
@@ -260,14 +261,14 @@ class CollapseCase:
             material_diameter=self.material.diameter,
             material_density=self.material.density,
             material_solid_fraction=self.material.solid_fraction,
-            L_i=self.column_length,
-            H_i=self.initial_height,
+            L_i=self.L_i,
+            H_i=self.H_i,
             t_star=self.t_star,
             diameter=self.diameter,
             time_step=self.time_step,
-            friction_wall=self.wall_friction,
-            restitution_wall=self.wall_restitution,
-            friction_base=self.base_friction,
+            friction_wall=self.resolved_friction_wall,
+            restitution_wall=self.resolved_restitution_wall,
+            friction_base=self.resolved_friction_base,
             output_interval=self.frame_interval,
         )
         return out
@@ -279,18 +280,22 @@ class CollapseCase:
 
     @classmethod
     def from_dict(cls, data: dict) -> CollapseCase:
-        """Build from a mapping; unknown keys are an error naming them."""
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(data) - known
-        if unknown:
-            raise CaseError(f"unknown case field(s) {sorted(unknown)}; known: {sorted(known)}")
-        return cls(**data)
+        """Build from a mapping; an unknown or renamed key is an error naming it (dem.fields)."""
+        return from_mapping(cls, data, CaseError, "case", RENAMED_CASE_KEYS)
 
     def replace(self, **changes) -> CollapseCase:
         return dataclasses.replace(self, **changes)
 
 
 MAX_DT_OVER_CONTACT_TIME = 0.1
+# Old spellings of case fields (one name per quantity since issue 14): old -> new.
+RENAMED_CASE_KEYS = {
+    "column_length": "L_i",
+    "initial_height": "H_i (derived: aspect_ratio x L_i)",
+    "wall_friction": "friction_wall",
+    "wall_restitution": "restitution_wall",
+    "base_friction": "friction_base",
+}
 FILL_HEIGHT_FACTOR = 1.6  # the column is poured from up to this multiple of H_i before settling
 
 

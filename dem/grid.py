@@ -160,9 +160,8 @@ def case_table(config: dict) -> dict[str, dict]:
 
 
 def case_from_row(row: dict) -> CollapseCase:
-    """The CollapseCase of a case-table row (L_i -> column_length; bookkeeping columns dropped)."""
-    fields = {k: v for k, v in row.items() if k not in ("dataset", "case_id", "split", "L_i")}
-    fields["column_length"] = row["L_i"]
+    """The CollapseCase of a case-table row (bookkeeping columns dropped)."""
+    fields = {k: v for k, v in row.items() if k not in ("dataset", "case_id", "split")}
     return CollapseCase.from_dict(dict(fields, name=f"{row['dataset']}/{row['case_id']}"))
 
 

@@ -39,7 +39,7 @@ def pour_column(case: CollapseCase) -> tuple[np.ndarray, np.ndarray]:
     d_max = 2 * radius.max()
     pitch = LATTICE_CLEARANCE * d_max
     row_height = pitch * math.sqrt(3) / 2
-    per_row = int((case.column_length - d_max) / pitch) + 1
+    per_row = int((case.L_i - d_max) / pitch) + 1
     sites = []
     row = 0
     while len(sites) < case.n_particles:
@@ -49,7 +49,7 @@ def pour_column(case: CollapseCase) -> tuple[np.ndarray, np.ndarray]:
         row += 1
     positions = np.array(sites[: case.n_particles])
     top = positions[:, 1].max() + 0.5 * d_max
-    if top > FILL_HEIGHT_FACTOR * case.initial_height:
+    if top > FILL_HEIGHT_FACTOR * case.H_i:
         raise CaseError(
             f"solid_fraction: {case.n_particles} grains of {case.material.name} need a pour of "
             f"{top:.4g} m, over {FILL_HEIGHT_FACTOR} x H_i; lower solid_fraction or polydispersity"
@@ -63,13 +63,13 @@ def pour_column(case: CollapseCase) -> tuple[np.ndarray, np.ndarray]:
 
 def walls_with_gate(case: CollapseCase) -> tuple:
     """(x_left, x_right, y_floor, x_gate) in m, gate closed at L_i."""
-    return (0.0, case.box_width, 0.0, case.column_length)
+    return (0.0, case.box_width, 0.0, case.L_i)
 
 
 def walls_open(case: CollapseCase) -> tuple:
     """Walls from t = 0: the gate is gone, or its lower edge rises at case.gate_lift_speed (m/s)."""
     if case.gate_lift_speed > 0:
-        return (0.0, case.box_width, 0.0, case.column_length, case.gate_lift_speed)
+        return (0.0, case.box_width, 0.0, case.L_i, case.gate_lift_speed)
     return (0.0, case.box_width, 0.0, math.inf)
 
 
@@ -86,7 +86,7 @@ def settle_state(case: CollapseCase, progress=None) -> State:
     law = ContactLaw.from_case(case)
     chunk = SETTLE_CHECK_TSTAR * case.t_star
     steps = max(1, math.ceil(chunk / case.time_step))
-    rest_speed = REST_SPEED * math.sqrt(9.81 * case.initial_height)
+    rest_speed = REST_SPEED * math.sqrt(9.81 * case.H_i)
     for k in range(int(MAX_SETTLE_TSTAR / SETTLE_CHECK_TSTAR)):
         run(
             state,

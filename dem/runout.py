@@ -29,6 +29,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from dem.fields import from_mapping
+
 FRONTS = ("connected_front", "dense_front")
 REACHED = "_reached"
 METHODS = FRONTS + tuple(f + REACHED for f in FRONTS)
@@ -76,10 +78,7 @@ class RunoutMethod:
             return cls()
         if isinstance(section, str):
             return cls(method=section)
-        unknown = sorted(set(section) - {f.name for f in dataclasses.fields(cls)})
-        if unknown:
-            raise RunoutError(f"runout: unknown key(s) {unknown} (known: {[f.name for f in dataclasses.fields(cls)]})")
-        return cls(**section)
+        return from_mapping(cls, section, RunoutError, "runout")
 
     def to_config(self) -> dict:
         return dataclasses.asdict(self)

@@ -37,7 +37,7 @@ def case_rows(design: pd.DataFrame, measured, dataset: str, **case_fields) -> li
             "case_id": run_id,
             "split": "doe",
             "material": case.material.name,
-            "L_i": case.column_length,
+            "L_i": case.L_i,
             "aspect_ratio": case.aspect_ratio,
             "friction": case.friction,
             "restitution": case.restitution,

@@ -57,13 +57,13 @@ def velocity_features(position_sequence, velocity_mean, velocity_std):
     return ((velocity - velocity_mean) / velocity_std).flatten(1)
 
 
-def wall_features(position, bounds, connectivity_radius):
+def wall_features(position, bounds, connectivity_radius_m):
     """position [N, 2] (m), bounds [2, 2] ((x_min, x_max), (y_min, y_max)) -> [N, 4]:
     distances to left, right, bottom, top walls / radius, clipped to [-1, 1]."""
     lower = position - bounds[:, 0]
     upper = bounds[:, 1] - position
     distance = torch.stack([lower[:, 0], upper[:, 0], lower[:, 1], upper[:, 1]], dim=1)
-    return torch.clamp(distance / connectivity_radius, -1.0, 1.0)
+    return torch.clamp(distance / connectivity_radius_m, -1.0, 1.0)
 
 
 def scaled(values, low, high):
@@ -78,11 +78,11 @@ def size_features(radius, mean_radius):
     return (radius / mean_radius - 1.0)[:, None]
 
 
-def edge_features(position, grain_radius, senders, receivers, connectivity_radius):
+def edge_features(position, grain_radius, senders, receivers, connectivity_radius_m):
     """position [N, 2] (m), grain_radius [N] (m) -> [E, 4]: displacement sender - receiver,
     its norm, and the surface gap |d| - r_s - r_r, all / connectivity radius."""
-    displacement = (position[senders] - position[receivers]) / connectivity_radius
+    displacement = (position[senders] - position[receivers]) / connectivity_radius_m
     # the norm's gradient is undefined at 0; no self edges, but coincident grains must not give NaN
     distance = torch.sqrt(torch.sum(displacement**2, dim=-1, keepdim=True) + 1e-12)
-    gap = distance - ((grain_radius[senders] + grain_radius[receivers]) / connectivity_radius)[:, None]
+    gap = distance - ((grain_radius[senders] + grain_radius[receivers]) / connectivity_radius_m)[:, None]
     return torch.cat([displacement, distance, gap.to(distance.dtype)], dim=-1)

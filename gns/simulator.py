@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
+from dem.fields import from_mapping
 from gns import features
 from gns.graph import radius_graph
 from gns.network import EncodeProcessDecode
@@ -26,6 +27,8 @@ LAYOUT_KEYS = ("L_i", "H_i")
 # entries of a dataset's parameter_ranges that are not DEM parameters: the layout, and the
 # aspect ratio H_i / L_i that the layout already gives
 NOT_PARAMETERS = LAYOUT_KEYS + ("aspect_ratio",)
+# checkpoint keys renamed since (issue 14: the metres carry their unit; the config's keys are in diameters)
+RENAMED = {"connectivity_radius": "connectivity_radius_m", "noise_std": "noise_std_m"}
 WALL_CLAMP_DEPTH = 0.5  # grain radii: the deepest a rollout lets a grain centre sink into a wall
 
 
@@ -37,7 +40,7 @@ class CheckpointError(ValueError):
 class SimulatorConfig:
     """Everything needed to rebuild a simulator (stored in checkpoints as a plain dict)."""
 
-    connectivity_radius: float  # m
+    connectivity_radius_m: float  # m
     bounds: list  # [[x_min, x_max], [y_min, y_max]] (m)
     parameter_ranges: dict  # name -> [min, max]: DEM parameters and L_i, H_i
     mean_radius: float  # m, mean grain radius of the dataset
@@ -46,7 +49,7 @@ class SimulatorConfig:
     velocity_std: list  # [2] m/frame
     acceleration_mean: list  # [2] m/frame^2
     acceleration_std: list  # [2] m/frame^2
-    noise_std: float = 0.0  # m/frame, training input noise (combined into stats)
+    noise_std_m: float = 0.0  # m/frame, training input noise (combined into stats)
     n_input_frames: int = 6  # C
     latent_size: int = 128
     mlp_hidden_layers: int = 2
@@ -96,11 +99,7 @@ class SimulatorConfig:
 
     @classmethod
     def from_dict(cls, data: dict) -> SimulatorConfig:
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(data) - known
-        if unknown:
-            raise CheckpointError(f"simulator config has unknown key(s) {sorted(unknown)}; written by another version")
-        return cls(**data)
+        return from_mapping(cls, data, CheckpointError, "simulator config (written by another version?)", RENAMED)
 
     def check_compatible(self, metadata: dict, where: str = "dataset") -> None:
         """Raise CheckpointError when the dataset's parameters, frame interval or bounds differ."""
@@ -160,7 +159,7 @@ class LearnedSimulator(nn.Module):
         self.type_embedding = nn.Embedding(c.n_particle_types, c.type_embedding_size)
         # Sanchez-Gonzalez et al.: the input noise widens the statistics the inputs and targets
         # are normalised with, so that noisy inputs stay O(1) after normalisation.
-        noise = torch.tensor(c.noise_std, dtype=torch.float64)
+        noise = torch.tensor(c.noise_std_m, dtype=torch.float64)
         combine = lambda std: torch.sqrt(torch.tensor(std, dtype=torch.float64) ** 2 + noise**2)  # noqa: E731
         self.register_buffer("velocity_mean", torch.tensor(c.velocity_mean, dtype=torch.float32))
         self.register_buffer("velocity_std", combine(c.velocity_std).float())
@@ -189,18 +188,18 @@ class LearnedSimulator(nn.Module):
                 f"(trained with {c.n_particle_types} type(s))"
             )
         position = position_sequence[:, -1]
-        senders, receivers = radius_graph(position, c.connectivity_radius, context.graph_index, c.max_neighbours)
+        senders, receivers = radius_graph(position, c.connectivity_radius_m, context.graph_index, c.max_neighbours)
         per_node = context.graph_index
         blocks = {
             "velocity": features.velocity_features(position_sequence, self.velocity_mean, self.velocity_std),
-            "walls": features.wall_features(position, self.bounds, c.connectivity_radius),
+            "walls": features.wall_features(position, self.bounds, c.connectivity_radius_m),
             "particle_type": self.type_embedding(context.particle_type),
             "parameters": features.scaled(context.parameters, self.parameter_low, self.parameter_high)[per_node],
             "layout": features.scaled(context.layout, self.layout_low, self.layout_high)[per_node],
             "size": features.size_features(context.radius, c.mean_radius),
         }
         node_features = torch.cat([blocks[name].to(position.dtype) for name, _ in c.node_layout], dim=-1)
-        edge_features = features.edge_features(position, context.radius, senders, receivers, c.connectivity_radius)
+        edge_features = features.edge_features(position, context.radius, senders, receivers, c.connectivity_radius_m)
         return node_features, edge_features, senders, receivers
 
     def forward(self, position_sequence, context: Context):

@@ -36,6 +36,7 @@ import numpy as np
 import torch
 
 from dem.atomic import atomic_path
+from dem.fields import from_mapping
 from dem.runout import RunoutError, RunoutMethod
 from dem.trajectory import read_trajectory
 from gns.data import Batch, TrajectoryWindows, read_metadata, split_paths
@@ -93,12 +94,7 @@ class TrainSettings:
 
     @classmethod
     def from_config(cls, section: dict | None) -> TrainSettings:
-        section = dict(section or {})
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = set(section) - known
-        if unknown:
-            raise ValueError(f"config gns: unknown key(s) {sorted(unknown)}; known: {sorted(known)}")
-        return cls(**section)
+        return from_mapping(cls, dict(section or {}), ValueError, "config gns")
 
     def learning_rate_at(self, step: int) -> float:
         """lr(step) = (lr0 - lr_final) 0.1^(step / decay_steps) + lr_final (Sanchez-Gonzalez et al.)."""
@@ -110,7 +106,7 @@ def simulator_config(metadata: dict, settings: TrainSettings) -> SimulatorConfig
     """Model config from the dataset's geometry and statistics and the training settings."""
     diameter = float(metadata["material_diameter"])
     return SimulatorConfig(
-        connectivity_radius=settings.connectivity_radius * diameter,
+        connectivity_radius_m=settings.connectivity_radius * diameter,
         bounds=[[float(v) for v in b] for b in metadata["bounds"]],
         parameter_ranges={k: [float(v) for v in r] for k, r in metadata["parameter_ranges"].items()},
         mean_radius=0.5 * diameter,
@@ -119,7 +115,7 @@ def simulator_config(metadata: dict, settings: TrainSettings) -> SimulatorConfig
         velocity_std=list(map(float, metadata["velocity_std"])),
         acceleration_mean=list(map(float, metadata["acceleration_mean"])),
         acceleration_std=list(map(float, metadata["acceleration_std"])),
-        noise_std=settings.noise_std * diameter,
+        noise_std_m=settings.noise_std * diameter,
         n_input_frames=settings.n_input_frames,
         latent_size=settings.latent_size,
         mlp_hidden_layers=settings.mlp_hidden_layers,
@@ -130,11 +126,11 @@ def simulator_config(metadata: dict, settings: TrainSettings) -> SimulatorConfig
     )
 
 
-def random_walk_noise(position_sequence: torch.Tensor, noise_std: float, generator: torch.Generator) -> torch.Tensor:
+def random_walk_noise(position_sequence: torch.Tensor, noise_std_m: float, generator: torch.Generator) -> torch.Tensor:
     """Noise [N, C, 2] (m) for position_sequence [N, C, 2]: a random walk on the C - 1 velocities
-    whose last step has std noise_std (m/frame); the first position is left untouched."""
+    whose last step has std noise_std_m (m/frame); the first position is left untouched."""
     n, c, _ = position_sequence.shape
-    velocity_noise = torch.randn((n, c - 1, 2), generator=generator) * (noise_std / math.sqrt(c - 1))
+    velocity_noise = torch.randn((n, c - 1, 2), generator=generator) * (noise_std_m / math.sqrt(c - 1))
     position_noise = torch.cumsum(torch.cumsum(velocity_noise, dim=1), dim=1)
     return torch.cat([torch.zeros((n, 1, 2)), position_noise], dim=1)
 
@@ -320,7 +316,7 @@ class Trainer:
         else:
             indices = self.sampler.integers(0, len(self.train_windows), s.batch_size)
             batch = self.train_windows.batch(indices)
-            noise = random_walk_noise(batch.position_sequence, self.config.noise_std, self.noise)
+            noise = random_walk_noise(batch.position_sequence, self.config.noise_std_m, self.noise)
             batch = batch.to(self.device)
             loss = one_step_loss(self.simulator, batch, noise.to(self.device))
         self.optimizer.zero_grad()
@@ -406,7 +402,7 @@ class Trainer:
             len(self.train_windows.files),
             len(self.valid_paths),
             self.device,
-            self.config.connectivity_radius,
+            self.config.connectivity_radius_m,
         )
         tick, tick_step = time.perf_counter(), self.step
         while self.step < s.steps:
@@ -466,7 +462,7 @@ class Trainer:
         if batch is not None:  # the graph of the last training batch, per graph
             senders, _ = radius_graph(
                 batch.position_sequence[:, -1],
-                self.config.connectivity_radius,
+                self.config.connectivity_radius_m,
                 batch.context.graph_index,
                 self.config.max_neighbours,
             )

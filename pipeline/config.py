@@ -19,6 +19,7 @@ import yaml
 
 from calibration.gns_objective import InverseDesignError, check_geometry_of_dataset, nearest_dataset
 from calibration.measured import load_column
+from dem.case import RENAMED_CASE_KEYS
 from dem.grid import SPLITS, VARIED, ConfigError, case_id_of
 from dem.runout import RunoutError, RunoutMethod
 
@@ -43,6 +44,9 @@ def validate_config(config: dict, schema_path) -> dict:
     """
     schema = yaml.safe_load(Path(schema_path).read_text())
     config = copy.deepcopy(dict(config))
+    renamed = _renamed_keys(config)
+    if renamed:  # before the schema, whose "unexpected key" would not say what the key is now called
+        raise ConfigError("invalid config:\n  " + "\n  ".join(renamed))
     validator = jsonschema.Draft202012Validator(schema)
     problems = [_describe(error, schema) for error in validator.iter_errors(config)]
     problems += _check_gns_per_dataset(config.get("gns", {}), schema)
@@ -140,6 +144,18 @@ def _fill_defaults(instance, schema: dict, root: dict) -> None:
         for key, value in instance.items():
             if key not in schema.get("properties", {}):
                 _fill_defaults(value, extra, root)
+
+
+def _renamed_keys(config: dict) -> list[str]:
+    """`key.path: renamed to NEW` for every key of an older version (README: "Renamed keys")."""
+    problems = []
+    for name, spec in (config.get("datasets") or {}).items():
+        for old in sorted(set(spec or {}) & set(RENAMED_CASE_KEYS)):
+            problems.append(f"datasets.{name}.{old}: renamed to {RENAMED_CASE_KEYS[old]}")
+        for case_id, changes in ((spec or {}).get("overrides") or {}).items():
+            for old in sorted(set(changes or {}) & set(RENAMED_CASE_KEYS)):
+                problems.append(f"datasets.{name}.overrides.{case_id}.{old}: renamed to {RENAMED_CASE_KEYS[old]}")
+    return problems
 
 
 def _check_dataset(name: str, spec: dict) -> list[str]:

@@ -15,8 +15,8 @@ from dem.trajectory import Trajectory, TrajectoryError, read_trajectory, write_t
     "changes, field",
     [
         (dict(material="marble"), "material"),
-        (dict(column_length=-0.02), "column_length"),
-        (dict(column_length=math.nan), "column_length"),
+        (dict(L_i=-0.02), "L_i"),
+        (dict(L_i=math.nan), "L_i"),
         (dict(aspect_ratio=0.0), "aspect_ratio"),
         (dict(friction=-0.1), "friction"),
         (dict(friction_wall=math.inf), "friction_wall"),
@@ -25,13 +25,13 @@ from dem.trajectory import Trajectory, TrajectoryError, read_trajectory, write_t
         (dict(restitution_wall=-0.5), "restitution_wall"),
         (dict(size_scale=-1.0), "size_scale"),
         (dict(aspect_ratio=20.0), "column of height"),
-        (dict(column_length=0.45), "column_length"),
+        (dict(L_i=0.45), "L_i"),
         (dict(dt_over_contact_time=0.5), "dt_over_contact_time"),
         (dict(seed=-1), "seed"),
     ],
 )
 def test_bad_case_fields_are_named(changes, field):
-    base = dict(material="quartz", column_length=0.02, aspect_ratio=2.0, friction=0.5, restitution=0.6)
+    base = dict(material="quartz", L_i=0.02, aspect_ratio=2.0, friction=0.5, restitution=0.6)
     with pytest.raises(CaseError, match=field):
         CollapseCase(**{**base, **changes})
 
@@ -47,15 +47,18 @@ def test_custom_material_and_errors():
 
 def test_derived_scales_follow_the_paper():
     case = CollapseCase("quartz", 0.02, 6.0, 0.5, 0.65)
-    assert case.initial_height == pytest.approx(0.12)
+    assert case.H_i == pytest.approx(0.12)
     assert case.t_star == pytest.approx(math.sqrt(0.12 / 9.81))
     assert case.n_frames == 101 and case.frame_interval == pytest.approx(case.t_star / 25)
     # wall values follow the grain values unless set, also through replace()
-    assert case.replace(friction=0.8).wall_friction == 0.8
-    assert case.replace(friction_wall=0.2).wall_friction == 0.2
+    assert case.replace(friction=0.8).resolved_friction_wall == 0.8
+    assert case.replace(friction_wall=0.2).resolved_friction_wall == 0.2
     assert CollapseCase.from_dict(case.to_dict()) == case
-    with pytest.raises(CaseError, match="unknown case field"):
+    with pytest.raises(CaseError, match=r"case: unknown key\(s\) \['mu'\]"):
         CollapseCase.from_dict({**case.to_dict(), "mu": 0.3})
+    old = {k: v for k, v in case.to_dict().items() if k != "L_i"}
+    with pytest.raises(CaseError, match="column_length is now L_i"):
+        CollapseCase.from_dict({**old, "column_length": 0.02})
 
 
 def _trajectory(n_frames=3, n=4):

@@ -37,7 +37,7 @@ RUNOUT = RunoutMethod()  # the config's default: every stage here reads L* by it
 def tiny_case(friction, restitution, seed=0, **changes):
     return CollapseCase(
         "quartz",
-        column_length=0.01,
+        L_i=0.01,
         aspect_ratio=2.0,
         friction=friction,
         restitution=restitution,
@@ -74,12 +74,12 @@ def test_case_fields_keep_the_dem_model_and_let_wall_values_follow(tiny):
     attrs = read_attrs(tiny["paths"][0])
     fields = model_case_fields(attrs)
     assert fields["size_scale"] == 4 and fields["output_interval"] == pytest.approx(0.004)
-    assert "friction_wall" not in fields and "seed" not in fields and "column_length" not in fields
+    assert "friction_wall" not in fields and "seed" not in fields and "L_i" not in fields
     case = case_like(attrs, 0.7, 0.5, seed=3)
-    assert case.wall_friction == 0.7 and case.wall_restitution == 0.5  # follow the new grain values
-    assert (case.column_length, case.aspect_ratio, case.seed) == (0.01, 2.0, 3)
+    assert case.resolved_friction_wall == 0.7 and case.resolved_restitution_wall == 0.5  # follow the new grain values
+    assert (case.L_i, case.aspect_ratio, case.seed) == (0.01, 2.0, 3)
     apart = case_like(dict(attrs, friction_wall=0.2), 0.7, 0.5, seed=3)
-    assert apart.wall_friction == 0.2  # a wall value set apart stays
+    assert apart.resolved_friction_wall == 0.2  # a wall value set apart stays
     with_rolling = model_case_fields(simulate_collapse(tiny_case(0.5, 0.5, rolling_friction=0.1)).attrs)
     assert with_rolling["rolling_friction"] == 0.1  # mechanisms are part of the model
     assert measured_case_fields({"splits": {"train": tiny["paths"]}}, seed=5)["seed"] == 5

@@ -134,3 +134,34 @@ def test_checks_run_in_stage_order():
         config["inverse"]["recovery_datasets"] = ["quartz_friction"]
 
     assert cross_key_error(validated(edit=edit)).startswith("config key gns.datasets: 'nope'")
+
+
+@pytest.mark.parametrize(
+    "where, old, new",
+    [
+        ("dataset", "column_length", "L_i"),
+        ("dataset", "wall_friction", "friction_wall"),
+        ("override", "base_friction", "friction_base"),
+    ],
+)
+def test_old_case_key_names_its_new_name(where, old, new):
+    """One name per quantity (README "Renamed keys"): a config written for the old names fails at the key."""
+
+    def edit(config):
+        spec = config["datasets"]["tiny_friction"]
+        if where == "dataset":
+            spec[old] = spec.pop("L_i") if old == "column_length" else 0.5
+        else:
+            spec["overrides"] = {"case_000": {old: 0.5}}
+
+    with pytest.raises(ConfigError) as info:
+        validated("test.yaml", edit)
+    prefix = "datasets.tiny_friction." + ("overrides.case_000." if where == "override" else "")
+    assert f"{prefix}{old}: renamed to {new}" in str(info.value)
+
+
+def test_old_checkpoint_key_names_its_new_name():
+    from gns.simulator import CheckpointError, SimulatorConfig
+
+    with pytest.raises(CheckpointError, match="connectivity_radius is now connectivity_radius_m"):
+        SimulatorConfig.from_dict({"connectivity_radius": 0.004})

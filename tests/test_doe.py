@@ -49,7 +49,7 @@ def test_design_cases_take_the_measured_geometry():
     assert len(cases) == 50
     case = cases["run_49"]
     assert (case.friction, case.restitution, case.seed, case.size_scale) == (0.6, 0.6, 6, 4.0)
-    assert {c.aspect_ratio for c in cases.values()} == {6.0} and {c.column_length for c in cases.values()} == {0.02}
+    assert {c.aspect_ratio for c in cases.values()} == {6.0} and {c.L_i for c in cases.values()} == {0.02}
     assert cases["run_00"].friction == 0.3 and cases["run_00"].seed == 5
 
 

@@ -90,7 +90,7 @@ def test_builtin_engine_failure_names_the_deck(tiny, tmp_path):
 def test_packing_of_another_case_is_refused(tiny, tmp_path):
     case, packing = tiny
     with pytest.raises(ValueError, match="settled for another case"):
-        BuiltinEngine().simulate(case.replace(column_length=0.008), packing, tmp_path)
+        BuiltinEngine().simulate(case.replace(L_i=0.008), packing, tmp_path)
 
 
 def test_size_classes_keep_restitution_within_tolerance():

@@ -107,7 +107,7 @@ def test_features_follow_layout_and_noise_widens_statistics(metadata, dataset):
     nodes, edges, senders, receivers = sim.preprocess(sequence, ctx)
     assert nodes.shape == (traj.n_particles, sum(w for _, w in c.node_layout))
     assert edges.shape == (len(senders), 4)
-    gap = (edges[:, 2] - edges[:, 3]) * c.connectivity_radius  # centre distance - surface gap
+    gap = (edges[:, 2] - edges[:, 3]) * c.connectivity_radius_m  # centre distance - surface gap
     assert torch.allclose(gap, ctx.radius[senders] + ctx.radius[receivers])
     walls = nodes[:, 10:14]
     assert walls.min() >= -1 and walls.max() <= 1 and (walls == 1).any()  # far walls clip to 1

@@ -192,7 +192,7 @@ def test_rows_become_cases_and_decks_round_trip(tmp_path):
     row = table["tiny_multiple/case_002"]
     case = case_from_row(row)
     assert isinstance(case, CollapseCase)
-    assert case.column_length == row["L_i"] and case.friction == row["friction"]
+    assert case.L_i == row["L_i"] and case.friction == row["friction"]
     assert case.material.name == "copper" and case.size_scale == 4 and case.output_interval == 0.002
     assert case.name == "tiny_multiple/case_002"
     deck = tmp_path / "deck.json"

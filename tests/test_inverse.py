@@ -47,7 +47,7 @@ def tiny_case(friction, restitution, seed=0):
     """Quartz, a = 2, L_i = 1 cm, grains 4x coarse: 77 grains, 3 t* in 34 frames, under a second of DEM."""
     return CollapseCase(
         "quartz",
-        column_length=0.01,
+        L_i=0.01,
         aspect_ratio=2.0,
         friction=friction,
         restitution=restitution,

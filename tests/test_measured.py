@@ -62,7 +62,7 @@ def test_several_columns_noise_and_profile(tmp_path):
 def test_collapse_case_of_a_measured_column():
     quartz = load_column("data/measured/quartz_a6.csv")
     case = quartz.collapse_case(0.4, 0.5, size_scale=4.0, seed=2)
-    assert (case.column_length, case.aspect_ratio, case.material.name) == (0.02, 6.0, "quartz")
+    assert (case.L_i, case.aspect_ratio, case.material.name) == (0.02, 6.0, "quartz")
     assert (case.friction, case.restitution, case.size_scale, case.seed) == (0.4, 0.5, 4.0, 2)
     with pytest.raises(CaseError, match="duration_over_tstar"):
         quartz.collapse_case(0.4, 0.5, size_scale=4.0, duration_over_tstar=3.0)

@@ -91,7 +91,7 @@ def test_lifting_gate_lets_grains_out_from_below_only():
     speed = 0.2  # m/s: the gate clears the 20 mm column in 0.1 s, about 2 t*
     base = CollapseCase("quartz", 0.02, 1.0, 0.5, 0.65, size_scale=3.0, seed=1, duration_over_tstar=2.0)
     lifted = simulate_collapse(base.replace(gate_lift_speed=speed))
-    L_i = base.column_length
+    L_i = base.L_i
     for k, t in enumerate(lifted.times):
         out = lifted.positions[k, :, 0] > L_i + lifted.radius
         if out.any():  # they passed under the gate's lower edge and can only have fallen since

@@ -39,7 +39,7 @@ def lattice_packing(case: CollapseCase) -> Trajectory:
     n = case.n_particles
     radius = 0.5 * case.diameter * (1 + 0.1 * np.sin(1.7 * np.arange(n)))
     pitch = 2.05 * radius.max()
-    per_row = int(case.column_length / pitch)
+    per_row = int(case.L_i / pitch)
     index = np.arange(n)
     positions = np.stack([(index % per_row + 0.5) * pitch, (index // per_row + 0.5) * pitch], axis=1)
     return Trajectory(positions[None].astype(np.float32), radius, np.zeros(n, np.int32), {})

@@ -97,7 +97,7 @@ def test_settled_column_stays_at_rest_behind_gate(small_case):
     # and then nothing flows: a lone rattler in a pore may still twitch
     late = np.linalg.norm(frames[2] - frames[1], axis=1) / small_case.diameter
     assert np.percentile(late, 99) < 0.001 and late.max() < 0.02
-    assert packing.attrs["settled_height"] == pytest.approx(small_case.initial_height, rel=0.25)
+    assert packing.attrs["settled_height"] == pytest.approx(small_case.H_i, rel=0.25)
 
 
 def test_runout_grows_monotonically_to_plateau_and_friction_shortens_it(small_case):

@@ -271,7 +271,7 @@ def refuse_unsupported(case: CollapseCase, engine: str, supported=()) -> None:
     on = {
         "rolling_friction": case.rolling_friction > 0,
         "cohesion_energy": case.cohesion_energy > 0,
-        "friction_base": case.base_friction != case.wall_friction,
+        "friction_base": case.resolved_friction_base != case.resolved_friction_wall,
         "sidewall_friction": case.sidewall_friction > 0,
         "gate_lift_speed": case.gate_lift_speed > 0,
     }

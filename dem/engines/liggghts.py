@@ -122,7 +122,7 @@ def grain_types(case: CollapseCase, radius):
     """Atom type per grain (1..K, size classes), class masses [K] (kg), worst error of e."""
     mass = case.density * math.pi * (2 * np.asarray(radius, float)) ** 3 / 6.0
     index, class_mass, worst = size_classes(
-        mass, (case.restitution, case.wall_restitution), RESTITUTION_TOLERANCE, MAX_SIZE_CLASSES
+        mass, (case.restitution, case.resolved_restitution_wall), RESTITUTION_TOLERANCE, MAX_SIZE_CLASSES
     )
     return index + 1, class_mass, worst
 
@@ -136,11 +136,11 @@ def pair_tables(case: CollapseCase, class_mass) -> dict:
     m_eff[:k, :k] = np.outer(class_mass, class_mass) / np.add.outer(class_mass, class_mass)
     for wall in (k, k + 1):
         m_eff[:k, wall] = m_eff[wall, :k] = class_mass  # a wall contact: m_eff = m
-    zeta = np.full((k + 2, k + 2), damping_ratio(case.wall_restitution))
+    zeta = np.full((k + 2, k + 2), damping_ratio(case.resolved_restitution_wall))
     zeta[:k, :k] = damping_ratio(case.restitution)
-    mu = np.full((k + 2, k + 2), case.wall_friction)
+    mu = np.full((k + 2, k + 2), case.resolved_friction_wall)
     mu[:k, :k] = case.friction
-    mu[:, k + 1] = mu[k + 1, :] = case.base_friction
+    mu[:, k + 1] = mu[k + 1, :] = case.resolved_friction_base
     gamman = 2.0 * np.sqrt(kn / m_eff) * zeta  # LIGGGHTS multiplies it by m_eff again
     tables = {
         "kn": np.full((k + 2, k + 2), kn),

@@ -115,7 +115,7 @@ def phases(case: CollapseCase, radius):
     """Phase (1..M) per grain, phase diameters [M] (m) and worst relative error of e."""
     mass = case.density * math.pi * (2 * np.asarray(radius, float)) ** 3 / 6.0
     index, class_mass, worst = size_classes(
-        mass, (case.restitution, case.wall_restitution), RESTITUTION_TOLERANCE, MAX_PHASES
+        mass, (case.restitution, case.resolved_restitution_wall), RESTITUTION_TOLERANCE, MAX_PHASES
     )
     diameter = (6 * class_mass / (math.pi * case.density)) ** (1 / 3)
     return index + 1, diameter, worst
@@ -142,7 +142,7 @@ def render_deck(case: CollapseCase, packing: Trajectory) -> tuple[str, str]:
         n_phases=n_phases,
         restitution_error=f"{worst:.2%}",
         n_frames=case.n_frames,
-        column_length=_real(case.column_length),
+        L_i=_real(case.L_i),
         aspect_ratio=_real(case.aspect_ratio),
         duration=_real((case.n_frames - 1) * case.frame_interval),
         frame_interval=_real(case.frame_interval),
@@ -157,9 +157,9 @@ def render_deck(case: CollapseCase, packing: Trajectory) -> tuple[str, str]:
         kt_fac=_real(case.tangential_stiffness_ratio),
         etat_fac=_real(case.tangential_damping_ratio),
         en_input=" ".join([_real(case.restitution)] * n_pairs),
-        en_wall_input=" ".join([_real(case.wall_restitution)] * n_phases),
+        en_wall_input=" ".join([_real(case.resolved_restitution_wall)] * n_phases),
         mew=_real(case.friction),
-        mew_w=_real(case.wall_friction),
+        mew_w=_real(case.resolved_friction_wall),
         dtsolid_factor=_real(1.0 / case.dt_over_contact_time),
         vtk_filebase=VTK_FILEBASE,
     )
