@@ -1,69 +1,60 @@
 """Bayesian optimisation directly on DEM runs: what an engineer would pick instead of a surrogate.
 
-A Gaussian process (Matern 5/2 + white noise, scikit-learn) models the objective over the bounded
-parameter box; each new run goes where the expected improvement is largest. The budget counts
-every objective call (the initial Latin-hypercube design included).
+A Gaussian process (calibration.gp: Matern 5/2 + white noise) models the objective over the
+bounded parameter box; each new run goes where the expected improvement is largest. The budget
+counts every objective call (the initial Latin-hypercube design included). The call and its result
+are those of every optimiser here (calibration.optimise).
 """
 
 from __future__ import annotations
 
 import logging
 import time
-import warnings
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import minimize
 from scipy.stats import norm, qmc
-from sklearn.exceptions import ConvergenceWarning
-from sklearn.gaussian_process import GaussianProcessRegressor
-from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
+
+from calibration.gp import fit_gp
+from calibration.optimise import BatchObjective, OptimisationHistory, OptimisationResult, Progress
 
 log = logging.getLogger(__name__)
 
 
 @dataclass
-class OptimisationHistory:
-    """Every evaluation in order: params [n, p], values [n], wall time of each call (s)."""
+class BOSettings:
+    """budget: objective calls in all, the initial design included; n_initial: points of the initial
+    Latin-hypercube design; seed: of the design, the GP's restarts and the candidate points."""
 
-    names: list
-    params: list = field(default_factory=list)
-    values: list = field(default_factory=list)
-    seconds: list = field(default_factory=list)
-
-    def record(self, params, value, seconds):
-        self.params.append([float(p) for p in params])
-        self.values.append(float(value))
-        self.seconds.append(float(seconds))
-
-    @property
-    def best(self) -> tuple[np.ndarray, float]:
-        k = int(np.argmin(self.values))
-        return np.array(self.params[k]), self.values[k]
-
-    def to_dict(self) -> dict:
-        best_params, best_value = self.best
-        return {
-            "names": list(self.names),
-            "params": self.params,
-            "values": self.values,
-            "seconds": self.seconds,
-            "best_params": best_params.tolist(),
-            "best_value": best_value,
-        }
+    budget: int = 20
+    n_initial: int = 6
+    seed: int = 0
 
 
-def expected_improvement(mean, std, best):
-    """EI for minimisation; mean, std [n] of the GP at candidate points."""
+def expected_improvement(mean: np.ndarray, std: np.ndarray, best: float) -> np.ndarray:
+    """[n] EI for minimisation; mean, std [n] of the GP at candidate points, best: lowest value so far."""
     std = np.maximum(std, 1e-12)
     z = (best - mean) / std
     return (best - mean) * norm.cdf(z) + std * norm.pdf(z)
 
 
 def bayesian_optimisation(
-    objective, bounds, names, budget: int = 20, n_initial: int = 6, seed: int = 0, progress=None
-) -> OptimisationHistory:
-    """Minimise objective(params [p]) -> float within bounds [(low, high)] * p in `budget` calls."""
+    objective: BatchObjective,
+    bounds: Sequence[Sequence[float]],
+    names: Sequence[str],
+    settings: BOSettings | None = None,
+    progress: Progress | None = None,
+) -> OptimisationResult:
+    """Minimise objective(points [1, p]) -> values [1] within bounds [(low, high)] * p in
+    settings.budget calls of one point each (the calibration.optimise.Optimiser call).
+
+    Every evaluation is start 0; its iteration is 0 for the initial design, k for the k-th point
+    chosen by expected improvement. progress(call number, seconds, values [1]) after each call.
+    """
+    settings = settings or BOSettings()
+    budget, n_initial, seed = settings.budget, settings.n_initial, settings.seed
     if budget < n_initial or n_initial < 2:
         raise ValueError(f"budget ({budget}) must be at least n_initial ({n_initial}) >= 2")
     bounds = np.asarray(bounds, float)
@@ -71,12 +62,13 @@ def bayesian_optimisation(
     rng = np.random.default_rng(seed)
     history = OptimisationHistory(names=list(names))
 
-    def call(params):
+    def call(params, iteration):
         t0 = time.perf_counter()
-        value = float(objective(params))
+        value = float(np.asarray(objective(np.atleast_2d(params)), float)[0])
+        seconds = time.perf_counter() - t0
         if not np.isfinite(value):
             raise ValueError(f"objective is not finite at {dict(zip(names, params))}")
-        history.record(params, value, time.perf_counter() - t0)
+        history.record(params, value, seconds, start=0, iteration=iteration)
         log.info(
             "run %d/%d: %s -> %.4g",
             len(history.values),
@@ -85,20 +77,16 @@ def bayesian_optimisation(
             value,
         )
         if progress is not None:
-            progress(len(history.values) / budget)
+            progress(len(history.values), seconds, np.array([value]))
 
     unit = qmc.LatinHypercube(d=len(low), seed=seed).random(n_initial)
     for point in low + unit * (high - low):
-        call(point)
-    kernel = ConstantKernel(1.0) * Matern(length_scale=np.full(len(low), 0.3), nu=2.5) + WhiteKernel(1e-4)
+        call(point, 0)
     while len(history.values) < budget:
         x = (np.array(history.params) - low) / (high - low)
         y = np.array(history.values)
         y_scaled = (y - y.mean()) / (y.std() + 1e-12)
-        gp = GaussianProcessRegressor(kernel, normalize_y=False, random_state=seed, n_restarts_optimizer=2)
-        with warnings.catch_warnings():  # hyper-parameters at their bounds are fine here
-            warnings.simplefilter("ignore", ConvergenceWarning)
-            gp.fit(x, y_scaled)
+        gp = fit_gp(x, y_scaled, 1.0, np.full(len(low), 0.3), 1e-4, n_restarts=2, seed=seed)
         best = y_scaled.min()
 
         # negative_ei is only called by minimize() below, within this iteration, so it sees this gp and best.
@@ -113,5 +101,6 @@ def bayesian_optimisation(
         u = min(polished, key=lambda r: r.fun).x
         if np.min(np.linalg.norm(x - u, axis=1)) < 1e-3:  # do not pay for a run already made
             u = candidates[np.argmax(expected_improvement(mean, std, best))]
-        call(low + u * (high - low))
-    return history
+        call(low + u * (high - low), len(history.values) - n_initial + 1)
+    params, value = history.best
+    return OptimisationResult(params=params.tolist(), value=value, history=history, n_batches=len(history.values))

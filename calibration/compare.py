@@ -17,14 +17,17 @@ import dataclasses
 import json
 import logging
 import math
+import os
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from calibration.bayesopt import OptimisationHistory, bayesian_optimisation
+from calibration.bayesopt import BOSettings, bayesian_optimisation
 from calibration.measured import MeasuredColumn
 from calibration.objective import objective
+from calibration.optimise import OptimisationHistory, one_at_a_time
 from dem.atomic import atomic_path, write_text
 from dem.case import CollapseCase
 from dem.runout import RunoutMethod, runout_at
@@ -109,7 +112,7 @@ def dem_run(
     params: dict,
     case_fields: dict,
     name: str = "",
-    progress=None,
+    progress: Callable | None = None,
     dem_config: dict | None = None,
 ) -> Trajectory:
     """DEM collapse of the measured column (its material, a, L_i) at params {name: value}, with the
@@ -142,14 +145,14 @@ def validation_summary(trajectory: Trajectory, measured: MeasuredColumn, runout:
 def bayesopt_on_dem(
     measured: MeasuredColumn,
     case_fields: dict,
-    bounds,
+    bounds: Sequence[Sequence[float]],
     runout: RunoutMethod,
     budget: int = BO_MAX_RUNS,
     n_initial: int = 6,
     seed: int = 0,
-    names=("friction", "restitution"),
+    names: Sequence[str] = ("friction", "restitution"),
     dem_config: dict | None = None,
-):
+) -> tuple[OptimisationHistory, Trajectory, float]:
     """GP expected-improvement BO where every objective call is a DEM run of the measured column.
 
     Returns (OptimisationHistory, best trajectory, seconds spent). The best run's objective is a
@@ -167,13 +170,13 @@ def bayesopt_on_dem(
         return value
 
     start = time.perf_counter()
-    history = bayesian_optimisation(
-        dem_objective, bounds, list(names), budget=budget, n_initial=min(n_initial, budget), seed=seed
-    )
-    return history, best["trajectory"], time.perf_counter() - start
+    settings = BOSettings(budget=budget, n_initial=min(n_initial, budget), seed=seed)
+    result = bayesian_optimisation(one_at_a_time(dem_objective), bounds, list(names), settings)
+    return result.history, best["trajectory"], time.perf_counter() - start
 
 
-def write_bayesopt(history: OptimisationHistory, seconds: float, path, runout: RunoutMethod) -> None:
+def write_bayesopt(history: OptimisationHistory, seconds: float, path: str | os.PathLike, runout: RunoutMethod) -> None:
+    """bayesopt.json: the history's to_dict, the number of DEM runs, the seconds spent and the runout method."""
     write_text(
         path,
         json.dumps(
@@ -184,7 +187,7 @@ def write_bayesopt(history: OptimisationHistory, seconds: float, path, runout: R
     )
 
 
-def plot_bayesopt(history: dict, path, title: str = "") -> None:
+def plot_bayesopt(history: dict, path: str | os.PathLike, title: str = "") -> None:
     """The BO runs in parameter space (coloured by objective, numbered in order) and the best-so-far
     objective against the number of DEM runs."""
     from dem.plots import plt, save_figure
@@ -225,7 +228,8 @@ class Route:
     restitution: float | None = None
 
 
-def write_table(routes: list[Route], path) -> None:
+def write_table(routes: list[Route], path: str | os.PathLike) -> None:
+    """comparison.csv: one row per route (the fields of Route)."""
     with atomic_path(path) as tmp:
         with open(tmp, "w", newline="") as handle:
             writer = csv.DictWriter(handle, fieldnames=list(asdict(routes[0])))
@@ -233,7 +237,9 @@ def write_table(routes: list[Route], path) -> None:
             writer.writerows(asdict(r) for r in routes)
 
 
-def read_table(path) -> list[Route]:
+def read_table(path: str | os.PathLike) -> list[Route]:
+    """The routes of a comparison.csv written by write_table."""
+
     def number(text, kind=float):
         return None if text in ("", "None") else kind(float(text))
 
@@ -288,7 +294,7 @@ def route_totals(routes: list[Route]) -> dict:
     return totals
 
 
-def plot_comparison(routes: list[Route], path, title: str = "") -> None:
+def plot_comparison(routes: list[Route], path: str | os.PathLike, title: str = "") -> None:
     """Validated objective of each route against its DEM runs and its wall time (total and online)."""
     from dem.plots import plt, save_figure
 

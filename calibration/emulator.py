@@ -9,17 +9,14 @@ on a cheap emulator of those runs (`GPEmulator`).
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.spatial.distance import cdist
 from scipy.stats import qmc
-from sklearn.exceptions import ConvergenceWarning
-from sklearn.gaussian_process import GaussianProcessRegressor
-from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
-from threadpoolctl import threadpool_limits
 
+from calibration.gp import fit_gp
 from calibration.observables import LibraryError
 
 
@@ -45,12 +42,13 @@ class ParameterBox:
         values = np.atleast_2d(np.asarray(values, float))
         return np.where(self.log_scale, np.log(np.maximum(values, 1e-300)), values)
 
-    def to_unit(self, theta) -> np.ndarray:
+    def to_unit(self, theta: ArrayLike) -> np.ndarray:
         """[m, p] unit-cube coordinates of theta [m, p] (or [p])."""
         low, high = self._transformed(self.bounds[:, 0])[0], self._transformed(self.bounds[:, 1])[0]
         return (self._transformed(theta) - low) / (high - low)
 
-    def from_unit(self, unit) -> np.ndarray:
+    def from_unit(self, unit: ArrayLike) -> np.ndarray:
+        """[m, p] parameters (clipped to the bounds) of unit-cube points unit [m, p] (or [p])."""
         unit = np.atleast_2d(np.asarray(unit, float))
         low, high = self._transformed(self.bounds[:, 0])[0], self._transformed(self.bounds[:, 1])[0]
         values = low + unit * (high - low)
@@ -58,6 +56,7 @@ class ParameterBox:
 
     @property
     def centre(self) -> np.ndarray:
+        """[p] the parameters at the centre of the unit cube."""
         return self.from_unit(np.full(len(self.bounds), 0.5))[0]
 
 
@@ -73,12 +72,12 @@ class GPEmulator:
     for the packing scatter and chaotic flow) on the residuals, inputs scaled to the unit cube.
 
     The linear trend carries the emulator towards the corners of the box, where a zero-mean GP
-    fitted to a dozen points would fall back to the mean. Hyperparameters are fitted by
-    scikit-learn (maximum marginal likelihood); prediction of the mean is done here in numpy, for
+    fitted to a dozen points would fall back to the mean. The GP is calibration.gp's (shared with
+    the Bayesian optimisation); prediction of the mean is done here in numpy, for
     all outputs and many points at once (the fits call it hundreds of thousands of times).
     """
 
-    def __init__(self, box: ParameterBox, seed: int = 0):
+    def __init__(self, box: ParameterBox, seed: int = 0) -> None:
         self.box = box
         self.bounds = box.bounds
         self.seed = seed
@@ -86,7 +85,7 @@ class GPEmulator:
     def _unit(self, theta) -> np.ndarray:
         return self.box.to_unit(theta)
 
-    def fit(self, theta, observed, previous: GPEmulator | None = None) -> GPEmulator:
+    def fit(self, theta: ArrayLike, observed: ArrayLike, previous: GPEmulator | None = None) -> GPEmulator:
         """theta [n, p] within the bounds, observed [n, q].
 
         previous: an emulator of the same outputs fitted on fewer runs; its hyperparameters start
@@ -108,16 +107,19 @@ class GPEmulator:
             if previous is not None:
                 amplitude, length = previous.amplitude[j], previous.length[j]
                 noise = (previous.noise_std[j] / previous.scale[j]) ** 2
-            kernel = ConstantKernel(amplitude, (1e-3, 1e2)) * Matern(length, (0.05, 20.0), nu=2.5) + WhiteKernel(
-                float(np.clip(noise, 1e-6, 2.0)), (1e-6, 2.0)
+            gp = fit_gp(
+                u,
+                residual[:, j] / self.scale[j],
+                amplitude,
+                length,
+                float(np.clip(noise, 1e-6, 2.0)),
+                amplitude_bounds=(1e-3, 1e2),
+                length_bounds=(0.05, 20.0),
+                noise_bounds=(1e-6, 2.0),
+                alpha=1e-8,
+                n_restarts=0 if previous else 1,
+                seed=self.seed + j,
             )
-            gp = GaussianProcessRegressor(
-                kernel, alpha=1e-8, n_restarts_optimizer=0 if previous else 1, random_state=self.seed + j
-            )
-            # matrices of a few dozen rows: BLAS threads only fight over the shared cores
-            with warnings.catch_warnings(), threadpool_limits(1):
-                warnings.simplefilter("ignore", ConvergenceWarning)
-                gp.fit(u, residual[:, j] / self.scale[j])
             k = gp.kernel_
             self.amplitude.append(k.k1.k1.constant_value)
             self.length.append(np.atleast_1d(k.k1.k2.length_scale) * np.ones(p))
@@ -133,11 +135,11 @@ class GPEmulator:
         self.loo = np.array(self.loo).T  # [n, q]
         return self
 
-    def predict(self, theta) -> np.ndarray:
+    def predict(self, theta: ArrayLike) -> np.ndarray:
         """[m, q] emulated mean observables at theta [m, p] (or [p] -> [1, q])."""
         return self.predict_unit(self._unit(theta))
 
-    def predict_unit(self, u) -> np.ndarray:
+    def predict_unit(self, u: ArrayLike) -> np.ndarray:
         """[m, q] emulated mean observables at unit-cube points u [m, p]."""
         u = np.atleast_2d(np.asarray(u, float))
         out = np.column_stack([np.ones(len(u)), u]) @ self.trend

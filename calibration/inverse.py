@@ -25,18 +25,22 @@ reported as not identifiable.
 from __future__ import annotations
 
 import logging
+import os
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from calibration.gns_objective import DESIGN_NAMES, GNSObjective, InverseDesignError, check_geometry
-from calibration.lbfgsb import FD_STEP, FTOL, GTOL, PAPER_START, multistart_lbfgsb, starting_points
+from calibration.lbfgsb import FD_STEP, FTOL, GTOL, PAPER_START, LBFGSBSettings, multistart_lbfgsb, starting_points
 from calibration.measured import MeasuredColumn
 from calibration.objective import runout_mse
-from calibration.uncertainty import finite_difference_jacobian, laplace_posterior
+from calibration.uncertainty import LaplacePosterior, finite_difference_jacobian, laplace_posterior
 from dem.runout import RunoutMethod
 from dem.trajectory import Trajectory
+from gns.simulator import LearnedSimulator
 
 log = logging.getLogger(__name__)
 
@@ -52,8 +56,11 @@ ROUGHNESS_PROBES = 2
 
 
 # -- bounds ------------------------------------------------------------------------------------------
-def check_bounds(bounds, names, parameter_ranges: dict) -> list[tuple[float, float]]:
-    """The bounds as floats; InverseDesignError when one leaves the range the GNS was trained on."""
+def check_bounds(
+    bounds: Sequence[Sequence[float]], names: Sequence[str], parameter_ranges: dict
+) -> list[tuple[float, float]]:
+    """The bounds [(low, high)] * P as floats; InverseDesignError when one leaves the range the GNS
+    was trained on (parameter_ranges: {name: (low, high)})."""
     bounds = [tuple(map(float, b)) for b in bounds]
     if len(bounds) != len(names):
         raise InverseDesignError(f"{len(bounds)} bounds for {len(names)} design parameters {list(names)}")
@@ -71,7 +78,9 @@ def check_bounds(bounds, names, parameter_ranges: dict) -> list[tuple[float, flo
     return bounds
 
 
-def design_bounds(bounds, names, parameter_ranges: dict) -> list[tuple[float, float]]:
+def design_bounds(
+    bounds: Sequence[Sequence[float] | None] | None, names: Sequence[str], parameter_ranges: dict
+) -> list[tuple[float, float]]:
     """Bounds of the design parameters: bounds[j] as given (checked against the trained range), or,
     where bounds[j] is None, the paper's [0.3, 0.9] narrowed to the range the GNS was trained on
     (a sampled dataset never quite reaches the ends of its sampling range)."""
@@ -136,7 +145,9 @@ class InverseResult:
         return data
 
 
-def noise_level(measured: MeasuredColumn, model_error_std: float | None, start_packing_std=None):
+def noise_level(
+    measured: MeasuredColumn, model_error_std: float | None, start_packing_std: ArrayLike | None = None
+) -> np.ndarray | None:
     """Noise std [K] of the posterior, or None (estimate from residuals) when the data give none.
 
     The surrogate's own error (RMS of GNS - DEM L*, scalar) and the scatter of one packing's runout
@@ -152,8 +163,13 @@ def noise_level(measured: MeasuredColumn, model_error_std: float | None, start_p
 
 
 def posterior_at(
-    objective: GNSObjective, optimum, bounds, model_error_std=None, step: float = JACOBIAN_STEP, start_packing_std=None
-):
+    objective: GNSObjective,
+    optimum: ArrayLike,
+    bounds: Sequence[Sequence[float]],
+    model_error_std: float | None = None,
+    step: float = JACOBIAN_STEP,
+    start_packing_std: ArrayLike | None = None,
+) -> tuple[LaplacePosterior, np.ndarray, dict]:
     """Laplace posterior (calibration.uncertainty) at `optimum` from a central-difference Jacobian of
     the GNS's L*, and a roughness probe: the objective ROUGHNESS_RADIUS away in ROUGHNESS_PROBES
     directions. All
@@ -190,7 +206,7 @@ def posterior_at(
     return posterior, runouts[0], roughness
 
 
-def landscape(objective: GNSObjective, bounds, levels: int, batch_size: int = 8) -> dict:
+def landscape(objective: GNSObjective, bounds: Sequence[Sequence[float]], levels: int, batch_size: int = 8) -> dict:
     """The GNS objective on a levels x levels grid over two design parameters (batched, no grad)."""
     axes = [np.linspace(low, high, levels) for low, high in bounds]
     grid = np.array([(a, b) for b in axes[1] for a in axes[0]])
@@ -199,14 +215,14 @@ def landscape(objective: GNSObjective, bounds, levels: int, batch_size: int = 8)
 
 
 def inverse_design(
-    simulator,
+    simulator: LearnedSimulator,
     start: Trajectory,
     measured: MeasuredColumn,
     metadata: dict,
     training_attrs: list[dict],
-    bounds=None,
+    bounds: Sequence[Sequence[float] | None] | None = None,
     n_starts: int = 4,
-    first_start=PAPER_START,
+    first_start: Sequence[float] = PAPER_START,
     gradient: str = "autograd",
     fd_step: float = FD_STEP,
     max_iterations: int = 20,
@@ -216,8 +232,8 @@ def inverse_design(
     model_error_std: float | None = None,
     landscape_levels: int = 0,
     seed: int = 0,
-    start_packing_std=None,
-    design_names=DESIGN_NAMES,
+    start_packing_std: ArrayLike | None = None,
+    design_names: Sequence[str] = DESIGN_NAMES,
     runout: RunoutMethod | None = None,
 ) -> InverseResult:
     """Calibrate design_names against `measured` through the GNS `simulator`.
@@ -258,13 +274,11 @@ def inverse_design(
         )
 
     t0 = time.perf_counter()
-    runs, n_batches = multistart_lbfgsb(
-        evaluate, starts, bounds, names, gradient, fd_step, max_iterations, ftol, gtol, progress, max_evaluations
-    )
+    settings = LBFGSBSettings(starts, gradient, fd_step, max_iterations, ftol, gtol, max_evaluations)
+    optimum = multistart_lbfgsb(evaluate, bounds, names, settings, progress)
     t1 = time.perf_counter()
-    best = min(runs, key=lambda r: r.value)
     posterior, best_runout, roughness = posterior_at(
-        objective, best.params, bounds, model_error_std, start_packing_std=start_packing_std
+        objective, optimum.params, bounds, model_error_std, start_packing_std=start_packing_std
     )
     t2 = time.perf_counter()
     online = dict(objective.timing)  # where the online time went: rollouts, forward, backward
@@ -285,9 +299,9 @@ def inverse_design(
         names=names,
         bounds=[list(b) for b in bounds],
         gradient=gradient,
-        starts=runs,
-        best_params=list(best.params),
-        best_value=best.value,
+        starts=optimum.starts,
+        best_params=list(optimum.params),
+        best_value=optimum.value,
         best_runout=best_runout.tolist(),
         start_runout=start_runout.tolist(),
         posterior=posterior.to_dict(),
@@ -302,7 +316,7 @@ def inverse_design(
             "online_rollouts": online["rollouts"],
             "rollout_steps": objective.n_steps,
         },
-        n_batches=n_batches,
+        n_batches=optimum.n_batches,
         landscape=grid,
         model_error_std=model_error_std,
         roughness=roughness,
@@ -314,7 +328,7 @@ def inverse_design(
 
 
 # -- outputs ----------------------------------------------------------------------------------------
-def write_result(result: InverseResult, path) -> None:
+def write_result(result: InverseResult, path: str | os.PathLike) -> None:
     """inverse.json (atomically)."""
     import json
 
@@ -323,7 +337,8 @@ def write_result(result: InverseResult, path) -> None:
     write_text(path, json.dumps(result.to_dict(), indent=1) + "\n")
 
 
-def read_result(path) -> dict:
+def read_result(path: str | os.PathLike) -> dict:
+    """The inverse.json at path, as written by write_result."""
     import json
     from pathlib import Path
 

@@ -12,6 +12,8 @@ finite differences each start asks for its whole stencil (x and x + h e_j) at on
 
 A GNS objective is rough (calibration.gns_objective), so line searches may fail; each start keeps
 its best evaluated point and says so.
+
+The call and its result are those of every optimiser here (calibration.optimise).
 """
 
 from __future__ import annotations
@@ -19,13 +21,15 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from numpy.typing import ArrayLike, DTypeLike
 from scipy.optimize import OptimizeResult, minimize
 
-from calibration.bayesopt import OptimisationHistory
 from calibration.gns_objective import InverseDesignError
+from calibration.optimise import BatchObjective, OptimisationHistory, OptimisationResult, Progress
 
 PAPER_START = (0.55, 0.73)  # the paper's starting point (Fig. 2, loss 0.66)
 SCIPY_DEFAULT_STEP = 1e-8  # scipy's L-BFGS-B `eps`, the step of the paper's public code
@@ -56,13 +60,13 @@ class _Stalled(Exception):
 
 
 # -- float32 resolution -----------------------------------------------------------------------------
-def step_vanishes(value: float, step: float, dtype=np.float32) -> bool:
+def step_vanishes(value: float, step: float, dtype: DTypeLike = np.float32) -> bool:
     """True when value + step rounds back to value in `dtype` (the FD difference is then zero)."""
     return bool(dtype(value) + dtype(step) == dtype(value))
 
 
-def check_step(step: float, bounds, dtype=np.float32) -> None:
-    """InverseDesignError when a finite-difference step vanishes somewhere in the bounds."""
+def check_step(step: float, bounds: Sequence[Sequence[float]], dtype: DTypeLike = np.float32) -> None:
+    """InverseDesignError when a finite-difference step vanishes somewhere in bounds [(low, high)] * P."""
     for low, high in bounds:
         for value in (low, high, 0.5 * (low + high)):
             if step_vanishes(value, step, dtype):
@@ -74,6 +78,22 @@ def check_step(step: float, bounds, dtype=np.float32) -> None:
 
 
 # -- multi-start L-BFGS-B in lockstep --------------------------------------------------------------
+@dataclass
+class LBFGSBSettings:
+    """starts [S, P]: one L-BFGS-B from each (starting_points). gradient: "autograd" (the objective
+    returns (values [G], gradients [G, P])) or "finite-difference" (values [G]; forward differences
+    of step fd_step, in parameter units). max_iterations, ftol, gtol: scipy's maxiter and stopping
+    tests; max_evaluations: scipy's maxfun per start (None: 2 max_iterations)."""
+
+    starts: ArrayLike
+    gradient: str = "autograd"
+    fd_step: float = FD_STEP
+    max_iterations: int = 20
+    ftol: float = FTOL
+    gtol: float = GTOL
+    max_evaluations: int | None = None
+
+
 @dataclass
 class StartResult:
     """One L-BFGS-B run: its start, optimum, every evaluation and the accepted iterates."""
@@ -88,6 +108,7 @@ class StartResult:
     iterates: list = field(default_factory=list)  # [(params [P], value)] after each iteration
 
     def to_dict(self) -> dict:
+        """JSON of the start (inverse.json's "starts"): evaluations as OptimisationHistory.to_dict."""
         return {
             "start": self.start,
             "params": self.params,
@@ -115,7 +136,7 @@ class _Lockstep:
         self.error: BaseException | None = None
         self.batches = 0
 
-    def request(self, run: int, x: np.ndarray):
+    def request(self, run: int, x: np.ndarray) -> list:
         with self.condition:
             if self.error is not None:
                 raise self.error
@@ -127,12 +148,12 @@ class _Lockstep:
                 raise self.error
             return self.results.pop(run)
 
-    def finished(self):
+    def finished(self) -> None:
         with self.condition:
             self.active -= 1
             self.condition.notify_all()
 
-    def serve(self):
+    def serve(self) -> None:
         while True:
             with self.condition:
                 while len(self.pending) < self.active and self.error is None:
@@ -158,30 +179,27 @@ class _Lockstep:
 
 
 def multistart_lbfgsb(
-    evaluate_batch,
-    starts,
-    bounds,
-    names,
-    gradient: str = "autograd",
-    fd_step: float = FD_STEP,
-    max_iterations: int = 20,
-    ftol: float = FTOL,
-    gtol: float = GTOL,
-    progress=None,
-    max_evaluations: int | None = None,
-) -> tuple[list, int]:
-    """L-BFGS-B from each of starts [S, P] within bounds [(low, high)] * P, in lockstep.
+    evaluate_batch: BatchObjective,
+    bounds: Sequence[Sequence[float]],
+    names: Sequence[str],
+    settings: LBFGSBSettings,
+    progress: Progress | None = None,
+) -> OptimisationResult:
+    """L-BFGS-B from each of settings.starts [S, P] within bounds [(low, high)] * P, in lockstep
+    (the calibration.optimise.Optimiser call).
 
     evaluate_batch(points [G, P]) -> (values [G], gradients [G, P]) for gradient="autograd", or
     values [G] for gradient="finite-difference": forward differences with step fd_step (the paper's
     eq. (8), as scipy's with eps = fd_step: a step that would leave the bounds goes backwards), the
-    P + 1 points of each stencil evaluated in one batch instead of one after another. ftol, gtol:
-    scipy's stopping tests; max_evaluations: scipy's maxfun, evaluations of objective and gradient
-    per start (default 2 max_iterations), which bounds the time a start can spend retrying line
-    searches on a rough objective.
-    progress: callable(batch number, seconds, values) or None.
-    Returns ([StartResult] in start order, number of batches evaluated).
+    P + 1 points of each stencil evaluated in one batch instead of one after another.
+    max_evaluations bounds the time a start can spend retrying line searches on a rough objective.
+    progress: callable(batch number, seconds, values [G]) or None.
+    Returns the best of the starts, the history of every start's evaluations (start k's labelled k,
+    each with the iterations that start had completed; the stencil's other points are not recorded,
+    their time is), its StartResult per start (in start order) and the number of batches evaluated.
     """
+    starts, gradient, fd_step = settings.starts, settings.gradient, settings.fd_step
+    max_iterations, ftol, gtol = settings.max_iterations, settings.ftol, settings.gtol
     if gradient not in GRADIENTS:
         raise ValueError(f"gradient must be one of {GRADIENTS}, got {gradient!r}")
     starts = np.atleast_2d(np.asarray(starts, float))
@@ -224,14 +242,14 @@ def multistart_lbfgsb(
         def fun(x):
             if use_gradient:
                 ((answer, seconds),) = lockstep.request(index, x)
-                histories[index].record(x, answer[0], seconds)
+                histories[index].record(x, answer[0], seconds, index, len(iterates[index]))
                 check_stall(float(answer[0]))
                 return float(answer[0]), np.asarray(answer[1], float)
             steps = np.array([fd_step if x[j] + fd_step <= bounds[j][1] else -fd_step for j in range(len(x))])
             stencil = np.vstack([x, x + np.diag(steps)])
             answers = lockstep.request(index, stencil)
             value = float(answers[0][0])
-            histories[index].record(x, value, sum(seconds for _, seconds in answers))
+            histories[index].record(x, value, sum(seconds for _, seconds in answers), index, len(iterates[index]))
             check_stall(value)
             # the step as represented (x + h) - x, as scipy's approx_derivative takes it
             gradient_fd = [(float(answers[j + 1][0]) - value) / (stencil[j + 1][j] - x[j]) for j in range(len(x))]
@@ -246,7 +264,7 @@ def multistart_lbfgsb(
                 "ftol": ftol,
                 "gtol": gtol,
                 "maxls": MAX_LINE_SEARCH,
-                "maxfun": max_evaluations or 2 * max_iterations,
+                "maxfun": settings.max_evaluations or 2 * max_iterations,
             }
             outcomes[index] = minimize(
                 fun, starts[index], method="L-BFGS-B", jac=True, bounds=bounds, options=options, callback=callback
@@ -297,10 +315,19 @@ def multistart_lbfgsb(
                 iterates=[(starts[k].tolist(), histories[k].values[0])] + iterates[k],
             )
         )
-    return results, lockstep.batches
+    best = min(results, key=lambda r: r.value)
+    return OptimisationResult(
+        params=best.params,
+        value=best.value,
+        history=OptimisationHistory.concatenate(histories),
+        n_batches=lockstep.batches,
+        starts=results,
+    )
 
 
-def starting_points(n_starts: int, bounds, first=PAPER_START, seed: int = 0) -> np.ndarray:
+def starting_points(
+    n_starts: int, bounds: Sequence[Sequence[float]], first: Sequence[float] = PAPER_START, seed: int = 0
+) -> np.ndarray:
     """[n_starts, P]: `first` (the paper's start), then a seeded Latin hypercube over the bounds."""
     from scipy.stats import qmc
 

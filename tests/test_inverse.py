@@ -21,6 +21,7 @@ from calibration.lbfgsb import (
     MAX_LINE_SEARCH,
     SCIPY_DEFAULT_STEP,
     STALL_EVALUATIONS,
+    LBFGSBSettings,
     check_step,
     multistart_lbfgsb,
     step_vanishes,
@@ -273,7 +274,8 @@ def test_lockstep_multistart_batches_points_and_follows_the_paths_of_lone_runs()
         batch_sizes.append(len(points))
         return np.array([_bowl(p) for p in points]), np.array([_bowl_gradient(p) for p in points])
 
-    runs, n_batches = multistart_lbfgsb(batch, starts, [(0.3, 0.9)] * 2, ["friction", "restitution"])
+    result = multistart_lbfgsb(batch, [(0.3, 0.9)] * 2, ["friction", "restitution"], LBFGSBSettings(starts))
+    runs, n_batches = result.starts, result.n_batches
     assert n_batches == len(batch_sizes) and batch_sizes[0] == 4
     assert sum(batch_sizes) == sum(len(r.evaluations.values) for r in runs) > n_batches
     for start, run in zip(starts, runs):
@@ -300,9 +302,9 @@ def test_finite_difference_stencils_run_as_one_batch_and_follow_scipys_own_diffe
         batch_sizes.append(len(points))
         return np.array([_bowl(p) for p in points])
 
-    runs, n_batches = multistart_lbfgsb(
-        batch, starts, [(0.3, 0.9)] * 2, ["friction", "restitution"], gradient="finite-difference", fd_step=FD_STEP
-    )
+    settings = LBFGSBSettings(starts, gradient="finite-difference", fd_step=FD_STEP)
+    result = multistart_lbfgsb(batch, [(0.3, 0.9)] * 2, ["friction", "restitution"], settings)
+    runs, n_batches = result.starts, result.n_batches
     assert batch_sizes[0] == 2 * 3 and n_batches == len(batch_sizes)
     for start, run in zip(starts, runs):
         lone = minimize(
@@ -322,7 +324,8 @@ def test_a_start_that_stops_improving_stops_instead_of_retrying_its_line_search(
         noise = 1e-6 * np.sin(1e4 * points[:, 0])
         return 1.0 + noise, np.tile([50.0, -80.0], (len(points), 1))
 
-    runs, _ = multistart_lbfgsb(batch, [[0.55, 0.73]], [(0.3, 0.9)] * 2, ["friction", "restitution"], max_iterations=20)
+    settings = LBFGSBSettings([[0.55, 0.73]], max_iterations=20)
+    runs = multistart_lbfgsb(batch, [(0.3, 0.9)] * 2, ["friction", "restitution"], settings).starts
     assert len(runs[0].evaluations.values) == 1 + STALL_EVALUATIONS < MAX_LINE_SEARCH
     assert "without improvement" in runs[0].message and runs[0].value == min(runs[0].evaluations.values)
 
@@ -332,7 +335,9 @@ def test_lockstep_reports_a_failing_evaluation_instead_of_hanging():
         raise InverseDesignError("GNS objective is not finite at friction=0.5")
 
     with pytest.raises(InverseDesignError, match="not finite"):
-        multistart_lbfgsb(batch, [[0.5, 0.5], [0.6, 0.6]], [(0.3, 0.9)] * 2, ["friction", "restitution"])
+        multistart_lbfgsb(
+            batch, [(0.3, 0.9)] * 2, ["friction", "restitution"], LBFGSBSettings([[0.5, 0.5], [0.6, 0.6]])
+        )
 
 
 # -- bad input -----------------------------------------------------------------------------------------

@@ -1,9 +1,16 @@
-"""Laplace posterior against a linear model with a known answer; Bayesian optimisation on a known minimum."""
+"""Laplace posterior against a linear model with a known answer; Bayesian optimisation on a known minimum;
+the optimisers' one interface and history; the one GP of the emulator and the Bayesian optimisation."""
+
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from calibration.bayesopt import bayesian_optimisation
+import calibration.gp
+from calibration.bayesopt import BOSettings, bayesian_optimisation
+from calibration.emulator import GPEmulator, ParameterBox, latin_hypercube
+from calibration.lbfgsb import LBFGSBSettings, multistart_lbfgsb
+from calibration.optimise import OptimisationHistory, OptimisationResult, Optimiser, one_at_a_time
 from calibration.uncertainty import finite_difference_jacobian, laplace_posterior
 
 
@@ -48,8 +55,76 @@ def test_bayesian_optimisation_finds_a_known_minimum_within_budget():
         return float(np.sum((np.asarray(p) - target) ** 2) + 0.1)
 
     history = bayesian_optimisation(
-        objective, [(0.3, 0.9), (0.3, 0.9)], ["friction", "restitution"], budget=20, n_initial=6, seed=1
-    )
+        one_at_a_time(objective), [(0.3, 0.9), (0.3, 0.9)], ["friction", "restitution"], BOSettings(20, 6, seed=1)
+    ).history
     best, value = history.best
     assert len(history.values) == 20
     assert np.linalg.norm(best - target) < 0.05 and value < 0.1 + 0.0025
+
+
+def test_both_optimisers_answer_one_call_with_one_history():
+    """The same objective, bounds and names through either optimiser: the same result type, the same
+    history (every evaluation with its seconds, start and iteration) and the same JSON keys."""
+
+    def batch(points):
+        return np.array([float(np.sum((p - [0.42, 0.71]) ** 2) + 0.1 * np.sin(5 * p[0])) for p in points])
+
+    bounds, names = [(0.3, 0.9), (0.3, 0.9)], ["friction", "restitution"]
+    optimisers: list[tuple[Optimiser, object]] = [
+        (bayesian_optimisation, BOSettings(budget=7, n_initial=4, seed=0)),
+        (multistart_lbfgsb, LBFGSBSettings([[0.55, 0.73], [0.35, 0.4]], "finite-difference", max_iterations=4)),
+    ]
+    results = []
+    for optimise, settings in optimisers:
+        calls = []
+        result = optimise(batch, bounds, names, settings, progress=lambda b, s, v: calls.append((b, s, len(v))))  # noqa: B023
+        history = result.history
+        assert isinstance(result, OptimisationResult) and type(history) is OptimisationHistory
+        columns = ("params", "values", "seconds", "start", "iteration")
+        assert {len(getattr(history, c)) for c in columns} == {len(history.values)} and len(history.values) > 1
+        assert np.shape(history.params) == (len(history.values), 2) and min(history.seconds) >= 0
+        assert result.value == history.best[1] == min(history.values)
+        assert result.params == pytest.approx(history.best[0].tolist())
+        assert result.n_batches == len(calls) == calls[-1][0] and all(s >= 0 for _, s, _ in calls)
+        for k in set(history.start):  # iterations count up within each start
+            iterations = [i for i, s in zip(history.iteration, history.start) if s == k]
+            assert iterations[0] == 0 and iterations == sorted(iterations)
+        results.append(result)
+    bo, lbfgsb = results
+    assert list(bo.history.to_dict()) == list(lbfgsb.history.to_dict())
+    assert bo.history.to_dict()["names"] == lbfgsb.history.to_dict()["names"] == names
+    assert set(bo.history.start) == {0} and bo.history.iteration == [0, 0, 0, 0, 1, 2, 3] and bo.starts == []
+    assert set(lbfgsb.history.start) == {0, 1}
+    for k, run in enumerate(lbfgsb.starts):  # each start's own history is its part of the whole
+        assert type(run.evaluations) is OptimisationHistory
+        assert run.evaluations.values == [v for v, s in zip(lbfgsb.history.values, lbfgsb.history.start) if s == k]
+        assert list(run.to_dict()["evaluations"]) == list(bo.history.to_dict())
+
+
+def test_the_emulator_and_bayesian_optimisation_fit_the_one_gp(monkeypatch):
+    """Both GP users fit their GPs through calibration.gp.fit_gp, the only place in calibration/ that
+    builds one."""
+    fitted = []
+
+    class Counting(calibration.gp.GaussianProcessRegressor):
+        def fit(self, X, y):
+            fitted.append(np.shape(X))
+            return super().fit(X, y)
+
+    monkeypatch.setattr(calibration.gp, "GaussianProcessRegressor", Counting)
+    bounds = [(0.3, 0.9), (0.3, 0.9)]
+    bayesian_optimisation(
+        one_at_a_time(lambda p: float(np.sum(p**2))), bounds, ["friction", "restitution"], BOSettings(6, 4)
+    )
+    assert fitted == [(4, 2), (5, 2)]  # one GP per point chosen by expected improvement
+    box = ParameterBox(np.array(bounds), (False, False))
+    theta = latin_hypercube(box, 8, seed=0)
+    GPEmulator(box).fit(theta, np.column_stack([theta.sum(axis=1), np.sin(3 * theta[:, 0])]))
+    assert fitted[2:] == [(8, 2), (8, 2)]  # one GP per emulated output
+    calibration_dir = Path(calibration.gp.__file__).parent
+    builders = {
+        path.name
+        for path in calibration_dir.glob("*.py")
+        if any(f"{name}(" in path.read_text() for name in ("GaussianProcessRegressor", "Matern", "WhiteKernel"))
+    }
+    assert builders == {"gp.py"}
