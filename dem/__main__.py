@@ -4,9 +4,12 @@
         --restitution 0.65 --size-scale 3 --out results/one_case/case.h5
 """
 
+from __future__ import annotations
+
 import argparse
 import logging
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 from dem.case import CaseError, CollapseCase
@@ -19,7 +22,7 @@ from dem.trajectory import write_trajectory
 log = logging.getLogger("dem")
 
 
-def main(argv=None):
+def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m dem", description=__doc__.splitlines()[0])
     parser.add_argument("--material", default="quartz")
     parser.add_argument("--L-i", type=float, default=0.02, help="initial column length L_i (m)")

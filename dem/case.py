@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 from dem.fields import from_mapping
 
@@ -47,7 +48,7 @@ MATERIALS = {
 }
 
 
-def get_material(spec) -> Material:
+def get_material(spec: str | dict | Material) -> Material:
     """A material from its name ("quartz", "copper"), a mapping of its fields, or a Material."""
     if isinstance(spec, Material):
         return spec
@@ -283,7 +284,7 @@ class CollapseCase:
         """Build from a mapping; an unknown or renamed key is an error naming it (dem.fields)."""
         return from_mapping(cls, data, CaseError, "case", RENAMED_CASE_KEYS)
 
-    def replace(self, **changes) -> CollapseCase:
+    def replace(self, **changes: Any) -> CollapseCase:
         return dataclasses.replace(self, **changes)
 
 

@@ -26,20 +26,28 @@ def restitution_factor(restitution: float) -> float:
 
 
 @nb.njit(inline="always", fastmath=FAST_MATH, cache=True)
-def normal_damping(m_eff, kn, restitution_factor):
+def normal_damping(m_eff: float, kn: float, restitution_factor: float) -> float:
     """eta_n (kg/s) = 2 sqrt(m_eff kn) |ln e| / sqrt(pi^2 + ln^2 e)."""
     return 2.0 * math.sqrt(m_eff * kn) * restitution_factor
 
 
 @nb.njit(inline="always", fastmath=FAST_MATH, cache=True)
-def normal_force(overlap, normal_speed, kn, eta_n):
+def normal_force(overlap: float, normal_speed: float, kn: float, eta_n: float) -> float:
     """Repulsive normal force magnitude (N). Not clamped at zero (as LIGGGHTS hooke and MFIX),
     so a linear spring-dashpot pair separates with exactly e times its approach speed."""
     return kn * overlap + eta_n * normal_speed
 
 
 @nb.njit(inline="always", fastmath=FAST_MATH, cache=True)
-def tangential_force(spring, tangential_speed, dt, kt, eta_t, friction, normal_force_magnitude):
+def tangential_force(
+    spring: float,
+    tangential_speed: float,
+    dt: float,
+    kt: float,
+    eta_t: float,
+    friction: float,
+    normal_force_magnitude: float,
+) -> tuple[float, float]:
     """Tangential force (N) on the first body along the tangent, and the updated spring (m).
 
     The spring stretches by the slip of the contact point. Below the Coulomb limit the force is
@@ -57,7 +65,7 @@ def tangential_force(spring, tangential_speed, dt, kt, eta_t, friction, normal_f
 
 
 @nb.njit(inline="always", fastmath=FAST_MATH, cache=True)
-def cohesion_force(work_of_adhesion, r_eff):
+def cohesion_force(work_of_adhesion: float, r_eff: float) -> float:
     """Attractive force (N) while in contact: the JKR pull-off force 1.5 pi w R*.
 
     A constant attraction on top of the linear spring: a pair (or a grain on a wall) held by it
@@ -67,7 +75,15 @@ def cohesion_force(work_of_adhesion, r_eff):
 
 
 @nb.njit(inline="always", fastmath=FAST_MATH, cache=True)
-def rolling_torque(torque, relative_spin, dt, kn, rolling_friction, r_eff, normal_force_magnitude):
+def rolling_torque(
+    torque: float,
+    relative_spin: float,
+    dt: float,
+    kn: float,
+    rolling_friction: float,
+    r_eff: float,
+    normal_force_magnitude: float,
+) -> float:
     """Type-C elastic-plastic rolling resistance (EPSD2, as LIGGGHTS `rolling_friction epsd2`).
 
     A rotational spring kr = 2.25 kn mu_r^2 R*^2 loaded by the relative rotation, capped at

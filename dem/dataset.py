@@ -21,12 +21,17 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dem.atomic import write_text
 from dem.trajectory import TrajectoryError, read_trajectory
+
+if TYPE_CHECKING:
+    from dem.runout import RunoutMethod
 
 SPLITS = ("train", "valid", "test")
 PARAMETERS = ("friction", "restitution", "L_i", "H_i", "aspect_ratio")
@@ -78,7 +83,7 @@ class _RunningMoments:
         return np.sqrt(self.m2 / self.count)
 
 
-def build_dataset(splits: dict[str, list[str]], out_path, name: str) -> dict:
+def build_dataset(splits: dict[str, list[str]], out_path: str | os.PathLike, name: str) -> dict:
     """Scan the trajectories of `splits` ({"train"|"valid"|"test": [HDF5 paths]}) one at a time and
     write the metadata JSON atomically at `out_path`. Returns the metadata dict."""
     unknown = set(splits) - set(SPLITS)
@@ -148,7 +153,7 @@ def build_dataset(splits: dict[str, list[str]], out_path, name: str) -> dict:
     return metadata
 
 
-def load_dataset_metadata(path) -> dict:
+def load_dataset_metadata(path: str | os.PathLike) -> dict:
     """Read and check a metadata JSON written by build_dataset; errors name the file and key."""
     path = Path(path)
     try:
@@ -191,7 +196,7 @@ def dataset_paths(metadata: dict) -> list[tuple[str, str]]:
     return [(s, p) for s in SPLITS for p in metadata["splits"][s]]
 
 
-def plot_dataset(metadata: dict, path, runout) -> dict:
+def plot_dataset(metadata: dict, path: str | os.PathLike, runout: RunoutMethod | dict | str) -> dict:
     """Summary figure of a dataset: the cases in parameter space coloured by split, and every
     case's runout curve L*(t/t*) (read by `runout`, a dem.runout.RunoutMethod, config dict or
     name) coloured by friction. Returns {trajectory path: final L*}."""

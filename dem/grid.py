@@ -24,6 +24,8 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import os
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
@@ -166,14 +168,14 @@ def case_from_row(row: dict) -> CollapseCase:
 
 
 # --- deck: the engine-neutral description of one case ------------------------------------------
-def write_deck(row: dict, path) -> CollapseCase:
+def write_deck(row: dict, path: str | os.PathLike) -> CollapseCase:
     """Write the case's deck JSON {"row": row, "case": CollapseCase.to_dict()} atomically."""
     case = case_from_row(row)
     write_text(path, json.dumps({"row": row, "case": case.to_dict()}, indent=1, sort_keys=True) + "\n")
     return case
 
 
-def read_deck(path) -> tuple[CollapseCase, dict]:
+def read_deck(path: str | os.PathLike) -> tuple[CollapseCase, dict]:
     """(CollapseCase, case-table row) from a deck written by write_deck."""
     try:
         deck = json.loads(Path(path).read_text())
@@ -182,7 +184,7 @@ def read_deck(path) -> tuple[CollapseCase, dict]:
         raise CaseError(f"{path}: not a valid case deck ({exc})") from exc
 
 
-def write_case_table(rows, path) -> None:
+def write_case_table(rows: Iterable[dict], path: str | os.PathLike) -> None:
     """The case table as CSV (one row per case, columns in first-seen order), atomically."""
     rows = list(rows)
     columns = list(dict.fromkeys(k for row in rows for k in row))

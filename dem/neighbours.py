@@ -13,11 +13,19 @@ import numpy as np
 
 
 @nb.njit(cache=True)
-def build_pairs(x, radius, skin, old_start, old_partner, old_history):
+def build_pairs(
+    x: np.ndarray,
+    radius: np.ndarray,
+    skin: float,
+    old_start: np.ndarray,
+    old_partner: np.ndarray,
+    old_history: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """New CSR pair list (start [N+1], partner [M]) and history [M, H] carried from the old list.
 
-    x [N, 2] positions (m), radius [N] (m), skin (m); old_* the previous list (empty arrays when
-    none). A pair absent from the old list starts with relaxed springs (zero history).
+    x [N, 2] positions (m), radius [N] (m), skin (m); old_* the previous list (old_start [N+1] int64,
+    old_partner [M_old] int64, old_history [M_old, H]; empty arrays when none, see empty_pairs). A
+    pair absent from the old list starts with relaxed springs (zero history).
     """
     n = x.shape[0]
     r_max = radius.max()
@@ -82,11 +90,12 @@ def build_pairs(x, radius, skin, old_start, old_partner, old_history):
 HISTORY_WIDTH = 2  # tangential spring (m), rolling torque (N m)
 
 
-def empty_pairs():
+def empty_pairs() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """An empty old list for the first build."""
     return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, HISTORY_WIDTH))
 
 
-def default_skin(radius) -> float:
-    """Skin (m): 0.2 mean diameters keeps rebuilds rare without bloating the list."""
+def default_skin(radius: np.ndarray) -> float:
+    """Skin (m) for grain radii `radius` [N] (m): 0.2 mean diameters keeps rebuilds rare without
+    bloating the list."""
     return 0.4 * float(np.mean(radius))

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 
 
-def progress_logger(label: str, logger: logging.Logger | None = None, every: float = 0.1):
+def progress_logger(label: str, logger: logging.Logger | None = None, every: float = 0.1) -> Callable[[float], None]:
     """progress(fraction done, 0..1) that logs "<label>: NN%" each time another `every` is done,
     so a long job shows in its log that it is alive."""
     logger = logger or logging.getLogger("progress")

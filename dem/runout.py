@@ -23,13 +23,18 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from dem.fields import from_mapping
+
+if TYPE_CHECKING:
+    from dem.trajectory import Trajectory
 
 FRONTS = ("connected_front", "dense_front")
 REACHED = "_reached"
@@ -105,15 +110,15 @@ class RunoutMethod:
         return rule + (", farthest reached" if self.reached else ", instantaneous")
 
     # -- one frame --------------------------------------------------------------------------------
-    def front_mask(self, positions, radius) -> np.ndarray:
+    def front_mask(self, positions: np.ndarray, radius: np.ndarray) -> np.ndarray:
         """[N] bool: the grains that may hold the front under this rule (positions [N, 2], radius [N], m)."""
         if self.front_rule == "connected_front":
             return deposit_mask(positions, radius, self.gap_tolerance)
         return dense_mask(positions, radius, self.n_neighbours, self.neighbour_radius)
 
-    def front_position(self, positions, radius, where: str = "frame") -> float:
-        """L (m) of one frame by the instantaneous rule; RunoutError (naming `where`) when no grain
-        qualifies."""
+    def front_position(self, positions: np.ndarray, radius: np.ndarray, where: str = "frame") -> float:
+        """L (m) of one frame (positions [N, 2], radius [N], m) by the instantaneous rule; RunoutError
+        (naming `where`) when no grain qualifies."""
         radius = np.asarray(radius, np.float64)
         mask = self.front_mask(positions, radius)
         if not mask.any():
@@ -133,7 +138,7 @@ class RunoutMethod:
         return float(np.mean(np.partition(front, front.size - k)[-k:]))
 
     # -- a trajectory -----------------------------------------------------------------------------
-    def curve(self, trajectory) -> tuple[np.ndarray, np.ndarray]:
+    def curve(self, trajectory: Trajectory) -> tuple[np.ndarray, np.ndarray]:
         """(t/t* [T], L* [T]) of a dem.trajectory.Trajectory (DEM run or GNS rollout)."""
         L_i = float(trajectory.attrs["L_i"])
         source = getattr(trajectory, "source", "") or "trajectory"
@@ -147,7 +152,7 @@ class RunoutMethod:
             front = np.maximum.accumulate(front)
         return trajectory.t_over_tstar, (front - L_i) / L_i
 
-    def at(self, trajectory, t_over_tstar) -> np.ndarray:
+    def at(self, trajectory: Trajectory, t_over_tstar: ArrayLike) -> np.ndarray:
         """L* [K] interpolated at t/t* points [K]; points outside the simulated window are an error."""
         t, runout = self.curve(trajectory)
         t_query = np.asarray(t_over_tstar, float)
@@ -158,17 +163,17 @@ class RunoutMethod:
         return np.interp(t_query, t, runout)
 
 
-def runout_curve(trajectory, method: RunoutMethod | dict | str) -> tuple[np.ndarray, np.ndarray]:
+def runout_curve(trajectory: Trajectory, method: RunoutMethod | dict | str) -> tuple[np.ndarray, np.ndarray]:
     """(t/t* [T], L* [T]) of a trajectory by the named runout method (RunoutMethod, config dict or name)."""
     return RunoutMethod.from_config(method).curve(trajectory)
 
 
-def runout_at(trajectory, t_over_tstar, method: RunoutMethod | dict | str) -> np.ndarray:
+def runout_at(trajectory: Trajectory, t_over_tstar: ArrayLike, method: RunoutMethod | dict | str) -> np.ndarray:
     """L* [K] at t/t* points [K] by the named runout method; outside the simulated window is an error."""
     return RunoutMethod.from_config(method).at(trajectory, t_over_tstar)
 
 
-def check_same_method(found, expected: RunoutMethod, where: str) -> None:
+def check_same_method(found: dict | None, expected: RunoutMethod, where: str) -> None:
     """RunoutError when numbers read with runout method `found` (a config dict, or None when the
     file says nothing) would be mixed with ones read by `expected`."""
     if found is None:
@@ -184,7 +189,7 @@ def check_same_method(found, expected: RunoutMethod, where: str) -> None:
 
 
 # -- the grain sets a front is read from -----------------------------------------------------------
-def deposit_mask(positions, radius, gap_tolerance: float = 2.0) -> np.ndarray:
+def deposit_mask(positions: np.ndarray, radius: np.ndarray, gap_tolerance: float = 2.0) -> np.ndarray:
     """[N] bool: grains connected to the column foot (gaps below gap_tolerance mean diameters).
 
     positions [N, 2] (m), radius [N] (m). The foot is the grain nearest the origin (the bottom of
@@ -209,7 +214,9 @@ def deposit_mask(positions, radius, gap_tolerance: float = 2.0) -> np.ndarray:
     return label == label[foot]
 
 
-def dense_mask(positions, radius, n_neighbours: int = 8, neighbour_radius: float = 2.4) -> np.ndarray:
+def dense_mask(
+    positions: np.ndarray, radius: np.ndarray, n_neighbours: int = 8, neighbour_radius: float = 2.4
+) -> np.ndarray:
     """[N] bool: grains with at least n_neighbours other grain centres within neighbour_radius mean
     diameters of their own centre. positions [N, 2] (m), radius [N] (m)."""
     positions = np.asarray(positions, np.float64)
@@ -219,11 +226,13 @@ def dense_mask(positions, radius, n_neighbours: int = 8, neighbour_radius: float
 
 
 # -- the deposit ----------------------------------------------------------------------------------
-def deposit_profile(positions, radius, bin_width: float | None = None, gap_tolerance: float = 2.0):
+def deposit_profile(
+    positions: np.ndarray, radius: np.ndarray, bin_width: float | None = None, gap_tolerance: float = 2.0
+) -> tuple[np.ndarray, np.ndarray]:
     """Height profile of the connected deposit: (x bin centres [B] m, height [B] m).
 
-    height is the top (y + r) of the highest deposit grain in each bin; empty bins give 0.
-    bin_width defaults to two mean diameters.
+    positions [N, 2] (m), radius [N] (m). height is the top (y + r) of the highest deposit grain in
+    each bin; empty bins give 0. bin_width (m) defaults to two mean diameters.
     """
     positions = np.asarray(positions, np.float64)
     mask = deposit_mask(positions, radius, gap_tolerance)
@@ -236,6 +245,6 @@ def deposit_profile(positions, radius, bin_width: float | None = None, gap_toler
     return 0.5 * (edges[:-1] + edges[1:]), height
 
 
-def final_height(positions, radius, gap_tolerance: float = 2.0) -> float:
-    """Highest point (m) of the connected deposit."""
+def final_height(positions: np.ndarray, radius: np.ndarray, gap_tolerance: float = 2.0) -> float:
+    """Highest point (m) of the connected deposit; positions [N, 2] (m), radius [N] (m)."""
     return float(deposit_profile(positions, radius, gap_tolerance=gap_tolerance)[1].max())

@@ -18,10 +18,17 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import os
+from collections.abc import Callable, Iterable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from dem.runout import METHODS, RunoutMethod
+
+if TYPE_CHECKING:
+    from dem.case import CollapseCase
+    from dem.trajectory import Trajectory
 
 log = logging.getLogger(__name__)
 PHASES = {"free_fall": (0.0, 1.0), "spreading": (1.0, 2.5), "stopping": (2.5, np.inf)}  # t/t*, paper section 3
@@ -30,7 +37,7 @@ RERUNS = 8  # perturbed reruns per case for the chaos floor
 PERTURBATION = 1e-3  # mean grain diameters (the chaos floor's perturbation)
 
 
-def case_of(trajectory):
+def case_of(trajectory: Trajectory) -> CollapseCase:
     """The dem.case.CollapseCase a builtin trajectory was run for, from its attributes."""
     from dem.case import CollapseCase, Material
 
@@ -40,7 +47,7 @@ def case_of(trajectory):
     return CollapseCase(material=material, **fields)
 
 
-def phase_means(t, values) -> dict:
+def phase_means(t: np.ndarray, values: np.ndarray) -> dict:
     """Mean of values [T] over each phase of t/t* [T] (phases with no frame are left out)."""
     return {
         name: float(np.mean(values[(t > lo) & (t <= hi)]))
@@ -49,7 +56,9 @@ def phase_means(t, values) -> dict:
     }
 
 
-def packing_runs(case, n_packings: int = PACKINGS, after_run=None) -> list:
+def packing_runs(
+    case: CollapseCase, n_packings: int = PACKINGS, after_run: Callable[[], None] | None = None
+) -> list[Trajectory]:
     """n_packings builtin runs of `case`, packing seeds case.seed + 1000 + j (each settles its own).
     after_run: called with no argument after each run (progress)."""
     from dem.engines import BUILTIN, simulate_case
@@ -63,8 +72,12 @@ def packing_runs(case, n_packings: int = PACKINGS, after_run=None) -> list:
 
 
 def perturbed_reruns(
-    trajectory, n_reruns: int = RERUNS, perturbation: float = PERTURBATION, seed: int = 0, after_run=None
-) -> list:
+    trajectory: Trajectory,
+    n_reruns: int = RERUNS,
+    perturbation: float = PERTURBATION,
+    seed: int = 0,
+    after_run: Callable[[], None] | None = None,
+) -> list[Trajectory]:
     """n_reruns builtin reruns of a builtin trajectory from its own first frame, every grain moved
     by a normal of std `perturbation` mean diameters (seeded). after_run: as packing_runs."""
     from dem.engines import BUILTIN, simulate_case  # reruns of builtin runs, moved by 0.001 d
@@ -85,7 +98,7 @@ def perturbed_reruns(
     return runs
 
 
-def method_statistics(t, curves) -> dict:
+def method_statistics(t: np.ndarray, curves: np.ndarray) -> dict:
     """Packing scatter per phase, flicker and final L* of one case's runs read by one method.
 
     t [T] t/t*; curves [P, T]: L* of P packings. Scatter: std of L* across packings (ddof 1) per
@@ -103,7 +116,7 @@ def method_statistics(t, curves) -> dict:
     }
 
 
-def chaos_floor(t, first, others, gns=None) -> dict:
+def chaos_floor(t: np.ndarray, first: np.ndarray, others: np.ndarray, gns: np.ndarray | None = None) -> dict:
     """The chaos floor of one case read by one method (see the module text).
 
     t [T] t/t*; first [T]: L* of the run; others [R, T]: its perturbed reruns; gns [T] or None: a
@@ -129,13 +142,13 @@ def chaos_floor(t, first, others, gns=None) -> dict:
 
 def compare_methods(
     cases: dict,
-    methods=METHODS,
+    methods: Iterable[RunoutMethod | dict | str] = METHODS,
     n_packings: int = PACKINGS,
     n_reruns: int = RERUNS,
     perturbation: float = PERTURBATION,
     rollouts: dict | None = None,
     seed: int = 0,
-    progress=None,
+    progress: Callable[[float], None] | None = None,
 ) -> tuple[dict, dict]:
     """Every method on every case: (study, curves). study: {"cases": {label: {method: statistics
     (+ floor)}}, "mean": {method: ...}, settings}; curves: {label: {method: (t [T], L* [P, T])}} of
@@ -226,7 +239,7 @@ def markdown_table(study: dict) -> str:
     return "\n".join(lines)
 
 
-def plot_methods(curves: dict, path) -> None:
+def plot_methods(curves: dict, path: str | os.PathLike) -> None:
     """L*(t/t*) of every packing of each case, one panel per case, one colour per method.
     curves: compare_methods' {label: {method: (t [T], L* [P, T])}}."""
     from dem.plots import plt, save_figure

@@ -11,13 +11,18 @@ Layout (see ARCHITECTURE.md, "Trajectory HDF5"):
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import h5py
 import numpy as np
 
 from dem.atomic import atomic_path
+
+if TYPE_CHECKING:
+    from dem.case import CollapseCase
 
 REQUIRED_ATTRS = (
     "engine",
@@ -86,7 +91,7 @@ class Trajectory:
         return self
 
 
-def engine_attrs(case, engine: str, engine_version: str) -> dict:
+def engine_attrs(case: CollapseCase, engine: str, engine_version: str) -> dict:
     """Trajectory attributes every engine writes for a dem.case.CollapseCase (the contract above)."""
     attrs = case.physical_parameters()
     attrs.update(
@@ -101,7 +106,7 @@ def engine_attrs(case, engine: str, engine_version: str) -> dict:
     return attrs
 
 
-def write_trajectory(path, trajectory: Trajectory) -> Path:
+def write_trajectory(path: str | os.PathLike, trajectory: Trajectory) -> Path:
     """Write `trajectory` to `path` atomically (temp file, then rename)."""
     path = Path(path)
     trajectory.validate(str(path))
@@ -122,7 +127,7 @@ def write_trajectory(path, trajectory: Trajectory) -> Path:
     return path
 
 
-def read_trajectory(path, frames=None) -> Trajectory:
+def read_trajectory(path: str | os.PathLike, frames: slice | np.ndarray | None = None) -> Trajectory:
     """Read a trajectory file; `frames` (a slice or index array) reads only those frames."""
     path = Path(path)
     if not path.exists():
@@ -145,7 +150,7 @@ def read_trajectory(path, frames=None) -> Trajectory:
     return traj.validate(str(path))
 
 
-def read_attrs(path) -> dict:
+def read_attrs(path: str | os.PathLike) -> dict:
     """The attributes of a trajectory file without loading its positions."""
     with h5py.File(path, "r") as f:
         return _plain_attrs(f.attrs)

@@ -12,12 +12,20 @@ Factors are coded x = (value - centre) / half_range, in [-1, 1] (paper: (mu - 0.
 from __future__ import annotations
 
 import itertools
+import os
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
+from numpy.typing import ArrayLike
 
 from dem.atomic import atomic_path
+
+if TYPE_CHECKING:
+    from calibration.measured import MeasuredColumn
+    from dem.case import CollapseCase
 
 
 class DesignError(ValueError):
@@ -44,12 +52,12 @@ class Factor:
     def half_range(self) -> float:
         return 0.5 * (self.high - self.low)
 
-    def code(self, value):
-        """Natural units -> coded [-1, 1]."""
+    def code(self, value: ArrayLike) -> np.ndarray | float:
+        """Natural units -> coded [-1, 1] (an array for an array, a float for a scalar)."""
         return (np.asarray(value, float) - self.centre) / self.half_range
 
-    def decode(self, coded):
-        """Coded [-1, 1] -> natural units."""
+    def decode(self, coded: ArrayLike) -> np.ndarray | float:
+        """Coded [-1, 1] -> natural units (an array for an array, a float for a scalar)."""
         return self.centre + np.asarray(coded, float) * self.half_range
 
 
@@ -77,7 +85,9 @@ def centre_run_id(design: pd.DataFrame) -> str:
     return str(design.loc[(coded < 1e-9) & (design["replicate"] == 0), "run_id"].iloc[0])
 
 
-def full_factorial(factors=FACTORS, n_levels: int = 7, centre_replicates: int = 1, seed: int = 0) -> pd.DataFrame:
+def full_factorial(
+    factors: Sequence[Factor] = FACTORS, n_levels: int = 7, centre_replicates: int = 1, seed: int = 0
+) -> pd.DataFrame:
     """The design table, one row per DEM run.
 
     Columns: run_id ("run_00", ...), one column per factor (natural units) and x_<factor> (coded),
@@ -103,7 +113,7 @@ def full_factorial(factors=FACTORS, n_levels: int = 7, centre_replicates: int = 
     return table
 
 
-def design_cases(design: pd.DataFrame, measured, **case_fields) -> dict:
+def design_cases(design: pd.DataFrame, measured: MeasuredColumn, **case_fields: Any) -> dict[str, CollapseCase]:
     """{run_id: CollapseCase} for a design on a measured column (calibration.measured.MeasuredColumn).
 
     case_fields: further CollapseCase fields shared by every run (size_scale, duration_over_tstar...).
@@ -116,10 +126,10 @@ def design_cases(design: pd.DataFrame, measured, **case_fields) -> dict:
     return cases
 
 
-def write_design(path, design: pd.DataFrame) -> None:
+def write_design(path: str | os.PathLike, design: pd.DataFrame) -> None:
     with atomic_path(path) as tmp:
         design.to_csv(tmp, index=False)
 
 
-def read_design(path) -> pd.DataFrame:
+def read_design(path: str | os.PathLike) -> pd.DataFrame:
     return pd.read_csv(path)

@@ -3,14 +3,24 @@ before/after calibration against the measured points (the paper's Fig. 11)."""
 
 from __future__ import annotations
 
+import os
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from dem.plots import plt, save_figure
 
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from calibration.measured import MeasuredColumn
+
 SURFACE_POINTS = 101  # per axis
 
 
-def plot_response_surfaces(fits: dict, responses, path, response: str = "mse", measured_name: str = "") -> None:
+def plot_response_surfaces(
+    fits: dict, responses: pd.DataFrame, path: str | os.PathLike, response: str = "mse", measured_name: str = ""
+) -> None:
     """One panel per fitted model: predicted response over the two factors (natural units), the
     design points coloured by their observed response, and the model's optimum (star).
 
@@ -66,7 +76,7 @@ def plot_response_surfaces(fits: dict, responses, path, response: str = "mse", m
     save_figure(fig, path)
 
 
-def plot_runout_comparison(measured, curves: dict, path, title: str = "") -> None:
+def plot_runout_comparison(measured: MeasuredColumn, curves: dict, path: str | os.PathLike, title: str = "") -> None:
     """Runout L*(t/t*) of simulated runs against the measured points (Fig. 11 of the paper).
 
     measured: calibration.measured.MeasuredColumn; curves: {label: (t_over_tstar [T], L* [T])}.

@@ -13,13 +13,19 @@ surface within the factor bounds.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
 import statsmodels.formula.api as smf
+from numpy.typing import ArrayLike
 from scipy import optimize, stats
 from statsmodels.stats.anova import anova_lm
+
+if TYPE_CHECKING:
+    from doe.design import Factor
 
 MODELS = ("eq9", "quadratic")
 SYMBOLS = {"friction": "mu", "restitution": "e"}
@@ -30,7 +36,7 @@ class RegressionError(ValueError):
     """The responses cannot be fitted; the message says why."""
 
 
-def formula(model: str, factors, response: str = "response") -> str:
+def formula(model: str, factors: Sequence[Factor], response: str = "response") -> str:
     """statsmodels/patsy formula of `model` on the coded factor columns x_<name>."""
     x = [f"x_{f.name}" for f in factors]
     terms = x + [":".join(x)]
@@ -41,7 +47,7 @@ def formula(model: str, factors, response: str = "response") -> str:
     return f"{response} ~ " + " + ".join(terms)
 
 
-def term_label(term: str, factors) -> str:
+def term_label(term: str, factors: Sequence[Factor]) -> str:
     """JMP-style source name of a formula term: 'friction(0.3,0.9)', 'friction*restitution', ..."""
     bounds = {f"x_{f.name}": f"{f.name}({f.low:g},{f.high:g})" for f in factors}
     if term in bounds:
@@ -97,11 +103,12 @@ class SurfaceFit:
         return table.sort_values("logworth", ascending=False, ignore_index=True)
 
     # -- prediction and optimum --------------------------------------------------------------
-    def frame(self, coded) -> pd.DataFrame:
+    def frame(self, coded: ArrayLike) -> pd.DataFrame:
+        """Coded points [n, n_factors] (or one point [n_factors]) as the model's x_<name> columns."""
         coded = np.atleast_2d(np.asarray(coded, float))
         return pd.DataFrame({f"x_{f.name}": coded[:, k] for k, f in enumerate(self.factors)})
 
-    def predict(self, coded) -> np.ndarray:
+    def predict(self, coded: ArrayLike) -> np.ndarray:
         """Predicted response at coded points [n, n_factors] -> [n]."""
         return np.asarray(self.result.predict(self.frame(coded)), float)
 
@@ -132,7 +139,7 @@ class SurfaceFit:
         }
 
 
-def coded_frame(responses: pd.DataFrame, factors, response: str) -> pd.DataFrame:
+def coded_frame(responses: pd.DataFrame, factors: Sequence[Factor], response: str) -> pd.DataFrame:
     """Coded factor columns and the response column, checked."""
     missing = [c for c in [f.name for f in factors] + [response] if c not in responses.columns]
     if missing:
@@ -147,7 +154,7 @@ def coded_frame(responses: pd.DataFrame, factors, response: str) -> pd.DataFrame
     return frame
 
 
-def fit_surface(responses: pd.DataFrame, model: str, factors, response: str = "mse") -> SurfaceFit:
+def fit_surface(responses: pd.DataFrame, model: str, factors: Sequence[Factor], response: str = "mse") -> SurfaceFit:
     """OLS fit of `model` to responses (one row per run, factor columns in natural units)."""
     frame = coded_frame(responses, factors, response)
     n_terms = 4 if model == "eq9" else 6
@@ -158,7 +165,7 @@ def fit_surface(responses: pd.DataFrame, model: str, factors, response: str = "m
     )
 
 
-def pure_error(responses: pd.DataFrame, factors, response: str = "mse") -> dict:
+def pure_error(responses: pd.DataFrame, factors: Sequence[Factor], response: str = "mse") -> dict:
     """Pure error from runs repeated at the same factor setting (different packing seeds).
 
     Returns sum_sq, df, std (sqrt of the pure-error mean square, in response units) and
@@ -187,7 +194,9 @@ def lack_of_fit(fit: SurfaceFit, pure: dict) -> dict:
     return {"sum_sq": ss_lof, "df": df_lof, "F": float(F), "p_value": float(stats.f.sf(F, df_lof, pure["df"]))}
 
 
-def analyse(responses: pd.DataFrame, factors, response: str = "mse", models=MODELS) -> tuple[dict, dict]:
+def analyse(
+    responses: pd.DataFrame, factors: Sequence[Factor], response: str = "mse", models: Iterable[str] = MODELS
+) -> tuple[dict, dict]:
     """Fit every model; returns ({model: SurfaceFit}, a JSON-ready summary).
 
     Summary: n_runs, pure_error, best_run (lowest observed response), and per model: formula,

@@ -8,7 +8,10 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import time
+from collections.abc import Iterable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import pandas as pd
 
@@ -19,11 +22,16 @@ from dem.trajectory import read_trajectory
 from doe.design import design_cases
 from doe.regression import analyse, prediction_expression
 
+if TYPE_CHECKING:
+    from calibration.measured import MeasuredColumn
+    from dem.case import CollapseCase
+    from doe.design import Factor
+
 RUNOUT_PREFIX = "L_star_t"  # response columns L_star_t0.5, ... : simulated L* at the measured t/t*
 RUNOUT_METHOD_COLUMN = "runout_method"  # the runout method (JSON) every response was read by
 
 
-def case_rows(design: pd.DataFrame, measured, dataset: str, **case_fields) -> list[dict]:
+def case_rows(design: pd.DataFrame, measured: MeasuredColumn, dataset: str, **case_fields: Any) -> list[dict]:
     """Case-table rows (dem.grid format) of every design run, for the DEM stage's rules.
 
     dataset: the case-table dataset name of this study (e.g. "doe_quartz"); case_id = run_id.
@@ -49,7 +57,9 @@ def case_rows(design: pd.DataFrame, measured, dataset: str, **case_fields) -> li
     return rows
 
 
-def collect_responses(design: pd.DataFrame, trajectory_paths: dict, measured, runout: RunoutMethod) -> pd.DataFrame:
+def collect_responses(
+    design: pd.DataFrame, trajectory_paths: dict, measured: MeasuredColumn, runout: RunoutMethod
+) -> pd.DataFrame:
     """The design table with the response of every run: mse (calibration.objective) and the
     simulated L* at each measured t/t* (columns L_star_t<t>), plus dem_wall_time_s and the runout
     method they were read by (column runout_method, JSON).
@@ -76,7 +86,7 @@ def collect_responses(design: pd.DataFrame, trajectory_paths: dict, measured, ru
     return design.merge(pd.DataFrame(records), on="run_id")
 
 
-def run_analysis(responses: pd.DataFrame, factors, models) -> tuple[dict, dict]:
+def run_analysis(responses: pd.DataFrame, factors: Sequence[Factor], models: Iterable[str]) -> tuple[dict, dict]:
     """analyse() with the prediction expressions and the analysis time added to the summary."""
     start = time.perf_counter()
     fits, summary = analyse(responses, factors, "mse", models)
@@ -86,7 +96,7 @@ def run_analysis(responses: pd.DataFrame, factors, models) -> tuple[dict, dict]:
     return fits, summary
 
 
-def validation_case(summary: dict, model: str, measured, **case_fields):
+def validation_case(summary: dict, model: str, measured: MeasuredColumn, **case_fields: Any) -> CollapseCase:
     """The DEM case at `model`'s optimum (analysis summary from run_analysis) on the measured column."""
     if model not in summary["models"]:
         raise KeyError(f"model {model!r} not in the analysis; fitted: {list(summary['models'])}")
@@ -94,7 +104,7 @@ def validation_case(summary: dict, model: str, measured, **case_fields):
     return measured.collapse_case(**optimum, name=f"doe_validation_{model}", **case_fields)
 
 
-def read_responses(path, runout: RunoutMethod) -> pd.DataFrame:
+def read_responses(path: str | os.PathLike, runout: RunoutMethod) -> pd.DataFrame:
     """responses.csv of collect_responses; RunoutError when it was read by another runout method."""
     table = pd.read_csv(path)
     runout = RunoutMethod.from_config(runout)
@@ -104,6 +114,6 @@ def read_responses(path, runout: RunoutMethod) -> pd.DataFrame:
     return table
 
 
-def write_responses(path, responses: pd.DataFrame) -> None:
+def write_responses(path: str | os.PathLike, responses: pd.DataFrame) -> None:
     with atomic_path(path) as tmp:
         responses.to_csv(tmp, index=False)

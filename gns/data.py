@@ -7,6 +7,8 @@ dataset's size.
 
 from __future__ import annotations
 
+import os
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,7 +23,7 @@ from gns.simulator import LAYOUT_KEYS, Context
 STATISTICS = ("velocity_mean", "velocity_std", "acceleration_mean", "acceleration_std")
 
 
-def read_metadata(path) -> dict:
+def read_metadata(path: str | os.PathLike) -> dict:
     """A dataset's metadata (dem.dataset's JSON), checked for what the GNS needs."""
     metadata = load_dataset_metadata(path)
     missing = [
@@ -65,14 +67,20 @@ class Batch:
     next_position: torch.Tensor
     context: Context
 
-    def to(self, device) -> Batch:
+    def to(self, device: torch.device | str) -> Batch:
         return Batch(self.position_sequence.to(device), self.next_position.to(device), self.context.to(device))
 
 
 class TrajectoryWindows:
     """All windows of C + 1 frames of a list of trajectory files; window k is read on demand."""
 
-    def __init__(self, paths, n_input_frames: int, parameter_names, dt_frame: float | None = None):
+    def __init__(
+        self,
+        paths: Iterable[str | os.PathLike],
+        n_input_frames: int,
+        parameter_names: Iterable[str],
+        dt_frame: float | None = None,
+    ):
         self.n_input_frames = n_input_frames
         self.parameter_names = list(parameter_names)
         self.files = []
@@ -125,7 +133,7 @@ class TrajectoryWindows:
             )
         return positions, entry
 
-    def batch(self, indices) -> Batch:
+    def batch(self, indices: Iterable[int]) -> Batch:
         """Windows `indices` concatenated into one batch of disjoint graphs."""
         sequences, targets, types, radii, params, layouts, graph = [], [], [], [], [], [], []
         for g, k in enumerate(indices):

@@ -51,13 +51,16 @@ def edge_layout() -> list[tuple[str, int]]:
     return [("displacement", 2), ("distance", 1), ("gap", 1)]
 
 
-def velocity_features(position_sequence, velocity_mean, velocity_std):
-    """position_sequence [N, C, 2] (m) -> normalised velocities [N, 2 (C-1)]."""
+def velocity_features(
+    position_sequence: torch.Tensor, velocity_mean: torch.Tensor, velocity_std: torch.Tensor
+) -> torch.Tensor:
+    """position_sequence [N, C, 2] (m) -> normalised velocities [N, 2 (C-1)]; velocity_mean and
+    velocity_std [2] (m per frame)."""
     velocity = position_sequence[:, 1:] - position_sequence[:, :-1]  # m per frame
     return ((velocity - velocity_mean) / velocity_std).flatten(1)
 
 
-def wall_features(position, bounds, connectivity_radius_m):
+def wall_features(position: torch.Tensor, bounds: torch.Tensor, connectivity_radius_m: float) -> torch.Tensor:
     """position [N, 2] (m), bounds [2, 2] ((x_min, x_max), (y_min, y_max)) -> [N, 4]:
     distances to left, right, bottom, top walls / radius, clipped to [-1, 1]."""
     lower = position - bounds[:, 0]
@@ -66,21 +69,28 @@ def wall_features(position, bounds, connectivity_radius_m):
     return torch.clamp(distance / connectivity_radius_m, -1.0, 1.0)
 
 
-def scaled(values, low, high):
-    """values [..., P] scaled to [0, 1] over [low, high]; a degenerate range gives 0."""
+def scaled(values: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torch.Tensor:
+    """values [..., P] scaled to [0, 1] over [low, high] (each [P]); a degenerate range gives 0."""
     span = high - low
     safe = torch.where(span > 0, span, torch.ones_like(span))
     return torch.where(span > 0, (values - low) / safe, torch.zeros_like(values))
 
 
-def size_features(radius, mean_radius):
-    """radius [N] (m) -> [N, 1] relative deviation from the mean grain radius."""
+def size_features(radius: torch.Tensor, mean_radius: float) -> torch.Tensor:
+    """radius [N] (m) -> [N, 1] relative deviation from the mean grain radius `mean_radius` (m)."""
     return (radius / mean_radius - 1.0)[:, None]
 
 
-def edge_features(position, grain_radius, senders, receivers, connectivity_radius_m):
-    """position [N, 2] (m), grain_radius [N] (m) -> [E, 4]: displacement sender - receiver,
-    its norm, and the surface gap |d| - r_s - r_r, all / connectivity radius."""
+def edge_features(
+    position: torch.Tensor,
+    grain_radius: torch.Tensor,
+    senders: torch.Tensor,
+    receivers: torch.Tensor,
+    connectivity_radius_m: float,
+) -> torch.Tensor:
+    """position [N, 2] (m), grain_radius [N] (m), senders and receivers [E] int64 node indices ->
+    [E, 4]: displacement sender - receiver, its norm, and the surface gap |d| - r_s - r_r, all /
+    connectivity radius (m)."""
     displacement = (position[senders] - position[receivers]) / connectivity_radius_m
     # the norm's gradient is undefined at 0; no self edges, but coincident grains must not give NaN
     distance = torch.sqrt(torch.sum(displacement**2, dim=-1, keepdim=True) + 1e-12)

@@ -33,10 +33,13 @@ def mlp(in_size: int, hidden_size: int, hidden_layers: int, out_size: int, layer
 class GNBlock(nn.Module):
     """One message-passing step with residual edge and node updates."""
 
-    def edge_input_layer(self, nodes, edges, senders, receivers):
+    def edge_input_layer(
+        self, nodes: torch.Tensor, edges: torch.Tensor, senders: torch.Tensor, receivers: torch.Tensor
+    ) -> torch.Tensor:
         """The edge MLP's first layer on [e, v_s, v_r], computed as W_e e + (W_s v)[s] + (W_r v)[r]:
         the same numbers as on the concatenation, with the node parts multiplied once per node
-        instead of once per edge (about 10 edges per node here)."""
+        instead of once per edge (about 10 edges per node here). nodes [N, D], edges [E, D],
+        senders/receivers [E] int64 -> [E, hidden]."""
         first = self.edge_mlp[0]
         w_edge, w_sender, w_receiver = first.weight.split(nodes.shape[-1], dim=1)
         projected = nodes @ torch.cat([w_sender, w_receiver], dim=0).T
@@ -53,8 +56,10 @@ class GNBlock(nn.Module):
         self.edge_mlp = mlp(3 * latent_size, hidden_size, hidden_layers, latent_size)
         self.node_mlp = mlp(2 * latent_size, hidden_size, hidden_layers, latent_size)
 
-    def forward(self, nodes, edges, senders, receivers):
-        """nodes [N, D], edges [E, D] -> (nodes', edges'), both updated."""
+    def forward(
+        self, nodes: torch.Tensor, edges: torch.Tensor, senders: torch.Tensor, receivers: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """nodes [N, D], edges [E, D], senders/receivers [E] int64 -> (nodes', edges'), both updated."""
         edges = edges + self.edge_mlp[1:](self.edge_input_layer(nodes, edges, senders, receivers))
         incoming = torch.zeros_like(nodes).index_add_(0, receivers, edges)
         nodes = nodes + self.node_mlp(torch.cat([nodes, incoming], dim=-1))
@@ -80,15 +85,19 @@ class EncodeProcessDecode(nn.Module):
         )
         self.decoder = mlp(latent_size, mlp_hidden_size, mlp_hidden_layers, out_size, layer_norm=False)
 
-    def encode(self, node_features, edge_features):
+    def encode(self, node_features: torch.Tensor, edge_features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return self.node_encoder(node_features), self.edge_encoder(edge_features)
 
-    def process(self, nodes, edges, senders, receivers):
+    def process(
+        self, nodes: torch.Tensor, edges: torch.Tensor, senders: torch.Tensor, receivers: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         for block in self.processor:
             nodes, edges = block(nodes, edges, senders, receivers)
         return nodes, edges
 
-    def forward(self, node_features, edge_features, senders, receivers):
+    def forward(
+        self, node_features: torch.Tensor, edge_features: torch.Tensor, senders: torch.Tensor, receivers: torch.Tensor
+    ) -> torch.Tensor:
         """node_features [N, node_in], edge_features [E, edge_in], senders/receivers [E] -> [N, out]."""
         nodes, edges = self.encode(node_features, edge_features)
         nodes, _ = self.process(nodes, edges, senders, receivers)

@@ -42,8 +42,11 @@ class Rollout:
     problem: str | None  # why it stopped early, None when valid
 
 
-def check_parameters(simulator: LearnedSimulator, parameters, layout) -> None:
-    """ValueError when a parameter or L_i/H_i lies outside the range the model was trained on."""
+def check_parameters(simulator: LearnedSimulator, parameters: torch.Tensor, layout: torch.Tensor) -> None:
+    """ValueError when a parameter or L_i/H_i lies outside the range the model was trained on.
+
+    parameters [G, P] or [P] (physical units, config.parameter_names order); layout [G, 2] or [2]
+    (L_i, H_i in m)."""
     c = simulator.config
     names = c.parameter_names + ["L_i", "H_i"]
     values = (
@@ -125,8 +128,8 @@ def context_from_trajectory(
     simulator: LearnedSimulator,
     trajectory: Trajectory,
     parameters: dict | None = None,
-    device=None,
-    dtype=torch.float32,
+    device: torch.device | str | None = None,
+    dtype: torch.dtype = torch.float32,
 ) -> Context:
     """The rollout context of a trajectory's case; `parameters` overrides DEM parameters by name."""
     names = simulator.config.parameter_names

@@ -18,6 +18,7 @@ import math
 
 import numpy as np
 import torch
+from numpy.typing import ArrayLike
 from scipy.optimize import brentq
 from scipy.special import expit
 
@@ -73,9 +74,9 @@ def soft_front_position(
     return soft_top_k_mean(front, k, temperature * 2.0 * float(radius_np.mean()))
 
 
-def frame_weights(t_points, t_star: float, dt_frame: float, n_frames: int) -> list[tuple[int, float]]:
-    """[(frame k, weight w)] per t/t* point: L*(t) = (1 - w) L*[k] + w L*[k + 1], as np.interp on the
-    frame times (frame j at t = j dt_frame)."""
+def frame_weights(t_points: ArrayLike, t_star: float, dt_frame: float, n_frames: int) -> list[tuple[int, float]]:
+    """[(frame k, weight w)] per t/t* point of t_points [K]: L*(t) = (1 - w) L*[k] + w L*[k + 1], as
+    np.interp on the frame times (frame j at t = j dt_frame)."""
     pairs = []
     for t in np.asarray(t_points, float):
         u = t * t_star / dt_frame
@@ -84,7 +85,7 @@ def frame_weights(t_points, t_star: float, dt_frame: float, n_frames: int) -> li
     return pairs
 
 
-def frames_needed(t_points, t_star: float, dt_frame: float) -> int:
+def frames_needed(t_points: ArrayLike, t_star: float, dt_frame: float) -> int:
     """How many frames (from frame 0) a runout at the t/t* points reads."""
     return max(k for k, _ in frame_weights(t_points, t_star, dt_frame, 10**9)) + 2
 
@@ -95,7 +96,7 @@ def soft_runout_at(
     L_i: float,
     t_star: float,
     dt_frame: float,
-    t_points,
+    t_points: ArrayLike,
     method: RunoutMethod,
     temperature: float | None = None,
 ) -> torch.Tensor:

@@ -13,6 +13,7 @@ refuses data it was not trained for (`check_compatible`).
 from __future__ import annotations
 
 import dataclasses
+import os
 from dataclasses import dataclass, field
 
 import torch
@@ -131,7 +132,11 @@ class Context:
     graph_index: torch.Tensor
 
     @classmethod
-    def single(cls, particle_type, radius, parameters, layout) -> Context:
+    def single(
+        cls, particle_type: torch.Tensor, radius: torch.Tensor, parameters: torch.Tensor, layout: torch.Tensor
+    ) -> Context:
+        """The context of one graph: particle_type [N] (any integer or float dtype; cast to int64),
+        radius [N] (m), parameters [P] and layout [2] (each reshaped to one row)."""
         n = len(radius)
         return cls(
             torch.as_tensor(particle_type, dtype=torch.long),
@@ -141,7 +146,7 @@ class Context:
             torch.zeros(n, dtype=torch.long, device=radius.device),
         )
 
-    def to(self, device=None, dtype=None) -> Context:
+    def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> Context:
         floats = {k: getattr(self, k).to(device=device, dtype=dtype) for k in ("radius", "parameters", "layout")}
         return Context(self.particle_type.to(device), graph_index=self.graph_index.to(device), **floats)
 
@@ -174,7 +179,9 @@ class LearnedSimulator(nn.Module):
         self.register_buffer("layout_high", layout[:, 1])
 
     # -- preprocess ------------------------------------------------------------------------------
-    def preprocess(self, position_sequence, context: Context):
+    def preprocess(
+        self, position_sequence: torch.Tensor, context: Context
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
         """position_sequence [N, C, 2] (m) -> (node features [N, F_v], edge features [E, 4],
         senders [E], receivers [E]); blocks in config.node_layout order."""
         c = self.config
@@ -202,24 +209,27 @@ class LearnedSimulator(nn.Module):
         edge_features = features.edge_features(position, context.radius, senders, receivers, c.connectivity_radius_m)
         return node_features, edge_features, senders, receivers
 
-    def forward(self, position_sequence, context: Context):
+    def forward(self, position_sequence: torch.Tensor, context: Context) -> torch.Tensor:
         """Normalised acceleration [N, 2] of the last frame of position_sequence [N, C, 2]."""
         return self.network(*self.preprocess(position_sequence, context))
 
     # -- postprocess and its inverse -------------------------------------------------------------
-    def postprocess(self, normalised_acceleration, position_sequence):
-        """Semi-implicit Euler over one frame: v' = v + a, x' = x + v' (m, m/frame) -> next position [N, 2]."""
+    def postprocess(self, normalised_acceleration: torch.Tensor, position_sequence: torch.Tensor) -> torch.Tensor:
+        """Semi-implicit Euler over one frame: v' = v + a, x' = x + v' (m, m/frame) -> next position [N, 2].
+
+        normalised_acceleration [N, 2]; position_sequence [N, C, 2] (m)."""
         acceleration = normalised_acceleration * self.acceleration_std + self.acceleration_mean
         velocity = position_sequence[:, -1] - position_sequence[:, -2]
         return position_sequence[:, -1] + velocity + acceleration
 
-    def inverse_postprocess(self, next_position, position_sequence):
-        """The normalised acceleration that `postprocess` turns into next_position [N, 2]."""
+    def inverse_postprocess(self, next_position: torch.Tensor, position_sequence: torch.Tensor) -> torch.Tensor:
+        """The normalised acceleration [N, 2] that `postprocess` turns into next_position [N, 2] (m),
+        given position_sequence [N, C, 2] (m)."""
         velocity = position_sequence[:, -1] - position_sequence[:, -2]
         acceleration = (next_position - position_sequence[:, -1]) - velocity
         return (acceleration - self.acceleration_mean) / self.acceleration_std
 
-    def keep_inside_walls(self, position, radius):
+    def keep_inside_walls(self, position: torch.Tensor, radius: torch.Tensor) -> torch.Tensor:
         """Project grain centres that sank more than half a radius into the floor or the side walls
         back to that depth (position [N, 2], radius [N], m).
 
@@ -235,15 +245,22 @@ class LearnedSimulator(nn.Module):
         return torch.stack([x, y], dim=1)
 
     # -- the two uses ----------------------------------------------------------------------------
-    def predict_positions(self, position_sequence, context: Context):
+    def predict_positions(self, position_sequence: torch.Tensor, context: Context) -> torch.Tensor:
         """Next position [N, 2] (m) from the last C positions [N, C, 2]."""
         position = self.postprocess(self(position_sequence, context), position_sequence)
         if self.config.wall_clamp:
             position = self.keep_inside_walls(position, context.radius)
         return position
 
-    def predict_accelerations(self, next_position, position_sequence_noise, position_sequence, context: Context):
-        """Training pair (predicted, target) normalised accelerations [N, 2].
+    def predict_accelerations(
+        self,
+        next_position: torch.Tensor,
+        position_sequence_noise: torch.Tensor,
+        position_sequence: torch.Tensor,
+        context: Context,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Training pair (predicted, target) normalised accelerations [N, 2] from next_position [N, 2],
+        position_sequence [N, C, 2] and its noise position_sequence_noise [N, C, 2] (all m).
 
         The noise is added to the inputs; the target keeps the true next position relative to the
         noisy last position plus its own noise, so the model learns to correct the noisy velocity
@@ -283,7 +300,9 @@ def simulator_from_payload(payload: dict, where: str) -> LearnedSimulator:
     return simulator
 
 
-def load_simulator(path, metadata: dict | None = None, device=None) -> LearnedSimulator:
+def load_simulator(
+    path: str | os.PathLike, metadata: dict | None = None, device: torch.device | str | None = None
+) -> LearnedSimulator:
     """The simulator saved at `path` (a model or training checkpoint), in eval mode; with
     `metadata` (a dataset's), also checks that the data fits it."""
     try:

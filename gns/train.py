@@ -28,6 +28,7 @@ import csv
 import dataclasses
 import logging
 import math
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -135,15 +136,16 @@ def random_walk_noise(position_sequence: torch.Tensor, noise_std_m: float, gener
     return torch.cat([torch.zeros((n, 1, 2)), position_noise], dim=1)
 
 
-def one_step_loss(simulator: LearnedSimulator, batch, noise: torch.Tensor) -> torch.Tensor:
-    """Mean over particles of the squared error in normalised acceleration (summed over x, y)."""
+def one_step_loss(simulator: LearnedSimulator, batch: Batch, noise: torch.Tensor) -> torch.Tensor:
+    """Mean over particles of the squared error in normalised acceleration (summed over x, y); noise
+    [N, C, 2] (m) is added to batch.position_sequence (see random_walk_noise)."""
     predicted, target = simulator.predict_accelerations(
         batch.next_position, noise, batch.position_sequence, batch.context
     )
     return torch.mean(torch.sum((predicted - target) ** 2, dim=-1))
 
 
-def pushforward_loss(simulator: LearnedSimulator, batch, pushforward_steps: int) -> torch.Tensor:
+def pushforward_loss(simulator: LearnedSimulator, batch: Batch, pushforward_steps: int) -> torch.Tensor:
     """One-step loss from the model's own state: batch.position_sequence [N, C + p, 2] holds the
     true frames; the model rolls its first C frames p steps forward without gradient (as in a
     rollout, walls included), then predicts the next frame from there, scored against the true
@@ -182,7 +184,13 @@ class Trainer:
         "valid_rollouts_failed",
     )
 
-    def __init__(self, metadata_path, out_dir, settings: TrainSettings, runout: RunoutMethod | None = None):
+    def __init__(
+        self,
+        metadata_path: str | os.PathLike,
+        out_dir: str | os.PathLike,
+        settings: TrainSettings,
+        runout: RunoutMethod | None = None,
+    ):
         self.metadata_path = str(metadata_path)
         self.runout = RunoutMethod.from_config(runout)  # how the validation runout MSE reads L*
         self.metadata = read_metadata(metadata_path)
@@ -229,7 +237,7 @@ class Trainer:
     def checkpoint_path(self) -> Path:
         return self.out_dir / "checkpoint_last.pt"
 
-    def save_checkpoint(self):
+    def save_checkpoint(self) -> None:
         payload = {
             "format": TRAIN_FORMAT,
             "model": model_payload(self.simulator),
@@ -485,7 +493,7 @@ class Trainer:
         return row
 
     # -- outputs -----------------------------------------------------------------------------------
-    def save_best(self):
+    def save_best(self) -> None:
         """The current averaged model becomes the best one: model_best.pt, and kept for the checkpoint."""
         self.best_payload = model_payload(self.averaged)
         # cloned: on the CPU the payload's tensors share memory with the model the EMA keeps updating
@@ -498,14 +506,14 @@ class Trainer:
         )
         self.write_best()
 
-    def write_best(self):
+    def write_best(self) -> None:
         if self.best_payload is None:
             raise CheckpointError(f"{self.out_dir}: no best model to write (no validation has run)")
         self.out_dir.mkdir(parents=True, exist_ok=True)
         with atomic_path(self.out_dir / "model_best.pt") as tmp:
             torch.save(self.best_payload, tmp)
 
-    def write_metrics(self, figure: bool = True):
+    def write_metrics(self, figure: bool = True) -> None:
         with atomic_path(self.out_dir / "metrics.csv") as tmp:
             with open(tmp, "w", newline="") as f:
                 writer = csv.DictWriter(f, fieldnames=self.COLUMNS)
@@ -515,7 +523,7 @@ class Trainer:
             plot_loss_curve(self.history, self.out_dir / "loss_curve.png", self.best)
 
 
-def plot_loss_curve(history: list[dict], path, best: dict | None = None):
+def plot_loss_curve(history: list[dict], path: str | os.PathLike, best: dict | None = None) -> None:
     """Training loss and validation metrics against step."""
     import matplotlib
 
@@ -549,8 +557,8 @@ def plot_loss_curve(history: list[dict], path, best: dict | None = None):
 
 
 def train(
-    metadata_path,
-    out_dir,
+    metadata_path: str | os.PathLike,
+    out_dir: str | os.PathLike,
     settings: TrainSettings | dict | None = None,
     resume: bool = True,
     restart_on_mismatch: bool = False,
