@@ -2,25 +2,26 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from dem.case import CollapseCase
 from dem.integrate import ENGINE_VERSION, ContactLaw, State, record
-from dem.packing import blowup_box, settle_column, walls_open
-from dem.trajectory import GRAIN, Trajectory, TrajectoryError, engine_attrs
+from dem.packing import blowup_box, check_grain_count, settle_column, walls_open
+from dem.trajectory import GRAIN, Trajectory, engine_attrs
 
 
 def state_from_packing(case: CollapseCase, packing: Trajectory) -> State:
-    """Grains at rest at the last frame of `packing` (a settled-column trajectory)."""
-    if packing.n_particles != case.n_particles:
-        raise TrajectoryError(
-            f"packing has {packing.n_particles} grains, case {case.name or '?'} "
-            f"needs {case.n_particles}: it was settled for another case"
-        )
+    """Grains at rest at the last frame of `packing` (a settled-column trajectory): positions (m),
+    radii (m), masses from case.density (kg/m^3)."""
+    check_grain_count(case, packing)
     return State.at_rest(packing.positions[-1], packing.radius, case.density)
 
 
-def simulate_collapse(case: CollapseCase, packing: Trajectory | None = None, progress=None) -> Trajectory:
+def simulate_collapse(
+    case: CollapseCase, packing: Trajectory | None = None, progress: Callable[[float], None] | None = None
+) -> Trajectory:
     """Collapse trajectory: case.n_frames frames every case.frame_interval, gate removed at t = 0.
 
     packing: the settled column (dem.packing.settle_column); settled here when None.

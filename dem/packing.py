@@ -12,12 +12,13 @@ engine can start from the same packing and it is stored and read like any other 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
 from dem.case import FILL_HEIGHT_FACTOR, CaseError, CollapseCase
 from dem.integrate import ENGINE_VERSION, ContactLaw, SimulationError, State, run
-from dem.trajectory import GRAIN, Trajectory, engine_attrs
+from dem.trajectory import GRAIN, Trajectory, TrajectoryError, engine_attrs
 
 LATTICE_CLEARANCE = 1.02  # lattice pitch / largest diameter
 REST_SPEED = 1e-3  # settled when the RMS grain speed is below this fraction of sqrt(g H_i)
@@ -79,7 +80,7 @@ def blowup_box(case: CollapseCase) -> tuple:
     return (-margin, case.box_width + margin, -margin, case.box_height + margin)
 
 
-def settle_state(case: CollapseCase, progress=None) -> State:
+def settle_state(case: CollapseCase, progress: Callable[[float], None] | None = None) -> State:
     """Pour and settle the column behind the gate; the settled State (velocities near zero)."""
     positions, radius = pour_column(case)
     state = State.at_rest(positions, radius, case.density)
@@ -113,7 +114,7 @@ def settle_state(case: CollapseCase, progress=None) -> State:
     return state
 
 
-def settle_column(case: CollapseCase, progress=None) -> Trajectory:
+def settle_column(case: CollapseCase, progress: Callable[[float], None] | None = None) -> Trajectory:
     """The settled column as a one-frame Trajectory (engine "builtin", stage "settled")."""
     state = settle_state(case, progress)
     attrs = engine_attrs(case, "builtin", ENGINE_VERSION)
@@ -124,3 +125,13 @@ def settle_column(case: CollapseCase, progress=None) -> Trajectory:
         particle_type=np.full(len(state.radius), GRAIN, np.int32),
         attrs=attrs,
     )
+
+
+def check_grain_count(case: CollapseCase, packing: Trajectory) -> None:
+    """TrajectoryError unless `packing` (a settled column) holds exactly the case's
+    case.n_particles grains: a packing settled for another case must not start this one."""
+    if packing.n_particles != case.n_particles:
+        raise TrajectoryError(
+            f"packing has {packing.n_particles} grains, case {case.name or '?'} needs "
+            f"{case.n_particles}: it was settled for another case"
+        )

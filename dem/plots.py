@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+from collections.abc import Sequence
+from typing import TYPE_CHECKING
+
 import matplotlib
 
 matplotlib.use("Agg")
@@ -13,10 +17,18 @@ from matplotlib.patches import Patch  # noqa: E402
 from dem.atomic import atomic_path  # noqa: E402
 from dem.runout import RunoutMethod  # noqa: E402
 
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+    from dem.trajectory import Trajectory
+
 SNAPSHOT_TSTAR = (0.0, 1.0, 1.5, 2.0, 4.0)
 
 
-def draw_grains(ax, positions, radius, color="tab:orange", alpha=1.0):
+def draw_grains(
+    ax: Axes, positions: np.ndarray, radius: np.ndarray, color: str = "tab:orange", alpha: float = 1.0
+) -> None:
     """Discs at their true size (data units) on `ax`. positions [N, 2] (m), radius [N] (m)."""
     diameters = 2 * np.asarray(radius)
     ax.add_collection(
@@ -34,14 +46,30 @@ def draw_grains(ax, positions, radius, color="tab:orange", alpha=1.0):
     )
 
 
-def save_figure(fig, path):
+def case_title(attrs: dict, length: bool = True) -> str:
+    """A figure title naming a collapse case by its trajectory attrs: material, aspect ratio a,
+    initial column length L_i (shown in mm; attrs in m) when `length`, friction mu, restitution e."""
+    size = f", L_i = {float(attrs['L_i']) * 1e3:.3g} mm" if length else ""
+    return (
+        f"{attrs.get('material')} a = {float(attrs['aspect_ratio']):.3g}{size}, "
+        f"mu = {float(attrs['friction']):.3g}, e = {float(attrs['restitution']):.3g}"
+    )
+
+
+def save_figure(fig: Figure, path: str | os.PathLike) -> None:
     """Save atomically (the format follows the path's suffix) and close."""
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format=str(path).rsplit(".", 1)[-1], dpi=110, bbox_inches="tight")
     plt.close(fig)
 
 
-def plot_case(trajectory, path, runout, compare=None, snapshots=SNAPSHOT_TSTAR):
+def plot_case(
+    trajectory: Trajectory,
+    path: str | os.PathLike,
+    runout: RunoutMethod | dict | str,
+    compare: Trajectory | None = None,
+    snapshots: Sequence[float] = SNAPSHOT_TSTAR,
+) -> None:
     """Snapshots at t/t* in `snapshots` and the runout curve L*(t/t*) read by `runout` (a
     dem.runout.RunoutMethod, config dict or name); `compare` (another trajectory of the same case,
     e.g. a GNS rollout) is drawn over it in blue."""
@@ -74,11 +102,6 @@ def plot_case(trajectory, path, runout, compare=None, snapshots=SNAPSHOT_TSTAR):
     ax.set_title(runout.label, fontsize=8, loc="left")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
-    a = trajectory.attrs
-    fig.suptitle(
-        f"{a.get('material')} a = {float(a['aspect_ratio']):.3g}, L_i = {float(a['L_i']) * 1e3:.3g} mm, "
-        f"mu = {float(a['friction']):.3g}, e = {float(a['restitution']):.3g}",
-        fontsize=10,
-    )
+    fig.suptitle(case_title(trajectory.attrs), fontsize=10)
     fig.tight_layout()
     save_figure(fig, path)

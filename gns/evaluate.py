@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +23,12 @@ from dem.trajectory import Trajectory, read_trajectory
 SNAPSHOT_TSTAR = (0.0, 1.0, 1.5, 2.0, 4.0)
 
 
-def rollout_runout_mse(dem: Trajectory, gns: Trajectory, runout: RunoutMethod, curves=None) -> float:
+def rollout_runout_mse(
+    dem: Trajectory,
+    gns: Trajectory,
+    runout: RunoutMethod,
+    curves: tuple[np.ndarray, np.ndarray] | None = None,
+) -> float:
     """Mean over frames of (L*_gns - L*_dem)^2, both read by `runout`; both must cover the same frames.
     curves: (L*_dem [T], L*_gns [T]) when the caller has already read them (not read again)."""
     if gns.n_frames != dem.n_frames:
@@ -40,7 +47,12 @@ def position_mse(dem: Trajectory, gns: Trajectory, n_input_frames: int) -> float
     return float(np.mean(np.sum(difference**2, axis=-1)))
 
 
-def evaluate_rollouts(pairs, out_dir, runout: RunoutMethod | dict | str, n_input_frames: int | None = None) -> dict:
+def evaluate_rollouts(
+    pairs: Iterable[tuple[str | os.PathLike, str | os.PathLike]],
+    out_dir: str | os.PathLike,
+    runout: RunoutMethod | dict | str,
+    n_input_frames: int | None = None,
+) -> dict:
     """Score GNS rollouts against their DEM trajectories and draw the figures.
 
     pairs: [(dem trajectory path, gns rollout path)]. Writes in out_dir: metrics.csv (one row per
@@ -118,14 +130,16 @@ def _write_csv(rows, path):
                 writer.writerows(rows)
 
 
-def plot_side_by_side(dem: Trajectory, gns: Trajectory, path, snapshots=SNAPSHOT_TSTAR):
+def plot_side_by_side(
+    dem: Trajectory, gns: Trajectory, path: str | os.PathLike, snapshots: Sequence[float] = SNAPSHOT_TSTAR
+) -> None:
     """DEM (left) and GNS (right) snapshots at t/t* in `snapshots` (paper Figs. 6 and 8)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from dem.plots import draw_grains, save_figure
+    from dem.plots import case_title, draw_grains, save_figure
 
     t = dem.t_over_tstar
     shown = [s for s in snapshots if s <= t[-1] + 1e-9]
@@ -146,18 +160,14 @@ def plot_side_by_side(dem: Trajectory, gns: Trajectory, path, snapshots=SNAPSHOT
             ax.set(xlim=(0, extent), ylim=(0, height), aspect="equal")
             ax.set_title(f"{'DEM' if col == 0 else 'GNS'}  t/t* = {t[k]:.2f}", fontsize=8, loc="left")
             ax.tick_params(labelsize=6)
-    a = dem.attrs
-    fig.suptitle(
-        f"{a.get('material')} a = {float(a['aspect_ratio']):.3g}, mu = {float(a['friction']):.3g}, "
-        f"e = {float(a['restitution']):.3g}",
-        fontsize=10,
-    )
+    fig.suptitle(case_title(dem.attrs, length=False), fontsize=10)
     fig.tight_layout()
     save_figure(fig, path)
 
 
-def plot_runout_curves(curves, path, runout_label: str = ""):
-    """L*(t/t*) of DEM (solid) and GNS (dashed) for every case (paper Fig. 7)."""
+def plot_runout_curves(curves: Sequence[tuple], path: str | os.PathLike, runout_label: str = "") -> None:
+    """L*(t/t*) of DEM (solid) and GNS (dashed) for every case (paper Fig. 7); L* and t/t* are
+    dimensionless. curves: (name, attrs, t/t* DEM [T], L* DEM [T], t/t* GNS [T'], L* GNS [T']) per case."""
     import matplotlib
 
     matplotlib.use("Agg")

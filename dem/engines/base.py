@@ -8,23 +8,29 @@ from the solvers, not from the packings. An engine works in its own folder `work
     engine.run(deck, progress)                      # the solver, log kept in work_dir
     trajectory = engine.read(case, packing, work_dir)
 
-`engine.simulate(...)` does the three in turn. Helpers shared by the solver engines live here:
-running a subprocess with its log kept, and binning polydisperse grains into size classes so that
-per-class damping keeps the restitution coefficient within a tolerance.
+`engine.simulate(...)` does the three in turn. The solver engines (LIGGGHTS, MFIX) share the
+render / run template of SolverEngine and only add their deck, command line and output reader.
+Helpers shared by the solver engines live here too: running a subprocess with its log kept, and
+binning polydisperse grains into size classes so that per-class damping keeps the restitution
+coefficient within a tolerance.
 """
 
 from __future__ import annotations
 
 import math
+import os
+import re
 import shutil
 import subprocess
 import time
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from dem.case import CollapseCase
-from dem.trajectory import Trajectory, TrajectoryError, write_trajectory
+from dem.packing import check_grain_count, settle_column
+from dem.trajectory import GRAIN, Trajectory, TrajectoryError, engine_attrs, write_trajectory
 
 LOG_TAIL_LINES = 25
 
@@ -82,35 +88,44 @@ class Engine:
         return "unknown"
 
     # -- the three steps ------------------------------------------------------------------------
-    def render(self, case: CollapseCase, packing: Trajectory, work_dir) -> Path:
+    def render(self, case: CollapseCase, packing: Trajectory, work_dir: str | os.PathLike) -> Path:
         """Write the input files for `case` starting from `packing` into work_dir; the deck path."""
         raise NotImplementedError
 
-    def run(self, deck: Path, progress=None) -> None:
+    def run(self, deck: Path, progress: Callable[[float], None] | None = None) -> None:
         """Run the solver on `deck` (in its folder), log kept beside it. progress: callable(fraction)."""
         raise NotImplementedError
 
-    def read(self, case: CollapseCase, packing: Trajectory, work_dir) -> Trajectory:
+    def read(self, case: CollapseCase, packing: Trajectory, work_dir: str | os.PathLike) -> Trajectory:
         """The solver's output in work_dir as a Trajectory (case.n_frames frames)."""
         raise NotImplementedError
 
     def simulate(
-        self, case: CollapseCase, packing: Trajectory | None, work_dir, progress=None, output=None
+        self,
+        case: CollapseCase,
+        packing: Trajectory | None,
+        work_dir: str | os.PathLike,
+        progress: Callable[[float], None] | None = None,
+        output: str | os.PathLike | None = None,
     ) -> Trajectory:
         """Render, run and read; write the trajectory HDF5 to `output` when given.
 
         packing None: settle the column with the builtin settling step first.
         """
         if packing is None:
-            from dem.packing import settle_column
-
             packing = settle_column(case)
         check_packing(case, packing)
         deck = self.render(case, packing, work_dir)
         self.run(deck, progress)
         return self.collect(case, packing, work_dir, output)
 
-    def collect(self, case: CollapseCase, packing: Trajectory, work_dir, output=None) -> Trajectory:
+    def collect(
+        self,
+        case: CollapseCase,
+        packing: Trajectory,
+        work_dir: str | os.PathLike,
+        output: str | os.PathLike | None = None,
+    ) -> Trajectory:
         """Read the solver's output in work_dir; write it to `output` (HDF5) only when it reads whole."""
         trajectory = self.read(case, packing, work_dir)
         if output is not None:
@@ -118,13 +133,72 @@ class Engine:
         return trajectory
 
 
-def check_packing(case: CollapseCase, packing: Trajectory) -> None:
-    """The packing must hold the case's grains inside its box."""
-    if packing.n_particles != case.n_particles:
-        raise TrajectoryError(
-            f"packing has {packing.n_particles} grains, case {case.name or '?'} needs "
-            f"{case.n_particles}: it was settled for another case"
+class SolverEngine(Engine):
+    """An engine that runs an external solver (LIGGGHTS, MFIX): the render / run template.
+
+    render writes two files into work_dir, the deck (`deck_file`) and the grains it reads
+    (`grains_file`), both from the subclass's render_files, after removing stale frames of an
+    earlier run; run starts `command` on the deck, log in `log_file`, counts the frames written
+    (files `frame_glob` in `frames_dir`, relative to work_dir) for progress, and fails when fewer
+    than the deck's header line `# frames: N` were written. read stays the subclass's.
+    """
+
+    deck_file = "deck"
+    grains_file = "grains"
+    log_file = "solver.log"
+    frames_dir = "."
+    frame_glob = "*"
+
+    def render_files(self, case: CollapseCase, packing: Trajectory) -> tuple[str, str]:
+        """(deck text, grains file text) for `case` starting from the last frame of `packing`."""
+        raise NotImplementedError
+
+    def command(self, solver: str, deck: Path) -> list[str]:
+        """The solver's command line for `deck`, run in the deck's folder."""
+        raise NotImplementedError
+
+    def render(self, case: CollapseCase, packing: Trajectory, work_dir: str | os.PathLike) -> Path:
+        """Write the deck and the grains file into work_dir (created), stale frames removed; the deck path."""
+        work_dir = Path(work_dir)
+        frames = work_dir / self.frames_dir
+        frames.mkdir(parents=True, exist_ok=True)
+        for old in frames.glob(self.frame_glob):
+            old.unlink()  # stale frames of an earlier run would be read as this run's
+        deck_text, grains_text = self.render_files(case, packing)
+        (work_dir / self.grains_file).write_text(grains_text)
+        deck = work_dir / self.deck_file
+        deck.write_text(deck_text)
+        return deck
+
+    def run(self, deck: Path, progress: Callable[[float], None] | None = None) -> None:
+        """Run the solver on `deck` in its folder; progress(fraction of the deck's frames written)."""
+        solver = self.require_solver()
+        deck = Path(deck)
+        n_frames = int(re.search(r"^# frames: (\d+)", deck.read_text(), re.M).group(1))
+        frames = deck.parent / self.frames_dir
+        log = deck.parent / self.log_file
+
+        def written() -> int:
+            return len(list(frames.glob(self.frame_glob)))
+
+        run_solver(self.command(solver, deck), deck, log, self.name, progress, lambda: written() / n_frames)
+        check_frames_written(self.name, deck, log, written(), n_frames)
+
+    def grain_trajectory(
+        self, case: CollapseCase, positions: np.ndarray, radius: np.ndarray, **attrs: object
+    ) -> Trajectory:
+        """Frames read from the solver's output as a Trajectory of grains: positions [T, N, 2] (m),
+        radius [N] (m); attrs: the case's and this engine's (dem.trajectory.engine_attrs), then `attrs`."""
+        all_attrs = engine_attrs(case, self.name, self.version())
+        all_attrs.update(attrs)
+        return Trajectory(
+            positions=positions, radius=radius, particle_type=np.full(len(radius), GRAIN, np.int32), attrs=all_attrs
         )
+
+
+def check_packing(case: CollapseCase, packing: Trajectory) -> None:
+    """The packing must hold the case's grains inside its box [0, case.box_width] x [0, ...] (m)."""
+    check_grain_count(case, packing)
     x = packing.positions[-1]
     if x[:, 0].min() < 0 or x[:, 0].max() > case.box_width or x[:, 1].min() < 0:
         raise TrajectoryError(
@@ -133,7 +207,7 @@ def check_packing(case: CollapseCase, packing: Trajectory) -> None:
 
 
 # -- running a solver ----------------------------------------------------------------------------
-def tail(path, n: int = LOG_TAIL_LINES) -> str:
+def tail(path: str | os.PathLike, n: int = LOG_TAIL_LINES) -> str:
     """The last n lines of a text file ('' when it does not exist)."""
     path = Path(path)
     if not path.exists():
@@ -143,7 +217,13 @@ def tail(path, n: int = LOG_TAIL_LINES) -> str:
 
 
 def run_solver(
-    command: list[str], deck: Path, log: Path, name: str, progress=None, progress_of=None, poll_s: float = 0.5
+    command: list[str],
+    deck: Path,
+    log: Path,
+    name: str,
+    progress: Callable[[float], None] | None = None,
+    progress_of: Callable[[], float] | None = None,
+    poll_s: float = 0.5,
 ) -> None:
     """Run `command` in the deck's folder, stdout and stderr to `log`.
 
@@ -182,7 +262,7 @@ def check_frames_written(name: str, deck: Path, log: Path, written: int, expecte
 
 
 # -- polydisperse grains: size classes for per-pair damping -------------------------------------
-def restitution_from_damping_ratio(ratio):
+def restitution_from_damping_ratio(ratio: float | np.ndarray) -> np.ndarray:
     """e of a linear spring-dashpot with damping ratio zeta = eta / (2 sqrt(m_eff kn))."""
     ratio = np.asarray(ratio, float)
     return np.exp(-math.pi * ratio / np.sqrt(1.0 - ratio**2))
@@ -205,7 +285,9 @@ def worst_restitution_error(restitution: float, mass_factor: float) -> float:
     return float(np.max(np.abs(errors)))
 
 
-def size_classes(mass, restitutions, tolerance: float, max_classes: int):
+def size_classes(
+    mass: np.ndarray, restitutions: Sequence[float], tolerance: float, max_classes: int
+) -> tuple[np.ndarray, np.ndarray, float]:
     """Bin grains into classes of equal width in log(mass) so that damping computed per class pair
     (from the classes' geometric-mean masses) keeps every contact's restitution within `tolerance`
     (relative), using as few classes as that needs (at most max_classes).
@@ -231,13 +313,13 @@ def size_classes(mass, restitutions, tolerance: float, max_classes: int):
     return index, class_mass, worst
 
 
-def read_error(path, what: str) -> EngineError:
+def read_error(path: str | os.PathLike, what: str) -> EngineError:
     """A clear error for an output file that is truncated or not the solver's."""
     return EngineError(f"{path}: {what}; no trajectory written")
 
 
 # -- cross-validation -----------------------------------------------------------------------------
-def runout_agreement(runout, runout_reference) -> dict:
+def runout_agreement(runout: np.ndarray, runout_reference: np.ndarray) -> dict:
     """How well a runout curve L*(t/t*) [T] reproduces a reference one [T] at the same frame times
     (same case and packing, or the means over the same packings, from another engine).
 
@@ -263,7 +345,7 @@ def runout_agreement(runout, runout_reference) -> dict:
 MECHANISMS = ("rolling_friction", "cohesion_energy", "friction_base", "sidewall_friction", "gate_lift_speed")
 
 
-def refuse_unsupported(case: CollapseCase, engine: str, supported=()) -> None:
+def refuse_unsupported(case: CollapseCase, engine: str, supported: Iterable[str] = ()) -> None:
     """EngineError naming the mechanisms `case` switches on that `engine` does not model.
 
     friction_base counts as on only when it differs from the side walls' friction.

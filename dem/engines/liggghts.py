@@ -26,6 +26,7 @@ The deck reproduces the builtin physics (ARCHITECTURE.md, "Engines"):
 from __future__ import annotations
 
 import math
+import os
 import re
 import subprocess
 from pathlib import Path
@@ -33,17 +34,9 @@ from pathlib import Path
 import numpy as np
 
 from dem.case import GRAVITY, CollapseCase
-from dem.engines.base import (
-    Engine,
-    check_frames_written,
-    damping_ratio,
-    read_error,
-    refuse_unsupported,
-    run_solver,
-    size_classes,
-)
+from dem.engines.base import SolverEngine, damping_ratio, read_error, refuse_unsupported, size_classes
 from dem.integrate import frame_steps
-from dem.trajectory import GRAIN, Trajectory, engine_attrs
+from dem.trajectory import Trajectory
 
 RESTITUTION_TOLERANCE = 0.005  # worst relative error of e from size-class damping
 SUPPORTED = ("rolling_friction", "friction_base")  # candidate mechanisms this deck reproduces
@@ -55,9 +48,11 @@ LOG = "log.liggghts"
 DUMP_COLUMNS = ("id", "type", "x", "y", "radius", "mass")
 
 
-class LiggghtsEngine(Engine):
+class LiggghtsEngine(SolverEngine):
     name = "liggghts"
     executable = "liggghts"
+    deck_file, grains_file, log_file = DECK, DATA, LOG
+    frames_dir, frame_glob = FRAMES, "frame.*.txt"
     install_hint = (
         "Install LIGGGHTS 3.8 (Debian/Ubuntu: `apt-get install liggghts`), or set the solver "
         "path in the config (dem.solvers.liggghts)."
@@ -71,55 +66,39 @@ class LiggghtsEngine(Engine):
         match = re.search(r"Version\s+(LIGGGHTS[^,)\s]*\s+[\d.]+)", out)
         return match.group(1) if match else "LIGGGHTS (unknown version)"
 
-    def render(self, case: CollapseCase, packing: Trajectory, work_dir) -> Path:
-        work_dir = Path(work_dir)
-        (work_dir / FRAMES).mkdir(parents=True, exist_ok=True)
-        for old in (work_dir / FRAMES).glob("frame.*.txt"):
-            old.unlink()  # stale frames of an earlier run would be read as this run's
-        deck_text, data_text = render_deck(case, packing)
-        (work_dir / DATA).write_text(data_text)
-        deck = work_dir / DECK
-        deck.write_text(deck_text)
-        return deck
+    def render_files(self, case: CollapseCase, packing: Trajectory) -> tuple[str, str]:
+        """(input script, data file) text: render_deck."""
+        return render_deck(case, packing)
 
-    def run(self, deck: Path, progress=None) -> None:
-        solver = self.require_solver()
-        deck = Path(deck)
-        n_frames = int(re.search(r"^# frames: (\d+)", deck.read_text(), re.M).group(1))
-        frames = deck.parent / FRAMES
-        run_solver(
-            [solver, "-in", deck.name, "-log", "none", "-nocite"],
-            deck,
-            deck.parent / LOG,
-            self.name,
-            progress,
-            lambda: len(list(frames.glob("frame.*.txt"))) / n_frames,
-        )
-        check_frames_written(self.name, deck, deck.parent / LOG, len(list(frames.glob("frame.*.txt"))), n_frames)
+    def command(self, solver: str, deck: Path) -> list[str]:
+        """LIGGGHTS on the input script, its own log file off (stdout is kept in LOG)."""
+        return [solver, "-in", deck.name, "-log", "none", "-nocite"]
 
-    def read(self, case: CollapseCase, packing: Trajectory, work_dir) -> Trajectory:
+    def read(self, case: CollapseCase, packing: Trajectory, work_dir: str | os.PathLike) -> Trajectory:
+        """The dump frames in work_dir/FRAMES as a Trajectory; attrs add the time step dt (s), the
+        steps run and the solver's loop time (loop_time)."""
         work_dir = Path(work_dir)
         positions, radius = read_dump_frames(work_dir / FRAMES, case.n_frames, case.n_particles)
         if not np.allclose(radius, packing.radius, rtol=1e-6):
             raise read_error(
                 work_dir / FRAMES, "grain radii differ from the packing's: these frames belong to another case"
             )
-        attrs = engine_attrs(case, self.name, self.version())
         steps, dt = frame_steps(case.frame_interval, case.time_step)
-        attrs.update(
+        return self.grain_trajectory(
+            case,
+            positions,
+            radius,
             dt=dt,
             steps=steps * (case.n_frames - 1),
             settled_height=packing.attrs.get("settled_height", np.nan),
             **loop_time(work_dir / LOG),
         )
-        return Trajectory(
-            positions=positions, radius=radius, particle_type=np.full(len(radius), GRAIN, np.int32), attrs=attrs
-        )
 
 
 # -- deck -----------------------------------------------------------------------------------------
-def grain_types(case: CollapseCase, radius):
-    """Atom type per grain (1..K, size classes), class masses [K] (kg), worst error of e."""
+def grain_types(case: CollapseCase, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Atom type per grain (1..K, size classes) for radii [N] (m), class masses [K] (kg), worst
+    relative error of e."""
     mass = case.density * math.pi * (2 * np.asarray(radius, float)) ** 3 / 6.0
     index, class_mass, worst = size_classes(
         mass, (case.restitution, case.resolved_restitution_wall), RESTITUTION_TOLERANCE, MAX_SIZE_CLASSES
@@ -127,9 +106,10 @@ def grain_types(case: CollapseCase, radius):
     return index + 1, class_mass, worst
 
 
-def pair_tables(case: CollapseCase, class_mass) -> dict:
-    """Per type-pair property matrices [(K+2), (K+2)]: types 1..K grains (size classes), K+1 the
-    left and right walls, K+2 the floor."""
+def pair_tables(case: CollapseCase, class_mass: np.ndarray) -> dict:
+    """Per type-pair property matrices [(K+2), (K+2)] for class masses [K] (kg): types 1..K grains
+    (size classes), K+1 the left and right walls, K+2 the floor; kn, kt in N/m, gamman and gammat
+    in 1/s (LIGGGHTS multiplies them by m_eff), friction coefficients dimensionless."""
     k = len(class_mass)
     kn = case.normal_stiffness
     m_eff = np.full((k + 2, k + 2), class_mass.mean())  # wall-wall entries are never used
@@ -257,7 +237,7 @@ dump_modify     frames sort id format "%d %d %.9g %.9g %.9g %.9g"
 
 
 # -- output ---------------------------------------------------------------------------------------
-def loop_time(log) -> dict:
+def loop_time(log: str | os.PathLike) -> dict:
     """{wall_time_s, particle_steps_per_second} of the run from the log's 'Loop time' line ({} if none)."""
     log = Path(log)
     match = re.search(
@@ -270,7 +250,7 @@ def loop_time(log) -> dict:
     return {"wall_time_s": seconds, "particle_steps_per_second": steps * atoms / max(seconds, 1e-12)}
 
 
-def read_dump_frames(folder, n_frames: int, n_particles: int):
+def read_dump_frames(folder: str | os.PathLike, n_frames: int, n_particles: int) -> tuple[np.ndarray, np.ndarray]:
     """Positions [n_frames, N, 2] float32 (m) and radius [N] (m) from `dump custom` files
     frame.<step>.txt in `folder`, atoms sorted by id. Missing frames, truncated or foreign files
     raise EngineError naming the file (and line)."""
@@ -298,8 +278,9 @@ def _step_of(path: Path) -> int:
         raise read_error(path, "not a frame.<step>.txt dump file") from None
 
 
-def read_dump_file(path, n_particles: int) -> np.ndarray:
-    """One `dump custom` frame: [N, len(DUMP_COLUMNS)] float64 rows sorted by atom id."""
+def read_dump_file(path: str | os.PathLike, n_particles: int) -> np.ndarray:
+    """One `dump custom` frame: [N, len(DUMP_COLUMNS)] float64 rows sorted by atom id (SI units:
+    positions and radius in m, mass in kg)."""
     path = Path(path)
     lines = path.read_text(errors="replace").splitlines()
     expected = {0: "ITEM: TIMESTEP", 2: "ITEM: NUMBER OF ATOMS", 4: "ITEM: BOX BOUNDS"}

@@ -14,25 +14,19 @@ DIM_M) as in the LIGGGHTS deck; the worst error in e that leaves is written in t
 from __future__ import annotations
 
 import math
+import os
 import re
 import subprocess
 import xml.etree.ElementTree as ET
+from collections.abc import Iterable
 from pathlib import Path
 from string import Template
 
 import numpy as np
 
 from dem.case import GRAVITY, CollapseCase
-from dem.engines.base import (
-    Engine,
-    EngineError,
-    check_frames_written,
-    read_error,
-    refuse_unsupported,
-    run_solver,
-    size_classes,
-)
-from dem.trajectory import GRAIN, Trajectory, engine_attrs
+from dem.engines.base import EngineError, SolverEngine, read_error, refuse_unsupported, size_classes
+from dem.trajectory import Trajectory
 
 TEMPLATE = Path(__file__).resolve().parents[2] / "mfix_templates" / "collapse_2d.mfx"
 DECK = "collapse.mfx"
@@ -44,9 +38,11 @@ RESTITUTION_TOLERANCE = 0.005
 GRID_CELL_DIAMETERS = 4.0  # fluid-grid cell size in largest grain diameters (no gas is solved)
 
 
-class MfixEngine(Engine):
+class MfixEngine(SolverEngine):
     name = "mfix"
     executable = "mfixsolver"
+    deck_file, grains_file, log_file = DECK, PARTICLES, LOG
+    frames_dir, frame_glob = ".", f"{VTK_FILEBASE}_*.vtp"
     install_hint = (
         "MFIX 23.x is distributed as a conda package after registration on NETL's MFIX site: "
         "create its conda environment (e.g. `conda create -n mfix-23.4 mfix=23.4`), and either put "
@@ -65,43 +61,23 @@ class MfixEngine(Engine):
         except (OSError, subprocess.TimeoutExpired):
             return "MFIX (unknown version)"
 
-    def render(self, case: CollapseCase, packing: Trajectory, work_dir) -> Path:
-        work_dir = Path(work_dir)
-        work_dir.mkdir(parents=True, exist_ok=True)
-        for old in work_dir.glob(f"{VTK_FILEBASE}_*.vtp"):
-            old.unlink()  # stale frames of an earlier run would be read as this run's
-        deck_text, particles_text = render_deck(case, packing)
-        (work_dir / PARTICLES).write_text(particles_text)
-        deck = work_dir / DECK
-        deck.write_text(deck_text)
-        return deck
+    def render_files(self, case: CollapseCase, packing: Trajectory) -> tuple[str, str]:
+        """(collapse.mfx text, particle_input.dat text): render_deck."""
+        return render_deck(case, packing)
 
-    def run(self, deck: Path, progress=None) -> None:
-        solver = self.require_solver()
-        deck = Path(deck)
-        n_frames = int(re.search(r"^# frames: (\d+)", deck.read_text(), re.M).group(1))
-        run_solver(
-            [solver, "-f", deck.name],
-            deck,
-            deck.parent / LOG,
-            self.name,
-            progress,
-            lambda: len(list(deck.parent.glob(f"{VTK_FILEBASE}_*.vtp"))) / n_frames,
-        )
-        check_frames_written(
-            self.name, deck, deck.parent / LOG, len(list(deck.parent.glob(f"{VTK_FILEBASE}_*.vtp"))), n_frames
-        )
+    def command(self, solver: str, deck: Path) -> list[str]:
+        """mfixsolver on the .mfx deck."""
+        return [solver, "-f", deck.name]
 
-    def read(self, case: CollapseCase, packing: Trajectory, work_dir) -> Trajectory:
+    def read(self, case: CollapseCase, packing: Trajectory, work_dir: str | os.PathLike) -> Trajectory:
+        """The particle .vtp frames in work_dir as a Trajectory."""
         positions, radius = read_vtp_frames(
-            sorted(Path(work_dir).glob(f"{VTK_FILEBASE}_*.vtp")), case.n_frames, case.n_particles
+            sorted(Path(work_dir).glob(self.frame_glob)), case.n_frames, case.n_particles
         )
         if not np.allclose(radius, packing.radius, rtol=1e-5):
             raise read_error(work_dir, "grain diameters in the .vtp files differ from the packing's")
-        attrs = engine_attrs(case, self.name, self.version())
-        attrs.update(settled_height=packing.attrs.get("settled_height", np.nan))
-        return Trajectory(
-            positions=positions, radius=radius, particle_type=np.full(len(radius), GRAIN, np.int32), attrs=attrs
+        return self.grain_trajectory(
+            case, positions, radius, settled_height=packing.attrs.get("settled_height", np.nan)
         )
 
 
@@ -111,8 +87,8 @@ def _real(value) -> str:
     return repr(float(value))
 
 
-def phases(case: CollapseCase, radius):
-    """Phase (1..M) per grain, phase diameters [M] (m) and worst relative error of e."""
+def phases(case: CollapseCase, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Phase (1..M) per grain for radii [N] (m), phase diameters [M] (m) and worst relative error of e."""
     mass = case.density * math.pi * (2 * np.asarray(radius, float)) ** 3 / 6.0
     index, class_mass, worst = size_classes(
         mass, (case.restitution, case.resolved_restitution_wall), RESTITUTION_TOLERANCE, MAX_PHASES
@@ -191,8 +167,8 @@ def render_deck(case: CollapseCase, packing: Trajectory) -> tuple[str, str]:
 
 
 # -- .vtp particle files --------------------------------------------------------------------------
-def read_vtp(path) -> tuple[np.ndarray, dict]:
-    """Points [N, 3] and point data {name: array} of a VTK XML PolyData (.vtp) file.
+def read_vtp(path: str | os.PathLike) -> tuple[np.ndarray, dict]:
+    """Points [N, 3] (m) and point data {name: array} of a VTK XML PolyData (.vtp) file.
 
     The data arrays are decoded by meshio's VTK XML machinery (ascii, base64 binary, raw appended,
     zlib/lzma compressed), which meshio itself only exposes for .vtu files. A file that is not
@@ -265,7 +241,7 @@ def _ids_of(data: dict):
     return None
 
 
-def read_vtp_frames(files, n_frames: int, n_particles: int):
+def read_vtp_frames(files: Iterable[Path], n_frames: int, n_particles: int) -> tuple[np.ndarray, np.ndarray]:
     """Positions [n_frames, N, 2] float32 (m) and radius [N] (m) from particle .vtp files, one per
     frame, ordered by the number in their names. Grains are ordered by their id array when the
     files carry one (LIGGGHTS 'id'; MFIX 'Particle_ID' where written), else kept in file order,
