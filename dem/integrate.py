@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numba as nb
@@ -120,7 +121,8 @@ class State:
     rebuilds: int = 0
 
     @classmethod
-    def at_rest(cls, positions, radius, density) -> State:
+    def at_rest(cls, positions: np.ndarray, radius: np.ndarray, density: float) -> State:
+        """Grains at `positions` [N, 2] (m) with `radius` [N] (m) and material `density` (kg/m^3), at rest."""
         positions = np.ascontiguousarray(positions, np.float64)
         radius = np.ascontiguousarray(radius, np.float64)
         n = len(radius)
@@ -306,7 +308,7 @@ def _forces(
 
 
 @nb.njit(fastmath=FAST_MATH, cache=True)
-def advance(
+def _advance(
     x,
     v,
     spin,
@@ -394,7 +396,14 @@ STATUS_TEXT = {
 
 
 def run(
-    state: State, law: ContactLaw, walls, box, dt: float, n_steps: int, label: str = "", gravity: float = GRAVITY
+    state: State,
+    law: ContactLaw,
+    walls: tuple,
+    box: tuple,
+    dt: float,
+    n_steps: int,
+    label: str = "",
+    gravity: float = GRAVITY,
 ) -> None:
     """Advance `state` by n_steps of dt (s). walls = (x_left, x_right, y_floor, x_gate (m)
     [, gate_lift_speed (m/s), 0 when absent]);
@@ -404,7 +413,7 @@ def run(
         state.pairs = build_pairs(state.x, state.radius, state.skin, *state.pairs)
         state.x_built = state.x.copy()
     walls = np.array(tuple(walls) + (0.0,) * (5 - len(walls)), np.float64)
-    status, done, start, partner, history, rebuilds, worst = advance(
+    status, done, start, partner, history, rebuilds, worst = _advance(
         state.x,
         state.v,
         state.spin,
@@ -450,14 +459,14 @@ class RunStats:
 def record(
     state: State,
     law: ContactLaw,
-    walls,
-    box,
+    walls: tuple,
+    box: tuple,
     dt_max: float,
     interval: float,
     n_frames: int,
     label: str = "",
-    progress=None,
-):
+    progress: Callable[[float], None] | None = None,
+) -> tuple[np.ndarray, RunStats]:
     """Frames [n_frames, N, 2] (float32, m) every `interval` s, the first at the current state."""
     steps, dt = frame_steps(interval, dt_max)
     frames = np.empty((n_frames, len(state.radius), 2), np.float32)
@@ -479,7 +488,7 @@ def record(
     return frames, stats
 
 
-def mechanical_energy(state: State, law: ContactLaw, walls, gravity: float = GRAVITY) -> float:
+def mechanical_energy(state: State, law: ContactLaw, walls: tuple, gravity: float = GRAVITY) -> float:
     """Kinetic + gravitational + normal-spring energy (J) of `state` against `walls`.
 
     Tangential springs are left out: the energy check runs frictionless (mu = 0), where they

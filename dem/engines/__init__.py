@@ -16,11 +16,17 @@ from __future__ import annotations
 
 import logging
 import tempfile
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from dem.engines.base import Engine, EngineError, EngineNotInstalled
 from dem.engines.builtin import BuiltinEngine
 from dem.engines.liggghts import LiggghtsEngine
 from dem.engines.mfix import MfixEngine
+
+if TYPE_CHECKING:
+    from dem.case import CollapseCase
+    from dem.trajectory import Trajectory
 
 log = logging.getLogger(__name__)
 
@@ -40,7 +46,7 @@ __all__ = [
 ]
 
 
-def solver_paths(config) -> dict:
+def solver_paths(config: dict | None) -> dict:
     """{engine name: solver path} from config['solvers'] (missing: {}); unknown names are an error."""
     solvers = dict((config or {}).get("solvers") or {})
     unknown = set(solvers) - set(ENGINES) - {"builtin"}
@@ -52,7 +58,7 @@ def solver_paths(config) -> dict:
     return solvers
 
 
-def get_engine(name: str = "auto", config=None) -> Engine:
+def get_engine(name: str = "auto", config: dict | None = None) -> Engine:
     """The engine `name` ("auto", "builtin", "liggghts", "mfix"), solver paths from config['solvers'].
 
     A named solver engine that is not installed raises EngineNotInstalled saying how to install it.
@@ -76,7 +82,12 @@ def get_engine(name: str = "auto", config=None) -> Engine:
     return engine
 
 
-def simulate_case(case, config=None, packing=None, progress=None):
+def simulate_case(
+    case: CollapseCase,
+    config: dict | None = None,
+    packing: Trajectory | None = None,
+    progress: Callable[[float], None] | None = None,
+) -> Trajectory:
     """One collapse of `case` with the engine config["engine"] (the workflow's `dem` section; None or
     no "engine": builtin), from `packing` (None: settled by the builtin settling step), in a scratch
     folder removed afterwards. The trajectory records the engine that ran it."""

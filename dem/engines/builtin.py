@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 from dem.atomic import write_text
@@ -37,14 +39,14 @@ class BuiltinEngine(Engine):
 
         return ENGINE_VERSION
 
-    def render(self, case: CollapseCase, packing: Trajectory, work_dir) -> Path:
+    def render(self, case: CollapseCase, packing: Trajectory, work_dir: str | os.PathLike) -> Path:
         work_dir = Path(work_dir)
         write_trajectory(work_dir / PACKING, packing)
         deck = work_dir / DECK
         write_text(deck, json.dumps({"case": case.to_dict(), "packing": PACKING}, indent=2) + "\n")
         return deck
 
-    def run(self, deck: Path, progress=None) -> None:
+    def run(self, deck: Path, progress: Callable[[float], None] | None = None) -> None:
         from dem.collapse import simulate_collapse
 
         deck = Path(deck)
@@ -91,7 +93,7 @@ class BuiltinEngine(Engine):
             logger.removeHandler(handler)
             handler.close()
 
-    def read(self, case: CollapseCase, packing: Trajectory, work_dir) -> Trajectory:
+    def read(self, case: CollapseCase, packing: Trajectory, work_dir: str | os.PathLike) -> Trajectory:
         path = Path(work_dir) / OUTPUT
         try:
             trajectory = read_trajectory(path)
