@@ -18,8 +18,11 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import time
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -30,6 +33,12 @@ from calibration.observables import LibraryError, Observables
 from dem.atomic import atomic_path
 from dem.engines import BUILTIN, simulate_case
 from dem.packing import settle_column
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from dem.case import CollapseCase
+    from dem.trajectory import Trajectory
 
 log = logging.getLogger(__name__)
 
@@ -68,8 +77,11 @@ class Model:
     def n_parameters(self) -> int:
         return len(self.parameter_names)
 
-    def case(self, column: MeasuredColumn, theta, settings: SimulationSettings, seed: int):
-        """The CollapseCase of `column` at parameters theta [p] (coarse-grained per settings)."""
+    def case(
+        self, column: MeasuredColumn, theta: Sequence[float] | np.ndarray, settings: SimulationSettings, seed: int
+    ) -> CollapseCase:
+        """The CollapseCase of `column` at parameters theta [p] (mu, e[, mechanism parameter]),
+        coarse-grained per settings."""
         friction, restitution = float(theta[0]), float(theta[1])
         case = column.collapse_case(
             friction,
@@ -84,7 +96,7 @@ class Model:
             case = case.replace(**self.mechanism.case_fields(float(theta[2]), case))
         return case
 
-    def embed_base(self, base_theta) -> np.ndarray:
+    def embed_base(self, base_theta: ArrayLike) -> np.ndarray:
         """Base-model points [n, 2] as points [n, p] of this model (mechanism at its off value)."""
         base_theta = np.atleast_2d(np.asarray(base_theta, float))
         if self.mechanism is None:
@@ -125,7 +137,8 @@ class DEMRunner:
         self.settings = settings
         self._packings = {}
 
-    def packing(self, column_index: int, packing_index: int):
+    def packing(self, column_index: int, packing_index: int) -> Trajectory:
+        """The settled packing `packing_index` of column `column_index` (one-frame Trajectory)."""
         key = (column_index, packing_index)
         if key not in self._packings:
             column = self.observables.columns[column_index]
@@ -141,7 +154,13 @@ class DEMRunner:
             )
         return self._packings[key]
 
-    def trajectories(self, model: Model, theta, packing_index: int, columns=None) -> list:
+    def trajectories(
+        self,
+        model: Model,
+        theta: Sequence[float] | np.ndarray,
+        packing_index: int,
+        columns: Sequence[int] | None = None,
+    ) -> list[Trajectory]:
         """One collapse per column (or per column index in `columns`) of `model` at theta [p] on
         packing `packing_index`."""
         out = []
@@ -151,7 +170,13 @@ class DEMRunner:
             out.append(simulate_case(case, BUILTIN, packing=self.packing(c, packing_index)))
         return out
 
-    def observe(self, model: Model, theta, packing_index: int, columns=None) -> np.ndarray:
+    def observe(
+        self,
+        model: Model,
+        theta: Sequence[float] | np.ndarray,
+        packing_index: int,
+        columns: Sequence[int] | None = None,
+    ) -> np.ndarray:
         """Observables of `model` at theta [p] on packing `packing_index`: [q], or only the outputs
         of the column indices in `columns`."""
         return self.observables.from_trajectories(self.trajectories(model, theta, packing_index, columns), columns)
@@ -174,7 +199,9 @@ class DesignRuns:
     seconds: np.ndarray
     stage: np.ndarray
 
-    def append(self, theta, observed, packing, seconds, stage: str) -> None:
+    def append(self, theta: ArrayLike, observed: ArrayLike, packing: ArrayLike, seconds: ArrayLike, stage: str) -> None:
+        """Append runs: theta [p] or [n, p], observed [q] or [n, q], packing index (one or [n]) and
+        wall seconds (one or [n]), all of stage `stage`."""
         if stage not in STAGES:
             raise LibraryError(f"run stage {stage!r} is not one of {STAGES}")
         self.theta = np.vstack([self.theta, np.atleast_2d(theta)])
@@ -193,7 +220,7 @@ class Library:
     runs: dict  # model name -> DesignRuns
     _emulators: dict = field(default_factory=dict, repr=False)
 
-    def check(self, observables: Observables, models) -> None:
+    def check(self, observables: Observables, models: Iterable[Model]) -> None:
         if json.loads(json.dumps(observables.signature())) != json.loads(json.dumps(self.signature)):
             raise LibraryError(
                 "the run library was built for other columns, observation points or runout "
@@ -242,8 +269,17 @@ class Library:
             )
         return self._emulators[key]
 
-    def add_runs(self, model: Model, theta, observed, packing, seconds, stage: str = "refine") -> None:
-        """Append runs of `model` (its emulator is refitted, warm-started, on next use)."""
+    def add_runs(
+        self,
+        model: Model,
+        theta: ArrayLike,
+        observed: ArrayLike,
+        packing: ArrayLike,
+        seconds: ArrayLike,
+        stage: str = "refine",
+    ) -> None:
+        """Append runs of `model` (its emulator is refitted, warm-started, on next use): theta [p]
+        or [n, p], observed [q] or [n, q], packing index (one or [n]), wall seconds (one or [n])."""
         self.runs[model.name].append(theta, observed, packing, seconds, stage)
 
     def packing_std(self) -> np.ndarray:
@@ -280,7 +316,7 @@ class Library:
             smoothed[k] = variance[near].mean()
         return np.sqrt(smoothed)
 
-    def save(self, path) -> None:
+    def save(self, path: str | os.PathLike) -> None:
         arrays = {
             "meta": np.array(
                 json.dumps({"signature": self.signature, "settings": self.settings, "models": list(self.runs)})
@@ -294,7 +330,7 @@ class Library:
                 np.savez(handle, **arrays)
 
     @classmethod
-    def load(cls, path) -> Library:
+    def load(cls, path: str | os.PathLike) -> Library:
         with np.load(path) as data:
             meta = json.loads(str(data["meta"]))
             runs = {
@@ -308,12 +344,12 @@ class Library:
 
 def build_library(
     observables: Observables,
-    models,
+    models: Iterable[Model],
     settings: SimulationSettings,
     n_base: int = 10,
     n_per_mechanism: int = 8,
     seed: int = 0,
-    progress=None,
+    progress: Callable[[float], None] | None = None,
 ) -> Library:
     """DEM design runs of every model (the first must be the base model).
 

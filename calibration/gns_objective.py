@@ -24,6 +24,8 @@ from __future__ import annotations
 import math
 import time
 import warnings
+from collections.abc import Collection, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -33,6 +35,11 @@ from calibration.objective import runout_mse
 from dem.runout import RunoutError, RunoutMethod
 from dem.trajectory import Trajectory
 from gns.runout import frames_needed, soft_runout_at
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from gns.simulator import LearnedSimulator
 
 DESIGN_NAMES = ("friction", "restitution")
 # Rollout steps per checkpointed segment of a differentiated rollout (GNSObjective._rollout): the
@@ -95,7 +102,7 @@ def check_geometry(measured: MeasuredColumn, metadata: dict, training_attrs: lis
     return {"distance": distance, "nearest": columns[nearest].tolist()}
 
 
-def nearest_dataset(measured: MeasuredColumn, rows: list[dict], datasets) -> str:
+def nearest_dataset(measured: MeasuredColumn, rows: list[dict], datasets: Collection[str]) -> str:
     """The dataset (among `datasets`) whose training columns come nearest the measured one.
 
     rows: case-table rows (dem.grid) with dataset, split, material, aspect_ratio, L_i. Only datasets
@@ -141,10 +148,10 @@ class GNSObjective:
 
     def __init__(
         self,
-        simulator,
+        simulator: LearnedSimulator,
         start: Trajectory,
         measured: MeasuredColumn,
-        design_names=DESIGN_NAMES,
+        design_names: Sequence[str] = DESIGN_NAMES,
         runout: RunoutMethod | None = None,
         temperature: float | None = None,
         checkpoint: bool = True,
@@ -291,7 +298,7 @@ class GNSObjective:
         """A point as the model sees it (its dtype), so a cached runout is the one a rollout would give."""
         return self._theta(point).cpu().numpy().tobytes()
 
-    def runout_values(self, points) -> np.ndarray:
+    def runout_values(self, points: ArrayLike) -> np.ndarray:
         """L* [G, K] (numpy, no gradient) at points [G, P]; points rolled out before are not rolled
         out again (a rollout is deterministic)."""
         points = np.atleast_2d(np.asarray(points, np.float64))
@@ -302,12 +309,12 @@ class GNSObjective:
             self._runouts.update((self._key(points[j]), r) for j, r in zip(missing, fresh))
         return np.array([self._runouts[self._key(p)] for p in points])
 
-    def values(self, points) -> np.ndarray:
+    def values(self, points: ArrayLike) -> np.ndarray:
         """Objective [G] at points [G, P], no gradient."""
         runout = self.runout_values(points)
         return self._checked(np.array([runout_mse(r, self.measured.runout) for r in runout]), points)
 
-    def values_and_gradients(self, points) -> tuple[np.ndarray, np.ndarray]:
+    def values_and_gradients(self, points: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
         """(objective [G], d objective / d theta [G, P]) by backpropagation through the rollout."""
         theta = self._theta(points, requires_grad=True)
         with torch.enable_grad():

@@ -6,6 +6,8 @@ over the objective landscape (the paper's Fig. 2) and the GNS deposits for label
 from __future__ import annotations
 
 import math
+import os
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 import torch
@@ -27,11 +29,16 @@ def _ellipse(ax, centre, covariance, colour="w"):
     )
 
 
-def plot_paths(result: dict, path, dem_points=None, title: str = "") -> None:
+def plot_paths(
+    result: dict,
+    path: str | os.PathLike,
+    dem_points: Mapping[str, Sequence[float] | np.ndarray] | None = None,
+    title: str = "",
+) -> None:
     """The optimisation paths of every start over the objective landscape (the paper's Fig. 2).
 
     result: InverseResult.to_dict(); its GNS landscape (if computed) is the background. dem_points:
-    optional DEM objective values {"friction": [...], "restitution": [...], "mse": [...]} (e.g. the
+    optional DEM objective values {"friction": [n], "restitution": [n], "mse": [n]} (e.g. the
     DoE runs), drawn as squares coloured on the same scale. The posterior's 95% region is dashed.
     """
     from dem.plots import plt, save_figure
@@ -118,7 +125,7 @@ def plot_paths(result: dict, path, dem_points=None, title: str = "") -> None:
     save_figure(fig, path)
 
 
-def plot_deposits(objective: GNSObjective, params: dict, path, title: str = "") -> None:
+def plot_deposits(objective: GNSObjective, params: dict, path: str | os.PathLike, title: str = "") -> None:
     """GNS deposits at the last measured t/t* for each labelled parameter set (the paper's Fig. 9):
     params {label: [P]}; the measured final runout is the dashed line."""
     from dem.plots import draw_grains, plt, save_figure

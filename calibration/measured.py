@@ -23,9 +23,11 @@ from __future__ import annotations
 
 import csv
 import math
+import os
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -69,7 +71,7 @@ class MeasuredColumn:
         """Initial column height (m)."""
         return self.aspect_ratio * self.L_i
 
-    def collapse_case(self, friction: float, restitution: float, **case_fields) -> CollapseCase:
+    def collapse_case(self, friction: float, restitution: float, **case_fields: Any) -> CollapseCase:
         """The DEM case of this measured column (its material, a and L_i) at (mu, e).
 
         case_fields: any other CollapseCase field (size_scale for a coarse-grained counterpart,
@@ -100,7 +102,7 @@ def expected_final_runout(aspect_ratio: float) -> float:
     return 1.2 * aspect_ratio if aspect_ratio < 2.8 else 1.9 * aspect_ratio ** (2.0 / 3.0)
 
 
-def read_measured(path) -> dict[str, MeasuredColumn]:
+def read_measured(path: str | os.PathLike) -> dict[str, MeasuredColumn]:
     """Every measured column in the CSV file `path`, by name, in file order."""
     path = Path(path)
     if not path.is_file():
@@ -114,7 +116,7 @@ def read_measured(path) -> dict[str, MeasuredColumn]:
     return {name: _build_column(path, name, rows) for name, rows in columns.items()}
 
 
-def load_column(path, name: str | None = None) -> MeasuredColumn:
+def load_column(path: str | os.PathLike, name: str | None = None) -> MeasuredColumn:
     """The measured column `name` from `path`; name may be omitted when the file holds one column."""
     columns = read_measured(path)
     if name is None:

@@ -8,11 +8,17 @@ trajectory (DEM run or GNS rollout, through dem.runout.runout_at) or from arrays
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from calibration.measured import MeasuredColumn
 from dem.runout import RunoutMethod, runout_at
+
+if TYPE_CHECKING:
+    import torch
+
+    from dem.trajectory import Trajectory
 
 GEOMETRY_RTOL = 1e-6
 
@@ -21,7 +27,9 @@ class ObjectiveError(ValueError):
     """Simulation and measurement cannot be compared; the message says why."""
 
 
-def runout_mse(simulated_runout, measured_runout):
+def runout_mse(
+    simulated_runout: np.ndarray | torch.Tensor, measured_runout: np.ndarray | torch.Tensor
+) -> float | torch.Tensor:
     """MSE between simulated and measured L*, both [K] at the same t/t* points.
 
     Written with array operators only, so it works unchanged on torch tensors (autograd) as well
@@ -34,7 +42,7 @@ def runout_mse(simulated_runout, measured_runout):
     return float(mse) if isinstance(mse, (np.ndarray, np.generic, float)) else mse
 
 
-def simulated_runout_at(t_over_tstar, runout, measured: MeasuredColumn) -> np.ndarray:
+def simulated_runout_at(t_over_tstar: np.ndarray, runout: np.ndarray, measured: MeasuredColumn) -> np.ndarray:
     """[K] simulated L* interpolated (linearly) at the measured t/t* points.
 
     t_over_tstar [T] increasing, runout [T]: a simulated curve. Measured points outside
@@ -64,7 +72,7 @@ def check_window(t_first: float, t_last: float, measured: MeasuredColumn) -> Non
         )
 
 
-def objective_from_curve(t_over_tstar, runout, measured: MeasuredColumn) -> float:
+def objective_from_curve(t_over_tstar: np.ndarray, runout: np.ndarray, measured: MeasuredColumn) -> float:
     """MSE of a simulated runout curve (t/t* [T], L* [T]) against `measured`."""
     return runout_mse(simulated_runout_at(t_over_tstar, runout, measured), measured.runout)
 
@@ -88,7 +96,7 @@ def check_same_column(trajectory_attrs: dict, measured: MeasuredColumn, where: s
             )
 
 
-def objective(trajectory, measured: MeasuredColumn, runout: RunoutMethod) -> float:
+def objective(trajectory: Trajectory, measured: MeasuredColumn, runout: RunoutMethod) -> float:
     """MSE of a trajectory's runout, read by the runout method `runout`, against `measured`.
 
     trajectory: a dem.trajectory.Trajectory (DEM or GNS rollout) of the measured column's geometry.

@@ -21,7 +21,10 @@ cannot fail by being too narrow, and is reported as such).
 from __future__ import annotations
 
 import logging
+import os
 import time
+from collections.abc import Iterable, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -33,13 +36,18 @@ from dem.runout import RunoutMethod, runout_at
 from dem.trajectory import Trajectory
 from gns.data import read_training_attrs
 
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from gns.simulator import LearnedSimulator
+
 log = logging.getLogger(__name__)
 
 
 def recovery_targets(
     training_attrs: list[dict],
     n_cases: int,
-    bounds=BOUNDS,
+    bounds: Sequence[Sequence[float]] = BOUNDS,
     seed: int = 0,
     min_distance: float = 0.05,
     margin: float = 0.1,
@@ -63,7 +71,7 @@ def recovery_targets(
     raise ValueError(f"could not place {n_cases} targets {min_distance} away from the {len(trained)} training cases")
 
 
-def packing_scatter(curves) -> tuple[np.ndarray, int]:
+def packing_scatter(curves: Sequence[ArrayLike]) -> tuple[np.ndarray, int]:
     """Pooled std [K] of L* between packings and its degrees of freedom.
 
     curves: one [k_j, K] array per target (its k_j packings' L* at the same K t/t* points); each
@@ -76,9 +84,16 @@ def packing_scatter(curves) -> tuple[np.ndarray, int]:
 
 
 def synthetic_measured(
-    truths, t_points, noise_std: float, seed: int, name: str, packing_std=None, runout: RunoutMethod | None = None
+    truths: Trajectory | Iterable[Trajectory],
+    t_points: ArrayLike,
+    noise_std: float,
+    seed: int,
+    name: str,
+    packing_std: ArrayLike | None = None,
+    runout: RunoutMethod | None = None,
 ) -> MeasuredColumn:
-    """The mean runout of DEM runs of one (mu, e) at t_points plus Gaussian noise (std noise_std).
+    """The mean runout of DEM runs of one (mu, e) at t_points [K] (t/t*) plus Gaussian noise (std
+    noise_std, L*).
 
     truths: a Trajectory or a list of k (one per packing). Its stated std is that of a mean of k
     packings with measurement noise: sqrt(noise_std^2 + packing_std^2 / k); packing_std [K] or
@@ -112,25 +127,26 @@ def synthetic_measured(
 
 
 def recover_case(
-    simulator,
-    metadata,
-    training_attrs,
+    simulator: LearnedSimulator,
+    metadata: dict,
+    training_attrs: list[dict],
     start: Trajectory,
-    truths,
-    t_points,
+    truths: Trajectory | Iterable[Trajectory],
+    t_points: ArrayLike,
     noise_std: float,
     seed: int,
     mu_tolerance: float = 0.03,
-    packing_std=None,
+    packing_std: ArrayLike | None = None,
     runout: RunoutMethod | None = None,
-    **inverse_kwargs,
+    **inverse_kwargs: Any,
 ) -> dict:
     """Inverse design against one synthetic target; returns truth, estimate, intervals and verdicts.
 
     truths: the target's DEM runs (a Trajectory or a list, one per packing, same (mu, e));
-    packing_std: the packing scatter of L* [K] (None: from the truths); it enters the target's
-    stated std (as a mean of len(truths) packings) and the posterior's model side (the GNS rolls
-    out one packing, `start`). runout: how L* is read, for the targets and the inverse design alike.
+    t_points: the target's t/t* points [K]; packing_std: the packing scatter of L* [K] (None: from
+    the truths); it enters the target's stated std (as a mean of len(truths) packings) and the
+    posterior's model side (the GNS rolls out one packing, `start`). runout: how L* is read, for
+    the targets and the inverse design alike.
     """
     runout = RunoutMethod.from_config(runout)
     truths = [truths] if isinstance(truths, Trajectory) else list(truths)
@@ -205,7 +221,7 @@ def recovery_summary(rows: list[dict], mu_tolerance: float = 0.03) -> dict:
     }
 
 
-def plot_recovery(summary: dict, path, title: str = "") -> None:
+def plot_recovery(summary: dict, path: str | os.PathLike, title: str = "") -> None:
     """Truth against estimate with 95% intervals, for mu and e."""
     from dem.plots import plt, save_figure
 
@@ -247,7 +263,7 @@ PACKING_SEED_STRIDE = 100  # target k's packings: seeds TRUTH_SEED_OFFSET + 100 
 PACKINGS_PER_TARGET = 4
 
 
-def observation_times(duration_over_tstar: float, times=PAPER_TIMES) -> np.ndarray:
+def observation_times(duration_over_tstar: float, times: Sequence[float] = PAPER_TIMES) -> np.ndarray:
     """The paper's t/t* points that the dataset's simulated window covers (at least two)."""
     kept = np.array([t for t in times if t <= duration_over_tstar - 0.02])
     if len(kept) < 2:
@@ -256,19 +272,19 @@ def observation_times(duration_over_tstar: float, times=PAPER_TIMES) -> np.ndarr
 
 
 def recovery_study(
-    simulator,
-    metadata,
+    simulator: LearnedSimulator,
+    metadata: dict,
     n_cases: int = 5,
     noise_std: float = 0.05,
-    model_error_std=None,
+    model_error_std: float | None = None,
     seed: int = 0,
     mu_tolerance: float = 0.03,
-    start=None,
-    bounds=None,
+    start: Sequence[float] | None = None,
+    bounds: Sequence[Sequence[float] | None] | None = None,
     packings: int = PACKINGS_PER_TARGET,
     runout: RunoutMethod | None = None,
     dem_config: dict | None = None,
-    **inverse_kwargs,
+    **inverse_kwargs: Any,
 ) -> dict:
     """Recover n_cases synthetic DEM targets of the GNS dataset's own column, each the mean of
     `packings` DEM runs; returns the summary (recovery_summary plus dataset, t/t* points, noise,

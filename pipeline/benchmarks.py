@@ -9,11 +9,13 @@ results/benchmarks/<stage>/<rule>[/<wildcards>].tsv.
 from __future__ import annotations
 
 import csv
+import os
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
 
-def read_benchmark(path) -> list[dict]:
+def read_benchmark(path: str | os.PathLike) -> list[dict]:
     """The rows of one benchmark file; ValueError naming the file when it is not one."""
     with open(path, newline="") as f:
         rows = list(csv.DictReader(f, delimiter="\t"))
@@ -22,7 +24,7 @@ def read_benchmark(path) -> list[dict]:
     return rows
 
 
-def benchmark_seconds(paths) -> tuple[float, int]:
+def benchmark_seconds(paths: Iterable[str | os.PathLike]) -> tuple[float, int]:
     """(total wall seconds, jobs) over the benchmark files among `paths` that exist."""
     total, jobs = 0.0, 0
     for path in map(Path, paths):
@@ -49,7 +51,7 @@ class StageTime:
         return self.total_s / self.jobs
 
 
-def read_benchmarks(benchmark_dir) -> list[StageTime]:
+def read_benchmarks(benchmark_dir: str | os.PathLike) -> list[StageTime]:
     """One StageTime per <stage>/<rule> under `benchmark_dir` (a missing folder gives [])."""
     groups: dict[tuple[str, str], list[tuple[float, float | None]]] = {}
     root = Path(benchmark_dir)

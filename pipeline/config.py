@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import copy
 import math
+import os
 from pathlib import Path
 
 import jsonschema
@@ -36,7 +37,7 @@ __all__ = [
 
 
 # --- the schema ----------------------------------------------------------------------------------
-def validate_config(config: dict, schema_path) -> dict:
+def validate_config(config: dict, schema_path: str | os.PathLike) -> dict:
     """Check `config` against the JSON schema at `schema_path` and fill its defaults.
 
     Returns a new dict. Raises ConfigError listing every problem as `key.path: message`, with the

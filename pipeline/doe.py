@@ -12,13 +12,13 @@ from __future__ import annotations
 import json
 import logging
 import os
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from calibration.measured import load_column
+from calibration.measured import MeasuredColumn, load_column
 from calibration.objective import objective, runout_mse
 from dem.atomic import write_text
 from dem.engines import simulate_case
@@ -31,12 +31,13 @@ from doe.study import RUNOUT_PREFIX, collect_responses, read_responses, run_anal
 from pipeline.benchmarks import benchmark_seconds
 
 log = logging.getLogger(__name__)
+StrPath = str | os.PathLike  # a file or folder path
 
 
 # ---- entry functions, one per workflow script ----
 
 
-def design(measured_path, doe: dict, out_path) -> pd.DataFrame:
+def design(measured_path: StrPath, doe: dict, out_path: StrPath) -> pd.DataFrame:
     """Write the DoE design table (doe config section `doe`) of one measured column at `out_path`,
     after checking every run builds a case on the column's geometry. Returns the table."""
     table = design_from_config(doe)
@@ -55,14 +56,14 @@ def design(measured_path, doe: dict, out_path) -> pd.DataFrame:
 
 
 def analyse(
-    design_path,
-    measured_path,
+    design_path: StrPath,
+    measured_path: StrPath,
     trajectory_paths: Iterable,
     doe: dict,
-    runout,
-    responses_path,
-    analysis_path,
-    surface_path,
+    runout: RunoutMethod | dict | str | None,
+    responses_path: StrPath,
+    analysis_path: StrPath,
+    surface_path: StrPath,
 ) -> dict:
     """Responses of the DoE runs (runout MSE against the measured curve) -> `responses_path` (CSV),
     regression/ANOVA and optimum -> `analysis_path` (JSON, with the runout method recorded under
@@ -92,7 +93,15 @@ def analyse(
     return summary
 
 
-def validate(analysis_path, measured_path, model: str, case_fields: dict, dem: dict | None, runout, out_path) -> float:
+def validate(
+    analysis_path: StrPath,
+    measured_path: StrPath,
+    model: str,
+    case_fields: dict,
+    dem: dict | None,
+    runout: RunoutMethod | dict | str | None,
+    out_path: StrPath,
+) -> float:
     """DEM validation run at `model`'s DoE optimum (analysis.json at `analysis_path`) on the measured
     column, through the configured engine (`dem`: the config's dem section), written atomically at
     `out_path` (trajectory HDF5). Returns its MSE against the measured runout.
@@ -112,15 +121,15 @@ def validate(analysis_path, measured_path, model: str, case_fields: dict, dem: d
 
 def write_section(
     names: list[str],
-    measured_paths,
-    analysis_paths,
-    centre_paths,
+    measured_paths: Sequence[StrPath],
+    analysis_paths: Sequence[StrPath],
+    centre_paths: Sequence[StrPath],
     validation_files: Iterable,
-    runout_figures,
+    runout_figures: Sequence[StrPath],
     benchmark_paths: dict,
-    section_path,
+    section_path: StrPath,
     *,
-    runout,
+    runout: RunoutMethod | dict | str | None,
 ) -> str:
     """Write the DoE report section (`section_path`, results/report/doe.md) and the runout
     before/after figure of every column (report_section). Returns the text.
@@ -148,7 +157,7 @@ def write_section(
 # ---- stage IO ----
 
 
-def write_json(path, data) -> None:
+def write_json(path: StrPath, data: object) -> None:
     write_text(path, json.dumps(data, indent=1, default=_plain) + "\n")
 
 
@@ -161,7 +170,7 @@ def _plain(value):
 # ---- report section ----
 
 
-def runout_table(measured, curves: dict) -> str:
+def runout_table(measured: MeasuredColumn, curves: dict) -> str:
     """Markdown table of L* at the measured t/t*: measured row, then one row per simulated curve."""
     header = "| | " + " | ".join(f"{t:g}" for t in measured.t_over_tstar) + " | MSE |"
     lines = [
@@ -180,13 +189,13 @@ def runout_table(measured, curves: dict) -> str:
 
 def section(
     name: str,
-    measured,
+    measured: MeasuredColumn,
     summary: dict,
     responses: pd.DataFrame,
     validation: dict,
     figures: dict,
     time_spent: dict,
-    section_path,
+    section_path: StrPath,
 ) -> str:
     """Markdown report section of one measured column's DoE (links relative to `section_path`).
 
@@ -286,15 +295,15 @@ def section(
 
 def report_section(
     names: list[str],
-    measured_paths,
-    analysis_paths,
-    centre_paths,
+    measured_paths: Sequence[StrPath],
+    analysis_paths: Sequence[StrPath],
+    centre_paths: Sequence[StrPath],
     validation_paths: dict,
-    runout_figures,
+    runout_figures: Sequence[StrPath],
     benchmark_paths: Mapping,
-    section_path,
+    section_path: StrPath,
     *,
-    runout,
+    runout: RunoutMethod | dict | str | None,
 ) -> str:
     """The DoE report section for every measured column `names[k]`; draws its runout figure.
 

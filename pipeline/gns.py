@@ -21,10 +21,15 @@ from dem.trajectory import Trajectory, read_trajectory, write_trajectory
 from gns.evaluate import evaluate_rollouts
 
 log = logging.getLogger(__name__)
+StrPath = str | os.PathLike  # a file or folder path
 
 
 def train(
-    metadata_path, out_dir, settings: dict | None, runout: RunoutMethod | dict | str | None, threads: int | None = None
+    metadata_path: StrPath,
+    out_dir: StrPath,
+    settings: dict | None,
+    runout: RunoutMethod | dict | str | None,
+    threads: int | None = None,
 ) -> dict:
     """Train (or resume training) the GNS of the dataset at `metadata_path` with the config's `gns`
     settings (gns.train.TrainSettings); outputs in `out_dir` (model_best.pt, metrics.csv,
@@ -43,7 +48,13 @@ def train(
     return train_gns(metadata_path, out_dir, settings, restart_on_mismatch=True, runout=runout)
 
 
-def rollout(model_path, dem_path, out_path, metadata_path=None, threads: int | None = None) -> Trajectory:
+def rollout(
+    model_path: StrPath,
+    dem_path: StrPath,
+    out_path: StrPath,
+    metadata_path: StrPath | None = None,
+    threads: int | None = None,
+) -> Trajectory:
     """Roll out the case of the DEM trajectory `dem_path` with the model at `model_path` from its
     first C frames to its last frame; write it (engine "gns") to `out_path`. A rollout that fails
     is written up to the failing step, with rollout_valid = 0 and the reason in rollout_problem.
@@ -67,7 +78,7 @@ def rollout(model_path, dem_path, out_path, metadata_path=None, threads: int | N
     return gns
 
 
-def evaluate(dem_paths: Sequence, gns_paths: Sequence, out_dir, runout: RunoutMethod | dict | str) -> dict:
+def evaluate(dem_paths: Sequence, gns_paths: Sequence, out_dir: StrPath, runout: RunoutMethod | dict | str) -> dict:
     """Score the GNS rollouts `gns_paths` against the DEM trajectories `dem_paths` (same order) with
     gns.evaluate.evaluate_rollouts: metrics.csv, summary.json, runout_curves.png, snapshots/ in
     `out_dir`. Returns the summary."""
@@ -75,7 +86,11 @@ def evaluate(dem_paths: Sequence, gns_paths: Sequence, out_dir, runout: RunoutMe
 
 
 def section(
-    datasets: Sequence[str], summaries: Sequence, loss_curves: Sequence, training_metrics: Sequence, fragment_path
+    datasets: Sequence[str],
+    summaries: Sequence,
+    loss_curves: Sequence,
+    training_metrics: Sequence,
+    fragment_path: StrPath,
 ) -> str:
     """Write the report section at `fragment_path` (report_section's Markdown); returns the text."""
     text = report_section(datasets, summaries, loss_curves, training_metrics, fragment_path)
@@ -83,7 +98,13 @@ def section(
     return text
 
 
-def report_section(datasets, summaries, loss_curves, training_metrics, fragment_path) -> str:
+def report_section(
+    datasets: Sequence[str],
+    summaries: Sequence[StrPath],
+    loss_curves: Sequence[StrPath],
+    training_metrics: Sequence[StrPath],
+    fragment_path: StrPath,
+) -> str:
     """Markdown for results/report/gns.md, one block per dataset; links relative to `fragment_path`.
 
     summaries: evaluation summary.json paths; loss_curves / training_metrics: the training's

@@ -20,6 +20,7 @@ import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -227,7 +228,7 @@ def run_recovery(
     evaluation_path: StrPath | None = None,
     dem: dict | None = None,
     threads: int | None = None,
-    **study_kwargs,
+    **study_kwargs: Any,
 ) -> dict:
     """The recovery stage: recovery_study with the GNS at model_path, L* read by `runout` (the
     config's runout section), DEM runs by the engine of `dem` (the config's dem section); writes

@@ -38,7 +38,7 @@ def time_table(times: list[StageTime]) -> str:
     return "\n".join(lines)
 
 
-def plot_stage_times(times: list[StageTime], path) -> None:
+def plot_stage_times(times: list[StageTime], path: str | os.PathLike) -> None:
     """Horizontal bars: total wall time (s, summed over jobs) per stage, split by rule."""
     import matplotlib
 
@@ -62,7 +62,7 @@ def plot_stage_times(times: list[StageTime], path) -> None:
     save_figure(fig, path)
 
 
-def rebase_links(markdown: str, from_dir, to_dir) -> str:
+def rebase_links(markdown: str, from_dir: str | os.PathLike, to_dir: str | os.PathLike) -> str:
     """Rewrite relative Markdown links/images written relative to `from_dir` to be relative to `to_dir`."""
 
     def fix(match):
@@ -74,7 +74,13 @@ def rebase_links(markdown: str, from_dir, to_dir) -> str:
     return LINK.sub(fix, markdown)
 
 
-def assemble_report(sections: list[tuple[str, str]], benchmark_dir, out_path, title: str, time_figure) -> str:
+def assemble_report(
+    sections: list[tuple[str, str]],
+    benchmark_dir: str | os.PathLike,
+    out_path: str | os.PathLike,
+    title: str,
+    time_figure: str | os.PathLike,
+) -> str:
     """Write the report at `out_path`: `title`, one `## <title>` per (title, fragment path) in
     `sections` (links rebased), then the time-per-stage table and figure. Returns the text."""
     out_dir = Path(out_path).parent
