@@ -11,13 +11,12 @@ import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from dem.atomic import write_text
+from dem.atomic import StrPath, write_text
 from dem.dataset import SPLITS, build_dataset, load_dataset_metadata, plot_dataset
 from dem.grid import write_case_table
 from dem.runout import RunoutMethod
 
 log = logging.getLogger(__name__)
-StrPath = str | os.PathLike  # a file or folder path
 # where the DEM stage writes a case's trajectory; the same path as in dataset.smk
 TRAJECTORY = "results/dem/{dataset}/trajectories/{case_id}.h5"
 

@@ -13,10 +13,10 @@ Every output is written atomically; progress goes to the job's log.
 from __future__ import annotations
 
 import logging
-import os
 import shutil
 
 from dem import grid
+from dem.atomic import StrPath
 from dem.case import CollapseCase
 from dem.engines import get_engine
 from dem.packing import settle_column
@@ -25,7 +25,6 @@ from dem.runout import RunoutMethod
 from dem.trajectory import Trajectory, read_trajectory, write_trajectory
 
 log = logging.getLogger(__name__)
-StrPath = str | os.PathLike  # a file or folder path
 
 
 def write_deck(row: dict, path: StrPath) -> CollapseCase:

@@ -20,7 +20,7 @@ import pandas as pd
 
 from calibration.measured import MeasuredColumn, load_column
 from calibration.objective import objective, runout_mse
-from dem.atomic import write_text
+from dem.atomic import StrPath, write_text
 from dem.engines import simulate_case
 from dem.progress import progress_logger
 from dem.runout import RunoutMethod, runout_at, runout_curve
@@ -31,7 +31,6 @@ from doe.study import RUNOUT_PREFIX, collect_responses, read_responses, run_anal
 from pipeline.benchmarks import benchmark_seconds
 
 log = logging.getLogger(__name__)
-StrPath = str | os.PathLike  # a file or folder path
 
 
 # ---- entry functions, one per workflow script ----

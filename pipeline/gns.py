@@ -15,13 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
-from dem.atomic import write_text
+from dem.atomic import StrPath, write_text
 from dem.runout import RunoutMethod
 from dem.trajectory import Trajectory, read_trajectory, write_trajectory
 from gns.evaluate import evaluate_rollouts
 
 log = logging.getLogger(__name__)
-StrPath = str | os.PathLike  # a file or folder path
 
 
 def train(

@@ -46,7 +46,7 @@ from calibration.inverse_plots import plot_deposits, plot_paths
 from calibration.measured import MeasuredColumn, load_column
 from calibration.objective import objective
 from calibration.recovery import plot_recovery, recovery_study
-from dem.atomic import write_text
+from dem.atomic import StrPath, write_text
 from dem.progress import progress_logger
 from dem.runout import RunoutMethod, check_same_method, runout_curve
 from dem.trajectory import read_trajectory, write_trajectory
@@ -55,7 +55,6 @@ from gns.simulator import load_simulator
 from pipeline.benchmarks import benchmark_seconds
 
 log = logging.getLogger(__name__)
-StrPath = str | os.PathLike
 START_NAMES = ("friction", "restitution")  # the order of the config's inverse.start
 
 

@@ -12,14 +12,13 @@ import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from dem.atomic import write_text
+from dem.atomic import StrPath, write_text
 from dem.progress import progress_logger
 from dem.runout import RunoutMethod
 from dem.runout_study import PACKINGS, PERTURBATION, RERUNS, compare_methods, markdown_table, plot_methods
 from dem.trajectory import read_trajectory
 
 log = logging.getLogger(__name__)
-StrPath = str | os.PathLike  # a file or folder path
 
 
 def run_runout_methods(
