@@ -10,7 +10,10 @@ checks that failed.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
+
+from calibration.dem_scoring import DEMScore
 
 
 @dataclass(frozen=True)
@@ -33,9 +36,12 @@ class DecisionRule:
 
 
 # -- the decision ----------------------------------------------------------------------------------------
-def decide(dem: dict, rule: DecisionRule, data_warnings, emulator_best: str | None = None) -> tuple[str, dict, str]:
-    """(cause, checks {name: bool}, verdict in words) from the DEM scores {model: dem_score dict},
-    which hold the base model and the candidates the emulator ranked highest.
+def decide(
+    dem: Mapping[str, DEMScore], rule: DecisionRule, data_warnings: Sequence[str], emulator_best: str | None = None
+) -> tuple[str, dict[str, bool], str]:
+    """(cause, checks {name: bool}, verdict in words) from the DEM scores {model: DEMScore} (read:
+    bic, heldout_chi2, n_heldout, p_value), which hold the base model and the candidates the
+    emulator ranked highest. data_warnings: what reading the data warned of (any forbids a cause).
 
     The base model is each extension with its mechanism off, so "BIC beats base by 10" is a
     likelihood-ratio test of "off" (chi^2 drop >= 10 + ln n for one parameter; p < 1e-3 for
@@ -45,35 +51,35 @@ def decide(dem: dict, rule: DecisionRule, data_warnings, emulator_best: str | No
     disagree, one of them is wrong about the optimum, and the evidence is not decisive).
     """
     base = dem["base"]
-    ranked = sorted((n for n in dem if n != "base"), key=lambda n: dem[n]["bic"])
+    ranked = sorted((n for n in dem if n != "base"), key=lambda n: dem[n].bic)
     best = ranked[0]
     runner_up = ranked[1] if len(ranked) > 1 else None
     b, r = dem[best], dem[runner_up] if runner_up else None
-    tie = rule.heldout_tie_sd * math.sqrt(2 * b["n_heldout"])
+    tie = rule.heldout_tie_sd * math.sqrt(2 * b.n_heldout)
     checks = {
         "data_without_warnings": not data_warnings,
-        "bic_beats_base": base["bic"] - b["bic"] >= rule.min_delta_bic_vs_base,
-        "bic_beats_runner_up": r is None or r["bic"] - b["bic"] >= rule.min_delta_bic_vs_runner_up,
-        "heldout_beats_base": b["heldout_chi2"] <= (1 - rule.min_heldout_gain) * base["heldout_chi2"],
-        "heldout_no_worse_than_runner_up": r is None or b["heldout_chi2"] - r["heldout_chi2"] <= tie,
+        "bic_beats_base": base.bic - b.bic >= rule.min_delta_bic_vs_base,
+        "bic_beats_runner_up": r is None or r.bic - b.bic >= rule.min_delta_bic_vs_runner_up,
+        "heldout_beats_base": b.heldout_chi2 <= (1 - rule.min_heldout_gain) * base.heldout_chi2,
+        "heldout_no_worse_than_runner_up": r is None or b.heldout_chi2 - r.heldout_chi2 <= tie,
         "emulator_agrees": emulator_best is None or emulator_best == best,
     }
-    versus = f"runner-up {runner_up}: {base['bic'] - r['bic']:.1f}" if r else "no runner-up"
-    fits = "misfits beyond" if base["p_value"] < rule.misfit_p_value else "fits within"
+    versus = f"runner-up {runner_up}: {base.bic - r.bic:.1f}" if r else "no runner-up"
+    fits = "misfits beyond" if base.p_value < rule.misfit_p_value else "fits within"
     if all(checks.values()):
         verdict = (
-            f"Cause: {best}. The calibrated base model {fits} the noise (p = {base['p_value']:.2g}); "
-            f"adding {best} lowers the BIC by {base['bic'] - b['bic']:.1f} ({versus}) and the held-out "
-            f"chi^2 from {base['heldout_chi2']:.1f} to {b['heldout_chi2']:.1f} (runner-up "
-            f"{r['heldout_chi2'] if r else float('nan'):.1f}), all in DEM runs."
+            f"Cause: {best}. The calibrated base model {fits} the noise (p = {base.p_value:.2g}); "
+            f"adding {best} lowers the BIC by {base.bic - b.bic:.1f} ({versus}) and the held-out "
+            f"chi^2 from {base.heldout_chi2:.1f} to {b.heldout_chi2:.1f} (runner-up "
+            f"{r.heldout_chi2 if r else float('nan'):.1f}), all in DEM runs."
         )
         return best, checks, verdict
     failed = [k for k, ok in checks.items() if not ok]
-    if base["bic"] - b["bic"] < 0:
-        why = f"no candidate improves on the calibrated base model, which {fits} the noise (p = {base['p_value']:.2g})"
+    if base.bic - b.bic < 0:
+        why = f"no candidate improves on the calibrated base model, which {fits} the noise (p = {base.p_value:.2g})"
     else:
         why = (
-            f"the best candidate, {best} (BIC {base['bic'] - b['bic']:+.1f} vs base; {versus}), "
+            f"the best candidate, {best} (BIC {base.bic - b.bic:+.1f} vs base; {versus}), "
             f"is not decisive: {', '.join(failed)} failed"
         )
     return "none", checks, f"No cause named: {why}."

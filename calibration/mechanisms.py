@@ -26,6 +26,7 @@ emulator then needs few runs):
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from dem.case import GRAVITY, CollapseCase
@@ -69,20 +70,20 @@ class Mechanism:
 
 
 class RollingResistance(Mechanism):
-    def case_fields(self, value, case):
+    def case_fields(self, value: float, case: CollapseCase) -> dict:
         return {"rolling_friction": self.check(value)}
 
 
 class Cohesion(Mechanism):
-    def case_fields(self, value, case):
+    def case_fields(self, value: float, case: CollapseCase) -> dict:
         return {"cohesion_energy": cohesion_energy_from_bond(self.check(value), case)}
 
 
 class BasalFriction(Mechanism):
-    def case_fields(self, value, case):
+    def case_fields(self, value: float, case: CollapseCase) -> dict:
         return {"friction_base": self.check(value)}
 
-    def off_value(self, friction, restitution):
+    def off_value(self, friction: float, restitution: float) -> float:
         return friction  # the base model's floor has the grains' friction
 
 
@@ -90,12 +91,12 @@ class BasalFriction(Mechanism):
 class SidewallFriction(Mechanism):
     channel_width: float = 0.01  # m, width of the quasi-2D channel (fixed, not fitted)
 
-    def case_fields(self, value, case):
+    def case_fields(self, value: float, case: CollapseCase) -> dict:
         return {"sidewall_friction": self.check(value), "channel_width": self.channel_width}
 
 
 class GateLift(Mechanism):
-    def case_fields(self, value, case):
+    def case_fields(self, value: float, case: CollapseCase) -> dict:
         slowness = self.check(value)
         return {"gate_lift_speed": 1.0 / slowness if slowness > 0 else 0.0}
 
@@ -158,7 +159,7 @@ def candidate_mechanisms(channel_width: float = 0.01) -> dict[str, Mechanism]:
     return {m.name: m for m in candidates}
 
 
-def get_mechanisms(names=None, channel_width: float = 0.01) -> list[Mechanism]:
+def get_mechanisms(names: Sequence[str] | None = None, channel_width: float = 0.01) -> list[Mechanism]:
     """The candidates named in `names` (all five when None), in the order given."""
     known = candidate_mechanisms(channel_width)
     if names is None:

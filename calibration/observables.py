@@ -9,13 +9,20 @@ configured dem.runout method (`Observables.runout`), the same as every other sta
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from calibration.measured import MeasuredColumn
 from calibration.objective import simulated_runout_at
 from dem.runout import RunoutMethod, deposit_profile
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
+
+    from dem.trajectory import Trajectory
 
 PROFILE_BIN_DIAMETERS = 4.0  # deposit-profile bin width in mean grain diameters (dem.runout.deposit_profile)
 
@@ -100,7 +107,7 @@ class Observables:
             "runout": self.runout.to_config(),
         }
 
-    def from_trajectories(self, trajectories, columns=None) -> np.ndarray:
+    def from_trajectories(self, trajectories: Sequence[Trajectory], columns: Sequence[int] | None = None) -> np.ndarray:
         """Observables of one simulated trajectory per column: [q] for all columns, or, with
         `columns` (column indices, the trajectories in that order), only those columns' outputs in
         flat order (the entries of `column_index` in `columns`)."""
@@ -115,7 +122,7 @@ class Observables:
         return np.concatenate(parts)
 
 
-def profile_at(trajectory, x) -> np.ndarray:
+def profile_at(trajectory: Trajectory, x: ArrayLike) -> np.ndarray:
     """[P] deposit height (m) of the last frame at x [P] (m); 0 beyond the deposit's end."""
     bin_width = PROFILE_BIN_DIAMETERS * 2.0 * float(np.mean(trajectory.radius))
     centres, height = deposit_profile(trajectory.positions[-1], trajectory.radius, bin_width=bin_width)

@@ -14,22 +14,23 @@ DiagnosisError.
 Held-out folds (`held_out_folds`): one column at a time where there are several, else one phase of
 the runout at a time.
 
-Residuals (`residual_structure`) of a calibrated model (in the diagnosis: the base model's DEM
-runs): chi^2 against the noise, grouped by time phase (the paper's free-fall t/t* <= 1, spreading
-1-2.5, stopping > 2.5), column and deposit region, a runs test on the signs; said in plain words
-(and drawn by calibration/diagnosis_report.py).
+Residuals (`residual_structure` -> `ResidualStructure`) of a calibrated model (in the diagnosis:
+the base model's DEM runs): chi^2 against the noise, grouped by time phase (the paper's free-fall
+t/t* <= 1, spreading 1-2.5, stopping > 2.5), column and deposit region, a runs test on the signs;
+said in plain words (and drawn by calibration/diagnosis_report.py).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.stats import chi2 as chi2_distribution
 from scipy.stats import norm
 
-from calibration.design_runs import Library
+from calibration.design_runs import Library, Model
 from calibration.measured import MeasuredColumn
 from calibration.observables import Observables
 
@@ -63,11 +64,11 @@ class NoiseModel:
 def noise_model(
     observables: Observables,
     library: Library,
-    runout_noise=None,
-    profile_noise=None,
+    runout_noise: float | None = None,
+    profile_noise: float | None = None,
     assumed_runout_noise: float = 0.1,
     assumed_profile_noise: float = 1e-3,
-):
+) -> tuple[NoiseModel, list[str]]:
     """(NoiseModel, warnings [str]).
 
     Runout noise: the file's std where given, else `runout_noise` (std of L*), else
@@ -122,7 +123,7 @@ def noise_model(
 
 
 # -- input checks ------------------------------------------------------------------------------------
-def check_data(observables: Observables, library: Library, models, noise: NoiseModel) -> list[str]:
+def check_data(observables: Observables, library: Library, models: list[Model], noise: NoiseModel) -> list[str]:
     """Errors for data the diagnosis cannot judge; warnings [str] for doubtful data."""
     largest = max(m.n_parameters for m in models)
     for c in observables.columns:
@@ -219,7 +220,7 @@ def held_out_folds(observables: Observables) -> list[Fold]:
 
 
 # -- residual structure ----------------------------------------------------------------------------------
-def runs_test(signs) -> float:
+def runs_test(signs: ArrayLike) -> float:
     """One-sided p-value of the Wald-Wolfowitz runs test: few runs of equal sign = structure.
 
     signs [n] of +1/-1 in order. All one sign: probability 2^(1-n) of that under a fair coin.
@@ -237,8 +238,66 @@ def runs_test(signs) -> float:
     return float(norm.cdf((runs - mean) / math.sqrt(variance))) if variance > 0 else 1.0
 
 
-def residual_structure(observables: Observables, predicted, sigma, n_parameters: int) -> dict:
-    """Residuals (simulated - measured) of a calibrated model, grouped and put in words."""
+@dataclass(frozen=True)
+class ResidualGroup:
+    """The residuals of one column in one time phase (runout) or deposit region (profile)."""
+
+    column: str  # column name
+    aspect_ratio: float  # of the column
+    kind: str  # "runout" | "profile"
+    group: str  # the phase or region, in words (PHASES' labels, or "deposit behind/beyond the gate ...")
+    n: int  # values in the group
+    mean_residual: float  # mean of simulated - measured (L* or m)
+    chi2: float  # sum of squared normalised residuals z = residual / sigma
+    p_value: float  # P(chi^2 >= chi2) with n degrees of freedom
+    bias_z: float  # sum(z) / sqrt(n): ~N(0, 1) when unbiased
+    biased: bool  # |bias_z| > BIAS_Z
+
+
+@dataclass(frozen=True)
+class SignRuns:
+    """Runs test of one column's runout residual signs."""
+
+    column: str  # column name
+    p_value: float  # one-sided runs-test p-value (`runs_test`): small = long runs of one sign
+
+
+@dataclass(frozen=True, eq=False)
+class ResidualStructure:
+    """The residuals (simulated - measured) of a calibrated model against the noise, grouped and in words."""
+
+    chi2: float  # sum over all q values of z^2, z = residual / sigma
+    dof: int  # degrees of freedom, q - p (at least 1)
+    p_value: float  # P(chi^2 >= chi2) with dof degrees of freedom
+    groups: list[ResidualGroup]  # by column and time phase or deposit region
+    runs_test: list[SignRuns]  # per column
+    residual: np.ndarray  # [q] simulated - measured (L* or m)
+    z: np.ndarray  # [q] residual / sigma
+    summary: str  # plain words
+
+    def to_dict(self) -> dict:
+        """JSON-ready, keys in field order (groups and runs tests as dicts, arrays as lists)."""
+        return {**asdict(self), "residual": self.residual.tolist(), "z": self.z.tolist()}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> ResidualStructure:
+        """Inverse of `to_dict` (as read back from JSON)."""
+        return cls(
+            **{
+                **data,
+                "groups": [ResidualGroup(**g) for g in data["groups"]],
+                "runs_test": [SignRuns(**r) for r in data["runs_test"]],
+                "residual": np.asarray(data["residual"], float),
+                "z": np.asarray(data["z"], float),
+            }
+        )
+
+
+def residual_structure(
+    observables: Observables, predicted: np.ndarray, sigma: np.ndarray, n_parameters: int
+) -> ResidualStructure:
+    """Residuals (simulated `predicted` [q] - measured) of a calibrated model with `n_parameters`
+    parameters against the noise std `sigma` [q] (L* or m), grouped and put in words."""
     target = observables.measured
     residual = predicted - target
     z = residual / sigma
@@ -267,38 +326,29 @@ def residual_structure(observables: Observables, predicted, sigma, n_parameters:
             ):
                 if rows.any():
                     groups.append(_group(c, "profile", label, rows, residual, z))
-        runs.append({"column": c.name, "p_value": runs_test(np.sign(residual[runout]))})
+        runs.append(SignRuns(c.name, runs_test(np.sign(residual[runout]))))
     words = _plain_words(observables, groups, runs, chi2, dof, p_value)
-    return {
-        "chi2": chi2,
-        "dof": dof,
-        "p_value": p_value,
-        "groups": groups,
-        "runs_test": runs,
-        "residual": residual.tolist(),
-        "z": z.tolist(),
-        "summary": words,
-    }
+    return ResidualStructure(chi2, dof, p_value, groups, runs, residual, z, words)
 
 
-def _group(column: MeasuredColumn, kind: str, label: str, rows, residual, z) -> dict:
+def _group(column: MeasuredColumn, kind: str, label: str, rows, residual, z) -> ResidualGroup:
     n = int(rows.sum())
     bias_z = float(np.sum(z[rows]) / math.sqrt(n))
-    return {
-        "column": column.name,
-        "aspect_ratio": column.aspect_ratio,
-        "kind": kind,
-        "group": label,
-        "n": n,
-        "mean_residual": float(np.mean(residual[rows])),
-        "chi2": float(np.sum(z[rows] ** 2)),
-        "p_value": float(chi2_distribution.sf(np.sum(z[rows] ** 2), n)),
-        "bias_z": bias_z,
-        "biased": abs(bias_z) > BIAS_Z,
-    }
+    return ResidualGroup(
+        column=column.name,
+        aspect_ratio=column.aspect_ratio,
+        kind=kind,
+        group=label,
+        n=n,
+        mean_residual=float(np.mean(residual[rows])),
+        chi2=float(np.sum(z[rows] ** 2)),
+        p_value=float(chi2_distribution.sf(np.sum(z[rows] ** 2), n)),
+        bias_z=bias_z,
+        biased=abs(bias_z) > BIAS_Z,
+    )
 
 
-def _plain_words(observables, groups, runs, chi2, dof, p_value) -> str:
+def _plain_words(observables, groups: list[ResidualGroup], runs: list[SignRuns], chi2, dof, p_value) -> str:
     """Sentences such as "runout overshoots in the stopping phase in every column, more for a = 2"."""
     sentences = []
     verdict = "within" if p_value >= 0.01 else "beyond"
@@ -312,12 +362,12 @@ def _plain_words(observables, groups, runs, chi2, dof, p_value) -> str:
         "deposit beyond the gate (x > L_i)",
     ]
     for label in labels:
-        rows = [g for g in groups if g["group"] == label]
-        biased = [g for g in rows if g["biased"]]
+        rows = [g for g in groups if g.group == label]
+        biased = [g for g in rows if g.biased]
         if not biased:
             continue
-        is_runout = biased[0]["kind"] == "runout"
-        signs = {np.sign(g["mean_residual"]) for g in biased}
+        is_runout = biased[0].kind == "runout"
+        signs = {np.sign(g.mean_residual) for g in biased}
         unit = (lambda v: f"{v:+.2f} L*") if is_runout else (lambda v: f"{v * 1e3:+.1f} mm")
         words = ("overshoots", "undershoots") if is_runout else ("is higher than measured", "is lower than measured")
         subject = "the simulated runout" if is_runout else "the simulated deposit"
@@ -327,31 +377,30 @@ def _plain_words(observables, groups, runs, chi2, dof, p_value) -> str:
             scope = (
                 "in every column"
                 if len(biased) == n_columns and n_columns > 1
-                else "in column " + ", ".join(f"{g['column']}" for g in biased)
+                else "in column " + ", ".join(f"{g.column}" for g in biased)
             )
             detail = ", ".join(
-                f"a = {g['aspect_ratio']:g}: {unit(g['mean_residual'])}"
-                for g in sorted(biased, key=lambda g: g["aspect_ratio"])
+                f"a = {g.aspect_ratio:g}: {unit(g.mean_residual)}" for g in sorted(biased, key=lambda g: g.aspect_ratio)
             )
             if n_columns == 1:
-                scope, detail = "", f"by {unit(biased[0]['mean_residual'])} on average"
+                scope, detail = "", f"by {unit(biased[0].mean_residual)} on average"
             trend = ""
             if len(biased) > 1:
-                by_a = sorted(biased, key=lambda g: g["aspect_ratio"])
-                sizes = [abs(g["mean_residual"]) for g in by_a]
+                by_a = sorted(biased, key=lambda g: g.aspect_ratio)
+                sizes = [abs(g.mean_residual) for g in by_a]
                 if all(b > a for a, b in zip(sizes, sizes[1:])):
                     trend = ", more for taller columns"
                 elif all(b < a for a, b in zip(sizes, sizes[1:])):
                     trend = ", more for shorter columns"
             sentences.append(f"In the {where} {subject} {word}{' ' + scope if scope else ''}{trend} ({detail}).")
         else:
-            detail = ", ".join(f"{g['column']}: {unit(g['mean_residual'])}" for g in biased)
+            detail = ", ".join(f"{g.column}: {unit(g.mean_residual)}" for g in biased)
             sentences.append(f"In the {where} {subject} misses with opposite signs in different columns ({detail}).")
-    structured = [r for r in runs if r["p_value"] < 0.05]
+    structured = [r for r in runs if r.p_value < 0.05]
     if structured:
         sentences.append(
             "The runout residuals come in long runs of one sign (runs test p < 0.05) in "
-            + ", ".join(r["column"] for r in structured)
+            + ", ".join(r.column for r in structured)
             + ": a systematic, not random, misfit."
         )
     if len(sentences) == 1 and p_value < 0.01:

@@ -10,16 +10,24 @@ diagnosis is then given the data and the noise level, never the truth.
 from __future__ import annotations
 
 import csv
+import os
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from calibration.design_runs import Model, SimulationSettings
+from calibration.design_runs import Library, Model, SimulationSettings
 from calibration.measured import MeasuredColumn
 from calibration.mechanisms import Mechanism
 from calibration.observables import Observables
 from dem.atomic import atomic_path
 from dem.engines import BUILTIN, simulate_case
+from dem.runout import RunoutMethod
+
+if TYPE_CHECKING:  # diagnosis does not depend on this module; this module calls it only in diagnose_hidden_cases
+    from calibration.diagnosis import DiagnosisSettings
+    from calibration.diagnosis_result import Diagnosis
 
 # The test columns of the diagnosis: small quartz columns of two aspect ratios, runout every 0.5 t*
 # up to 5 t* (the paper stops at 3.5; by 5 the base model's front still creeps on while rolling
@@ -64,11 +72,12 @@ def draw_truth(rng: np.random.Generator, mechanism: Mechanism | None) -> HiddenT
 def synthetic_columns(
     material: str = "quartz",
     L_i: float = 0.02,
-    aspect_ratios=(1.0, 2.0),
-    times=SYNTHETIC_TIMES,
-    profile_x_over_L_i=SYNTHETIC_PROFILE_X_OVER_L_I,
+    aspect_ratios: Sequence[float] = (1.0, 2.0),
+    times: Sequence[float] = SYNTHETIC_TIMES,
+    profile_x_over_L_i: Sequence[float] = SYNTHETIC_PROFILE_X_OVER_L_I,
 ) -> list[MeasuredColumn]:
-    """Columns to be "measured" (values still zero): one per aspect ratio."""
+    """Columns to be "measured" (values still zero): one per aspect ratio, runout L* at `times`
+    (t/t*), deposit height at `profile_x_over_L_i` x L_i (m); L_i in m."""
     times = np.asarray(times, float)
     profile_x = np.asarray(profile_x_over_L_i, float) * L_i
     return [
@@ -90,14 +99,14 @@ def synthetic_columns(
 
 def synthetic_measurement(
     truth: HiddenTruth,
-    columns,
-    mechanisms,
+    columns: Sequence[MeasuredColumn],
+    mechanisms: Sequence[Mechanism],
     settings: SimulationSettings,
     runout_noise: float,
     profile_noise: float,
     rng: np.random.Generator,
-    runout=None,
-):
+    runout: dict | RunoutMethod | str | None = None,
+) -> tuple[list[MeasuredColumn], np.ndarray]:
     """The columns "measured" under `truth`: DEM observables plus Gaussian noise; runout: how its
     L* is read (dem.runout.RunoutMethod; None: the default).
 
@@ -126,7 +135,7 @@ def synthetic_measurement(
     return out, clean
 
 
-def write_measured_csv(columns, path, comment: str = "") -> None:
+def write_measured_csv(columns: Sequence[MeasuredColumn], path: str | os.PathLike, comment: str = "") -> None:
     """Write columns in the measured-data CSV schema (calibration/measured.py)."""
     with atomic_path(path) as tmp:
         with open(tmp, "w", newline="", encoding="utf-8") as handle:
@@ -156,7 +165,7 @@ def write_measured_csv(columns, path, comment: str = "") -> None:
                         )
 
 
-def evidence_margins(result: dict) -> dict:
+def evidence_margins(result: Diagnosis) -> dict:
     """How far a diagnosis' evidence lies from its decision rule, each BIC gain against one reference.
 
     delta_bic_dem: BIC(base) - BIC(candidate), both from DEM runs, for the models scored in the DEM;
@@ -166,41 +175,40 @@ def evidence_margins(result: dict) -> dict:
     gain over the base model (the rule asks for min_delta_bic_vs_base, min_delta_bic_vs_runner_up
     and min_heldout_gain).
     """
-    base_dem = result["base"]["dem"]
-    scored = {n: c["dem"] for n, c in result["candidates"].items() if c["dem"] is not None}
-    base_final = result["base"]["emulator_final"]["bic"]
-    ranked = sorted(scored, key=lambda n: scored[n]["bic"])
+    base_dem = result.base.dem
+    scored = {n: c.dem for n, c in result.candidates.items() if c.dem is not None}
+    base_final = result.base.emulator_final.bic
+    ranked = sorted(scored, key=lambda n: scored[n].bic)
     best = scored[ranked[0]]
     return {
-        "delta_bic_dem": {n: round(base_dem["bic"] - d["bic"], 2) for n, d in scored.items()},
-        "delta_bic_emulator": {
-            n: round(base_final - c["emulator_final"]["bic"], 2) for n, c in result["candidates"].items()
-        },
+        "delta_bic_dem": {n: round(base_dem.bic - d.bic, 2) for n, d in scored.items()},
+        "delta_bic_emulator": {n: round(base_final - c.emulator_final.bic, 2) for n, c in result.candidates.items()},
         "margins": {
             "dem_best": ranked[0],
-            "bic_vs_base": round(base_dem["bic"] - best["bic"], 2),
-            "bic_vs_runner_up": (round(scored[ranked[1]]["bic"] - best["bic"], 2) if len(ranked) > 1 else None),
-            "heldout_gain": round(1 - best["heldout_chi2"] / base_dem["heldout_chi2"], 3),
+            "bic_vs_base": round(base_dem.bic - best.bic, 2),
+            "bic_vs_runner_up": (round(scored[ranked[1]].bic - best.bic, 2) if len(ranked) > 1 else None),
+            "heldout_gain": round(1 - best.heldout_chi2 / base_dem.heldout_chi2, 3),
         },
     }
 
 
 def diagnose_hidden_cases(
-    truths,
-    settings,
-    columns=None,
+    truths: Sequence[HiddenTruth],
+    settings: DiagnosisSettings,
+    columns: list[MeasuredColumn] | None = None,
     runout_noise: float = 0.05,
     profile_noise: float = 0.5e-3,
     seed: int = 0,
-    library=None,
-    progress=None,
+    library: Library | None = None,
+    progress: Callable[[float], None] | None = None,
 ) -> dict:
     """Generate data for each HiddenTruth, diagnose it without the truth, and score the verdicts.
 
     settings: a calibration.diagnosis.DiagnosisSettings (its profile_noise is set to the stated
     `profile_noise`; the runout noise travels in the data as each point's std). columns: the
     columns to measure (default `synthetic_columns()`); library: their design runs (built here
-    when None). Returns {"cases": [...], "hit_rate", "null_correct", "library_seconds"}.
+    when None). Returns {"cases": [...], "hit_rate", "null_correct", "library_seconds"}; each case
+    holds its Diagnosis as "result".
     """
     from calibration.design_runs import DEMRunner
     from calibration.diagnosis import diagnose  # here: diagnosis does not depend on this module
@@ -222,23 +230,22 @@ def diagnose_hidden_cases(
         expected = truth.mechanism or "none"
         fitted = None
         if truth.mechanism is not None:
-            evidence = result["candidates"][truth.mechanism]
-            fitted = (evidence["dem"] or evidence["emulator"])["parameters"]
-        errors = result["errors"]
+            fitted = result.candidates[truth.mechanism].score.parameters
+        errors = result.errors
         cases.append(
             {
                 "truth": truth.to_dict(),
-                "cause": result["cause"],
-                "hit": result["cause"] == expected,
-                "checks": result["checks"],
-                "compared_model": errors["compared_model"],
-                "fit_mse": errors["fit_mse"],
-                "heldout_mse": errors["heldout_mse"],
-                "fit_chi2": errors["fit_chi2"],
-                "heldout_chi2": errors["heldout_chi2"],
+                "cause": result.cause,
+                "hit": result.cause == expected,
+                "checks": result.checks,
+                "compared_model": errors.compared_model,
+                "fit_mse": errors.fit_mse.to_dict(),
+                "heldout_mse": errors.heldout_mse.to_dict(),
+                "fit_chi2": errors.fit_chi2.to_dict(),
+                "heldout_chi2": errors.heldout_chi2.to_dict(),
                 **evidence_margins(result),
                 "fitted_parameters_of_true_mechanism": fitted,
-                "seconds": result["seconds"],
+                "seconds": result.seconds,
                 "result": result,
             }
         )

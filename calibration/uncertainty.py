@@ -12,9 +12,11 @@ move with it) is flagged `identifiable = False`: its optimum is then a guess, no
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 Z95 = 1.959963984540054
 
@@ -47,8 +49,26 @@ class LaplacePosterior:
             "sigma_source": self.sigma_source,
         }
 
+    @classmethod
+    def from_dict(cls, data: dict) -> LaplacePosterior:
+        """Inverse of `to_dict` (as read back from JSON)."""
+        return cls(
+            [ParameterInterval(**p) for p in data["parameters"]],
+            np.asarray(data["covariance"], float),
+            np.asarray(data["correlation"], float),
+            np.asarray(data["sigma"], float),
+            data["sigma_source"],
+        )
 
-def laplace_posterior(names, optimum, jacobian, residuals, bounds, sigma=None) -> LaplacePosterior:
+
+def laplace_posterior(
+    names: Sequence[str],
+    optimum: ArrayLike,
+    jacobian: ArrayLike,
+    residuals: ArrayLike,
+    bounds: Sequence[tuple[float, float]],
+    sigma: ArrayLike | float | None = None,
+) -> LaplacePosterior:
     """Gaussian posterior around `optimum` [p].
 
     jacobian [K, p]: d(simulated L*_k)/d(theta_j) at the optimum; residuals [K] = simulated - measured;
@@ -107,7 +127,12 @@ def laplace_posterior(names, optimum, jacobian, residuals, bounds, sigma=None) -
     return LaplacePosterior(parameters, covariance, correlation, sigma, source)
 
 
-def finite_difference_jacobian(model, theta, bounds, step=1e-2) -> np.ndarray:
+def finite_difference_jacobian(
+    model: Callable[[np.ndarray], ArrayLike],
+    theta: ArrayLike,
+    bounds: Sequence[tuple[float, float]],
+    step: float = 1e-2,
+) -> np.ndarray:
     """[K, p] central differences of model(theta) -> [K], steps kept inside the bounds."""
     theta = np.asarray(theta, float)
     columns = []

@@ -6,8 +6,8 @@
     diagnosis.json, residuals.png, candidates.png in results/diagnosis/<name>/;
   - `run_section` (rule diagnosis_section): results/report/diagnosis.md from every diagnosis.json.
 
-The method is calibration/diagnosis.py (`diagnose`, `DiagnosisSettings`); the figures are
-calibration/diagnosis_report.py's.
+The method is calibration/diagnosis.py (`diagnose`, `DiagnosisSettings`), its result a `Diagnosis`
+(calibration/diagnosis_result.py); the figures are calibration/diagnosis_report.py's.
 """
 
 from __future__ import annotations
@@ -16,12 +16,14 @@ import json
 import math
 import os
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from calibration.design_runs import Library
 from calibration.diagnosis import LIBRARY_SETTINGS, DiagnosisSettings, diagnose
+from calibration.diagnosis_result import Diagnosis, Evidence
 from calibration.measured import MeasuredColumn, MeasuredDataWarning, read_measured
 from calibration.observables import Observables
 from dem.atomic import write_text
@@ -48,16 +50,17 @@ def run_diagnosis(
     *,
     runout: dict | None,
     name: str = "",
-) -> dict:
+) -> Diagnosis:
     """Diagnose a measured-data CSV with its design runs; write diagnosis.json, residuals.png and
     candidates.png to out_dir (workflow rule diagnosis). runout: the config's runout section; a
-    library read by another method is refused (LibraryError)."""
+    library read by another method is refused (LibraryError). The Diagnosis records the CSV's path
+    (`measured`)."""
     from calibration.diagnosis_report import plot_candidates, plot_residuals
 
     columns, data_warnings = read_columns(measured_path)
     settings = DiagnosisSettings.from_config({k: v for k, v in section.items() if k != "enabled"}, runout)
     result = diagnose(columns, settings, Library.load(library_path), data_warnings=data_warnings, name=name)
-    result["measured"] = str(measured_path)
+    result = replace(result, measured=str(measured_path))
     out_dir = Path(out_dir)
     write_diagnosis(result, out_dir / "diagnosis.json")
     plot_residuals(result, out_dir / "residuals.png")
@@ -65,13 +68,13 @@ def run_diagnosis(
     return result
 
 
-def run_section(names: list[str], diagnosis_paths: list[PathLike], section_path: PathLike) -> dict:
+def run_section(
+    names: list[str], diagnosis_paths: list[PathLike], section_path: PathLike
+) -> dict[str, tuple[Diagnosis, Path]]:
     """The report section (workflow rule diagnosis_section) from the diagnosis.json of each data set
     in `names` (same order as `diagnosis_paths`); the figures lie beside each JSON file. Returns
-    {name: (diagnosis dict, folder)}."""
-    results = {
-        name: (json.loads(Path(path).read_text()), Path(path).parent) for name, path in zip(names, diagnosis_paths)
-    }
+    {name: (Diagnosis, folder)}."""
+    results = {name: (read_diagnosis(path), Path(path).parent) for name, path in zip(names, diagnosis_paths)}
     write_section(results, section_path)
     return results
 
@@ -85,9 +88,14 @@ def read_columns(path: PathLike) -> tuple[list[MeasuredColumn], list[str]]:
     return columns, [str(w.message) for w in caught if issubclass(w.category, MeasuredDataWarning)]
 
 
-def write_diagnosis(result: dict, path: PathLike) -> None:
-    """diagnosis.json, atomically."""
-    write_text(path, json.dumps(result, indent=1, default=_json_default) + "\n")
+def write_diagnosis(result: Diagnosis, path: PathLike) -> None:
+    """diagnosis.json (`result.to_dict()`), atomically."""
+    write_text(path, json.dumps(result.to_dict(), indent=1, default=_json_default) + "\n")
+
+
+def read_diagnosis(path: PathLike) -> Diagnosis:
+    """The Diagnosis of a diagnosis.json (`write_diagnosis`)."""
+    return Diagnosis.from_dict(json.loads(Path(path).read_text()))
 
 
 def _json_default(value):
@@ -99,18 +107,17 @@ def _json_default(value):
 
 
 # -- the report section --------------------------------------------------------------------------------------
-def _parameters(evidence: dict) -> str:
-    posterior = {p["name"]: p for p in evidence["emulator"]["posterior"]["parameters"]}
-    values = (evidence["dem"] or evidence["emulator"])["parameters"]
+def _parameters(evidence: Evidence) -> str:
+    std_of = {p.name: p.std for p in evidence.emulator.posterior.parameters}
     parts = []
-    for name, value in values.items():
-        std = posterior.get(name, {}).get("std", math.nan)
+    for name, value in evidence.score.parameters.items():
+        std = std_of.get(name, math.nan)
         parts.append(f"{name} = {value:.3g} &plusmn; {std:.2g}")
     return ", ".join(parts)
 
 
-def section_markdown(results: dict, section_path: PathLike) -> str:
-    """The report section for {name: (diagnosis dict, folder with its figures)}."""
+def section_markdown(results: dict[str, tuple[Diagnosis, PathLike]], section_path: PathLike) -> str:
+    """The report section for {name: (Diagnosis, folder with its figures)}."""
     lines = [
         "What the calibrated DEM still gets wrong, and whether a missing mechanism explains it. "
         "Each measured data set is fitted by the base model (friction, restitution) and by the base "
@@ -122,48 +129,47 @@ def section_markdown(results: dict, section_path: PathLike) -> str:
     ]
     for name, (result, folder) in results.items():
         rel = os.path.relpath(folder, os.path.dirname(section_path))
-        errors = result["errors"]
+        errors = result.errors
         lines += [
             f"### {name}",
             "",
-            f"**Cause: {result['cause']}.** {result['verdict']}",
+            f"**Cause: {result.cause}.** {result.verdict}",
             "",
-            f"What the calibrated base model gets wrong: {result['residuals']['summary']}",
+            f"What the calibrated base model gets wrong: {result.residuals.summary}",
             "",
-            f"Simulator: builtin DEM at size_scale {result['simulator']['size_scale']:g}; design runs "
-            f"{sum(result['simulator']['design_runs'].values())}, refinement runs "
-            f"{result['simulator']['refinement_runs']}; noise: {result['observables']['noise_source']}.",
+            f"Simulator: builtin DEM at size_scale {result.simulator.size_scale:g}; design runs "
+            f"{sum(result.simulator.design_runs.values())}, refinement runs "
+            f"{result.simulator.refinement_runs}; noise: {result.observables.noise_source}.",
             "",
             "| model | parameters (&plusmn; std) | chi^2 | BIC | BIC gain | held-out chi^2 | fit MSE "
             "| held-out MSE | scored in |",
             "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
         ]
-        rows = [("base", result["base"])] + list(result["candidates"].items())
-        for model, evidence in rows:
-            score = evidence["dem"] or evidence["emulator"]
-            where = "DEM" if evidence["dem"] else "emulator"
-            gain = "" if model == "base" else f"{evidence['delta_bic_vs_base']:+.1f}"
-            fit_mse = score.get("objective", score.get("fit_mse"))
-            label = f"**{model}**" if model == result["cause"] else model
+        for evidence in [result.base] + list(result.candidates.values()):
+            model, score = evidence.model, evidence.score
+            where = "DEM" if evidence.dem else "emulator"
+            gain = "" if model == "base" else f"{evidence.delta_bic_vs_base:+.1f}"
+            fit_mse = evidence.dem.objective if evidence.dem else evidence.emulator.fit_mse
+            label = f"**{model}**" if model == result.cause else model
             lines.append(
-                f"| {label} | {_parameters(evidence)} | {score['chi2']:.1f} | {score['bic']:.1f} | {gain} | "
-                f"{score['heldout_chi2']:.1f} | {fit_mse:.4f} | {score['heldout_mse']:.4f} | {where} |"
+                f"| {label} | {_parameters(evidence)} | {score.chi2:.1f} | {score.bic:.1f} | {gain} | "
+                f"{score.heldout_chi2:.1f} | {fit_mse:.4f} | {score.heldout_mse:.4f} | {where} |"
             )
         lines += [
             "",
-            f"Gain ({errors['compared_model']} vs base, DEM runs): runout MSE "
-            f"{errors['fit_mse']['before']:.4f} &rarr; {errors['fit_mse']['after']:.4f} (fit), "
-            f"{errors['heldout_mse']['before']:.4f} &rarr; {errors['heldout_mse']['after']:.4f} (held out).",
+            f"Gain ({errors.compared_model} vs base, DEM runs): runout MSE "
+            f"{errors.fit_mse.before:.4f} &rarr; {errors.fit_mse.after:.4f} (fit), "
+            f"{errors.heldout_mse.before:.4f} &rarr; {errors.heldout_mse.after:.4f} (held out).",
             "",
-            "Checks: " + ", ".join(f"{k} {'yes' if v else 'NO'}" for k, v in result["checks"].items()) + ".",
+            "Checks: " + ", ".join(f"{k} {'yes' if v else 'NO'}" for k, v in result.checks.items()) + ".",
             "",
         ]
-        if result["warnings"]:
-            lines += ["Warnings:", ""] + [f"- {w}" for w in result["warnings"]] + [""]
+        if result.warnings:
+            lines += ["Warnings:", ""] + [f"- {w}" for w in result.warnings] + [""]
         lines += [f"![residuals]({rel}/residuals.png)", "", f"![candidates]({rel}/candidates.png)", ""]
     return "\n".join(lines) + "\n"
 
 
-def write_section(results: dict, section_path: PathLike) -> None:
+def write_section(results: dict[str, tuple[Diagnosis, PathLike]], section_path: PathLike) -> None:
     """Write section_markdown(results) to `section_path`, atomically."""
     write_text(section_path, section_markdown(results, section_path))

@@ -8,19 +8,23 @@ benchmarks/diagnosis_hidden.py runs the full-size version (size_scale 4, five hi
 
 import json
 import math
-from dataclasses import replace
+from dataclasses import fields, replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from calibration.decision import DecisionRule, decide
+from calibration.dem_scoring import DEMScore
 from calibration.design_runs import DesignRuns, Library, Model, SimulationSettings
-from calibration.diagnosis import DiagnosisSettings, diagnose, fit_emulated
+from calibration.diagnosis import DiagnosisSettings, diagnose
+from calibration.diagnosis_result import Diagnosis
 from calibration.emulator import GPEmulator, ParameterBox, latin_hypercube
 from calibration.measured import MeasuredColumn
 from calibration.mechanisms import MechanismError, bond_from_cohesion_energy, cohesion_energy_from_bond, get_mechanisms
 from calibration.observables import Observables
 from calibration.residuals import DiagnosisError, check_data, held_out_folds, noise_model, residual_structure, runs_test
+from calibration.scoring import EmulatorFit, fit_emulated
 from calibration.synthetic import (
     draw_truth,
     evidence_margins,
@@ -31,7 +35,7 @@ from calibration.synthetic import (
 from dem.case import CollapseCase
 from dem.runout import RunoutMethod, runout_curve
 from dem.trajectory import Trajectory
-from pipeline.diagnosis import run_diagnosis, run_section
+from pipeline.diagnosis import read_diagnosis, run_diagnosis, run_section, write_diagnosis
 
 MECHANISMS = {m.name: m for m in get_mechanisms()}
 
@@ -150,7 +154,7 @@ def test_residuals_said_in_plain_words():
     predicted[near_wall] -= 0.004  # deposit too low at the wall
     sigma = np.where(kind == "runout", 0.05, 0.001)
     words = residual_structure(observables, predicted, sigma, 2)
-    summary = words["summary"]
+    summary = words.summary
     assert "beyond the stated noise" in summary
     assert (
         "In the stopping phase the simulated runout overshoots in every column, more for taller columns "
@@ -158,10 +162,10 @@ def test_residuals_said_in_plain_words():
     ) in summary
     assert "deposit behind the gate (x <= L_i) the simulated deposit is lower than measured in every column" in summary
     assert "free-fall" not in summary and "spreading" not in summary
-    stopping = [g for g in words["groups"] if g["group"].startswith("stopping")]
-    assert all(g["biased"] for g in stopping)
+    stopping = [g for g in words.groups if g.group.startswith("stopping")]
+    assert all(g.biased for g in stopping)
     clean = residual_structure(observables, measured + 0.01 * np.sin(np.arange(len(measured))) * sigma, sigma, 2)
-    assert "within the stated noise" in clean["summary"] and "overshoots" not in clean["summary"]
+    assert "within the stated noise" in clean.summary and "overshoots" not in clean.summary
 
 
 def test_runs_test():
@@ -183,13 +187,14 @@ def test_held_out_folds():
 
 # -- the decision rule ---------------------------------------------------------------------------------
 def dem_entry(chi2, heldout, n=20, p=3):
-    return {
-        "chi2": chi2,
-        "bic": chi2 + p * math.log(n),
-        "heldout_chi2": heldout,
-        "n_heldout": n,
-        "p_value": 0.5 if chi2 < n else 1e-6,
-    }
+    """The part of a DEMScore the decision reads."""
+    return SimpleNamespace(
+        chi2=chi2,
+        bic=chi2 + p * math.log(n),
+        heldout_chi2=heldout,
+        n_heldout=n,
+        p_value=0.5 if chi2 < n else 1e-6,
+    )
 
 
 def test_decision_names_a_cause_only_when_decisive():
@@ -223,20 +228,20 @@ def test_decision_names_a_cause_only_when_decisive():
 def test_benchmark_margins_never_mix_dem_and_emulator_bic():
     """A candidate scored only on its emulator is compared with the emulator's base fit, never the DEM's."""
 
-    def evidence(dem_bic, dem_heldout, final_bic):
-        return {
-            "dem": None if dem_bic is None else {"bic": dem_bic, "heldout_chi2": dem_heldout},
-            "emulator_final": {"bic": final_bic},
-        }
+    def evidence(dem_bic, dem_heldout, final_bic):  # the part of an Evidence the margins read
+        return SimpleNamespace(
+            dem=None if dem_bic is None else SimpleNamespace(bic=dem_bic, heldout_chi2=dem_heldout),
+            emulator_final=SimpleNamespace(bic=final_bic),
+        )
 
-    result = {
-        "base": evidence(100.0, 80.0, 150.0),
-        "candidates": {
+    result = SimpleNamespace(
+        base=evidence(100.0, 80.0, 150.0),
+        candidates={
             "cohesion": evidence(30.0, 20.0, 40.0),
             "gate_lift": evidence(45.0, 30.0, 50.0),
             "basal_friction": evidence(None, None, 35.0),
         },
-    }
+    )
     margins = evidence_margins(result)
     assert margins["delta_bic_dem"] == {"cohesion": 70.0, "gate_lift": 55.0}
     assert margins["delta_bic_emulator"] == {"cohesion": 110.0, "gate_lift": 100.0, "basal_friction": 115.0}
@@ -375,23 +380,27 @@ def test_hidden_mechanism_is_named_from_a_csv(ci_library, tmp_path):
     result = run_diagnosis(
         csv, library_path, tmp_path / "out", section, runout=CI_SETTINGS.runout.to_config(), name="hidden"
     )
-    assert result["cause"] == truth.mechanism, (truth, result["verdict"], result["checks"])
-    written = json.loads((tmp_path / "out" / "diagnosis.json").read_text())
-    assert written["cause"] == truth.mechanism
+    assert result.cause == truth.mechanism, (truth, result.verdict, result.checks)
+    text = (tmp_path / "out" / "diagnosis.json").read_text()
+    assert json.loads(text)["extended"]["model"] == truth.mechanism
+    written = read_diagnosis(tmp_path / "out" / "diagnosis.json")
+    write_diagnosis(written, tmp_path / "again.json")
+    assert (tmp_path / "again.json").read_text() == text  # the file reads back whole
+    assert written.cause == truth.mechanism
     for figure in ("residuals.png", "candidates.png"):
         assert (tmp_path / "out" / figure).stat().st_size > 10_000
     # the contract: evidence per candidate, parameters with uncertainty, errors before/after, simulator
-    assert set(written["candidates"]) == set(MECHANISMS)
-    extended = written["extended"]
-    assert extended["model"] == truth.mechanism
-    posterior = {p["name"]: p for p in extended["emulator"]["posterior"]["parameters"]}
+    assert set(written.candidates) == set(MECHANISMS)
+    extended = written.extended
+    assert extended.model == truth.mechanism
+    posterior = {p.name: p for p in extended.emulator.posterior.parameters}
     parameter = MECHANISMS[truth.mechanism].parameter
-    assert posterior[parameter]["std"] > 0 and posterior[parameter]["low"] < posterior[parameter]["high"]
-    errors = written["errors"]
-    assert errors["fit_mse"]["after"] < 0.5 * errors["fit_mse"]["before"]
-    assert errors["heldout_mse"]["after"] < errors["heldout_mse"]["before"]
-    assert written["simulator"]["engine"] == "builtin" and written["simulator"]["gns_used"] is False
-    assert "residuals" in written and written["residuals"]["summary"]
+    assert posterior[parameter].std > 0 and posterior[parameter].low < posterior[parameter].high
+    errors = written.errors
+    assert errors.fit_mse.after < 0.5 * errors.fit_mse.before
+    assert errors.heldout_mse.after < errors.heldout_mse.before
+    assert written.simulator.engine == "builtin" and written.simulator.gns_used is False
+    assert written.residuals.summary
     # the report section, its figure links relative to the section's own folder
     section_path = tmp_path / "report" / "diagnosis.md"
     run_section(["hidden"], [tmp_path / "out" / "diagnosis.json"], section_path)
@@ -400,12 +409,43 @@ def test_hidden_mechanism_is_named_from_a_csv(ci_library, tmp_path):
     assert "![residuals](../out/residuals.png)" in text and "![candidates](../out/candidates.png)" in text
 
 
-def test_null_case_names_no_cause(ci_library):
+@pytest.fixture(scope="module")
+def null_diagnosis(ci_library):
+    """The diagnosis of data made by the base model alone."""
     columns, library, _ = ci_library
     truth = draw_truth(np.random.default_rng(80), None)
-    result = diagnose(hidden_data(columns, truth, 80), CI_SETTINGS, library=library, name="null")
-    assert result["cause"] == "none", result["verdict"]
-    assert result["extended"] is None and result["verdict"].startswith("No cause named")
+    return diagnose(hidden_data(columns, truth, 80), CI_SETTINGS, library=library, name="null")
+
+
+def test_null_case_names_no_cause(null_diagnosis):
+    result = null_diagnosis
+    assert result.cause == "none", result.verdict
+    assert result.extended is None and result.verdict.startswith("No cause named")
+
+
+def test_diagnosis_json_round_trips(null_diagnosis, tmp_path):
+    """diagnosis.json as the pipeline writes it: one key per field of the result classes, in field
+    order, and it reads back into a Diagnosis that writes the same file."""
+    path = tmp_path / "diagnosis.json"
+    write_diagnosis(replace(null_diagnosis, measured="null.csv"), path)
+    text = path.read_text()
+    written = json.loads(text)
+    keys = [f.name for f in fields(Diagnosis)]
+    keys.insert(keys.index("candidates") + 1, "extended")  # derived: the cause's evidence
+    assert list(written) == keys and written["extended"] is None and written["measured"] == "null.csv"
+    assert list(null_diagnosis.to_dict()) == keys[:-1]  # no "measured" until the pipeline sets it
+    base = written["base"]
+    assert list(base) == ["emulator", "emulator_final", "dem"]
+    assert list(base["emulator"]) == [f.name for f in fields(EmulatorFit)]
+    assert list(base["dem"]) == [f.name for f in fields(DEMScore)]
+    for name, candidate in written["candidates"].items():
+        assert list(candidate) == list(base) + ["scored_in", "delta_bic_vs_base", "heldout_gain"]
+        assert candidate["scored_in"] == ("dem" if name in written["simulator"]["scored_in_dem"] else "emulator")
+    loaded = read_diagnosis(path)
+    write_diagnosis(loaded, tmp_path / "again.json")
+    assert (tmp_path / "again.json").read_text() == text
+    assert np.array_equal(loaded.base.dem.observed_mean, null_diagnosis.base.dem.observed_mean)
+    assert loaded.residuals.summary == null_diagnosis.residuals.summary and loaded.measured == "null.csv"
 
 
 def test_runout_in_metres_is_refused_before_any_run(ci_library):

@@ -80,3 +80,37 @@ def test_no_import_cycle_between_files():
     for module in graph:
         if module not in state:
             visit(module, [])
+
+
+def untyped_public_functions(path: Path) -> list[str]:
+    """`name (line)` of every public function or method of a public class in `path` that lacks a
+    return annotation or an annotation on a parameter (self/cls excepted; __init__ needs none)."""
+    found = []
+
+    def check(function, prefix=""):
+        args = function.args
+        params = args.posonlyargs + args.args + args.kwonlyargs
+        if params and params[0].arg in ("self", "cls"):
+            params = params[1:]
+        params += [a for a in (args.vararg, args.kwarg) if a is not None]
+        missing = [a.arg for a in params if a.annotation is None]
+        if function.returns is None and function.name != "__init__":
+            missing.append("return")
+        if missing:
+            found.append(f"{prefix}{function.name} (line {function.lineno}: {', '.join(missing)})")
+
+    for node in ast.parse(path.read_text(), str(path)).body:
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and not node.name.startswith("_"):
+            check(node)
+        elif isinstance(node, ast.ClassDef) and not node.name.startswith("_"):
+            for item in node.body:
+                if isinstance(item, (ast.FunctionDef, ast.AsyncFunctionDef)) and (
+                    not item.name.startswith("_") or item.name == "__init__"
+                ):
+                    check(item, f"{node.name}.")
+    return found
+
+
+@pytest.mark.parametrize("path", package_files(), ids=lambda p: str(p.relative_to(ROOT)))
+def test_public_functions_have_type_hints(path):
+    assert untyped_public_functions(path) == []

@@ -15,4 +15,4 @@ result = run_diagnosis(
     runout=snakemake.params.runout,
     name=name,
 )
-logging.info("%s: cause %s - %s", name, result["cause"], result["verdict"])
+logging.info("%s: cause %s - %s", name, result.cause, result.verdict)

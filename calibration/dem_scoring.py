@@ -1,0 +1,205 @@
+"""A model scored by DEM runs at its emulator optima, instead of by its emulator.
+
+The emulator (calibration/scoring.py) is cheap but not exact: its error near an optimum can exceed
+the noise. So the diagnosis runs the DEM at a model's calibrated parameters and at each held-out
+fold's, on a few packings (`dem_runs` -> `DEMRuns`), and scores the model by those runs
+(`dem_evaluate` -> `DEMScore`): chi^2, AIC, BIC, p-value, the runout objective, and held-out chi^2.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from calibration.design_runs import DEMRunner, Model
+from calibration.objective import runout_mse
+from calibration.observables import Observables
+from calibration.residuals import Fold, NoiseModel
+from calibration.scoring import ModelScore, aic, bic, p_value
+from dem.runout import RunoutMethod
+from dem.trajectory import Trajectory
+
+log = logging.getLogger(__name__)
+
+# A runout curve as drawn: [t/t* list, L* list] (every other frame of a run).
+Curve = list[list[float]]
+
+
+@dataclass(frozen=True)
+class DEMRuns:
+    """DEM runs of a model at its emulator optima, R packings each."""
+
+    model: Model
+    theta: np.ndarray  # [p] calibrated parameters
+    fit: np.ndarray  # [R, q] observables of the runs at theta
+    fold_theta: list[np.ndarray]  # [folds][p] parameters fitted without each fold
+    folds: list[np.ndarray]  # [folds][R, q] observables of the runs at each fold's parameters
+    packings: list[int]  # [R] indices into the simulation's packing seeds
+    curves: list[list[Curve]]  # [R][columns] runout curves of the fit runs (for the figure)
+    seconds: float  # wall time of all these runs
+
+
+@dataclass(frozen=True)
+class HeldOutFold:
+    """One held-out fold in DEM runs: the held-out values predicted from a fit without them."""
+
+    held_out: str  # what was held out, in words (calibration/residuals.py's Fold.description)
+    chi2: float  # chi^2 of the held-out values against the noise
+    parameters: dict[str, float]  # the parameters fitted without them
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready, keys in field order."""
+        return {"held_out": self.held_out, "chi2": self.chi2, "parameters": self.parameters}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> HeldOutFold:
+        """Inverse of `to_dict`."""
+        return cls(**data)
+
+
+@dataclass(frozen=True, eq=False)
+class DEMScore:
+    """A model scored by its DEM runs (the JSON "dem" entry of a model's evidence).
+
+    Chi^2 values are against the noise std (measurement + packing scatter of the measured
+    realisation + that of a mean of R runs; dimensionless); MSEs are of the runout L* (L*^2).
+    """
+
+    parameters: dict[str, float]  # the calibrated parameters run
+    packings: list[int]  # [R] indices into the simulation's packing seeds
+    chi2: float  # of the mean observables of the R runs, over all n_data values
+    n_data: int  # measured values q
+    n_parameters: int  # p
+    p_value: float  # P(chi^2 >= chi2) with n_data - n_parameters degrees of freedom
+    aic: float
+    bic: float
+    objective: float  # runout MSE against the measurement, mean over the R runs
+    objective_per_packing: list[float]  # [R] runout MSE of each run
+    heldout_chi2: float  # sum over folds of chi^2 on the held-out values
+    n_heldout: int  # held-out values, all folds together
+    heldout_mse: float  # runout MSE on the held-out runout points (NaN: none held out)
+    heldout_folds: list[HeldOutFold]  # [folds]
+    observed_mean: np.ndarray  # [q] mean observables of the R runs at the calibrated parameters
+    sigma: np.ndarray  # [q] noise std the chi^2 values use (L* or m)
+    curves: list[list[Curve]]  # [R][columns] runout curves of the runs (for the figure)
+    seconds: float  # wall time of the runs
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready, keys in field order."""
+        out = {name: getattr(self, name) for name in self.__dataclass_fields__}
+        out.update(
+            heldout_folds=[f.to_dict() for f in self.heldout_folds],
+            observed_mean=self.observed_mean.tolist(),
+            sigma=self.sigma.tolist(),
+        )
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> DEMScore:
+        """Inverse of `to_dict` (as read back from JSON)."""
+        return cls(
+            **{
+                **data,
+                "heldout_folds": [HeldOutFold.from_dict(f) for f in data["heldout_folds"]],
+                "observed_mean": np.asarray(data["observed_mean"], float),
+                "sigma": np.asarray(data["sigma"], float),
+            }
+        )
+
+
+def dem_runs(
+    runner: DEMRunner,
+    model: Model,
+    score: ModelScore,
+    folds: list[Fold],
+    n_packings: int,
+    first_packing: int = 0,
+) -> DEMRuns:
+    """DEM runs of `model` at the emulator's optima: at the calibrated parameters and at each
+    fold's (every column, so that the runs can also refine the emulator), on `n_packings` packings
+    from `first_packing` on (cyclically through the runner's packing seeds)."""
+    n_pool = len(runner.settings.packing_seeds)
+    packings = [(first_packing + r) % n_pool for r in range(n_packings)]
+    started = time.perf_counter()
+    fit, curves = [], []
+    for k in packings:
+        trajectories = runner.trajectories(model, score.theta, k)
+        fit.append(runner.observables.from_trajectories(trajectories))
+        curves.append([_thin_curve(tr, runner.observables.runout) for tr in trajectories])
+    fold_runs = [np.array([runner.observe(model, theta_k, k) for k in packings]) for theta_k in score.fold_theta]
+    return DEMRuns(
+        model=model,
+        theta=score.theta,
+        fit=np.array(fit),
+        fold_theta=score.fold_theta,
+        folds=fold_runs,
+        packings=packings,
+        curves=curves,
+        seconds=time.perf_counter() - started,
+    )
+
+
+def dem_evaluate(runs: DEMRuns, observables: Observables, folds: list[Fold], noise: NoiseModel) -> DEMScore:
+    """The model scored by its DEM runs (`dem_runs`) instead of its emulator.
+
+    Fit: the mean observables of the runs at the calibrated parameters against the data give chi^2
+    (noise: measurement + packing scatter of the measured realisation + that of a mean of R runs),
+    AIC, BIC, p-value; the objective (runout MSE) is averaged over the runs. Held out: each fold's
+    runs at the parameters fitted without it, on the held-out outputs only.
+    """
+    model = runs.model
+    target = observables.measured
+    runout = observables.kind == "runout"
+    sigma = np.sqrt(noise.measurement**2 + noise.packing**2 * (1 + 1 / len(runs.packings)))
+    mean = runs.fit.mean(axis=0)
+    chi2 = float(np.sum(((mean - target) / sigma) ** 2))
+    heldout_chi2, squared, folds_out = 0.0, [], []
+    for fold, theta_k, fold_runs in zip(folds, runs.fold_theta, runs.folds):
+        fold_mean = fold_runs.mean(axis=0)
+        fold_chi2 = float(np.sum(((fold_mean[fold.held] - target[fold.held]) / sigma[fold.held]) ** 2))
+        heldout_chi2 += fold_chi2
+        squared += list((fold_mean[fold.held & runout] - target[fold.held & runout]) ** 2)
+        folds_out.append(
+            HeldOutFold(fold.description, fold_chi2, dict(zip(model.parameter_names, map(float, theta_k))))
+        )
+    objective = [runout_mse(r[runout], target[runout]) for r in runs.fit]
+    result = DEMScore(
+        parameters=dict(zip(model.parameter_names, map(float, runs.theta))),
+        packings=runs.packings,
+        chi2=chi2,
+        n_data=observables.size,
+        n_parameters=model.n_parameters,
+        p_value=p_value(chi2, model.n_parameters, observables.size),
+        aic=aic(chi2, model.n_parameters),
+        bic=bic(chi2, model.n_parameters, observables.size),
+        objective=float(np.mean(objective)),
+        objective_per_packing=objective,
+        heldout_chi2=heldout_chi2,
+        n_heldout=int(sum(int(fold.held.sum()) for fold in folds)),
+        heldout_mse=float(np.mean(squared)) if squared else math.nan,
+        heldout_folds=folds_out,
+        observed_mean=mean,
+        sigma=sigma,
+        curves=runs.curves,
+        seconds=runs.seconds,
+    )
+    log.info(
+        "DEM score of %s: chi2 %.1f, BIC %.1f, held-out chi2 %.1f, objective %.4g",
+        model.name,
+        chi2,
+        result.bic,
+        heldout_chi2,
+        result.objective,
+    )
+    return result
+
+
+def _thin_curve(trajectory: Trajectory, runout: RunoutMethod) -> Curve:
+    """[t/t* list, L* list] of a run's runout curve as the diagnosis reads it, every other frame (for the figure)."""
+    t, runout = runout.curve(trajectory)
+    return [t[::2].round(4).tolist(), runout[::2].round(4).tolist()]
