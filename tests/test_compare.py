@@ -35,6 +35,7 @@ RUNOUT = RunoutMethod()  # the config's default: every stage here reads L* by it
 
 
 def tiny_case(friction, restitution, seed=0, **changes):
+    """Quartz, a = 2, L_i = 1 cm, grains 4x coarse: 77 grains, 3 t* in 34 frames, under a second of DEM."""
     return CollapseCase(
         "quartz",
         L_i=0.01,

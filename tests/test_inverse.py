@@ -28,7 +28,6 @@ from calibration.lbfgsb import (
 )
 from calibration.measured import MeasuredColumn
 from calibration.recovery import observation_times, packing_scatter, recover_case
-from dem.case import CollapseCase
 from dem.collapse import simulate_collapse
 from dem.dataset import build_dataset
 from dem.runout import METHODS, RunoutMethod, runout_at, runout_curve
@@ -37,26 +36,12 @@ from gns.data import read_metadata, read_training_attrs
 from gns.runout import SOFT_TEMPERATURE, soft_runout_at, soft_top_k_mean
 from gns.simulator import LearnedSimulator, load_simulator
 from gns.train import TrainSettings, simulator_config, train
+from tests.test_compare import tiny_case
 
 TINY_MODEL = dict(latent_size=16, n_message_passing=2, connectivity_radius=1.6, noise_std=0.05)
 T_POINTS = np.array([0.6, 0.8, 1.0])  # t/t*: a short rollout (frames 6..12) for the gradient tests
 # DEM runs of the tiny dataset: the first two span the ranges [0.3, 0.9]^2
 TINY_RUNS = [(0.3, 0.3), (0.9, 0.9), (0.45, 0.8), (0.6, 0.5), (0.75, 0.65), (0.85, 0.4)]
-
-
-def tiny_case(friction, restitution, seed=0):
-    """Quartz, a = 2, L_i = 1 cm, grains 4x coarse: 77 grains, 3 t* in 34 frames, under a second of DEM."""
-    return CollapseCase(
-        "quartz",
-        L_i=0.01,
-        aspect_ratio=2.0,
-        friction=friction,
-        restitution=restitution,
-        size_scale=4,
-        output_interval=0.004,
-        duration_over_tstar=3.0,
-        seed=seed,
-    )
 
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")  # tests/conftest.py
