@@ -128,7 +128,7 @@ def nearest_dataset(measured: MeasuredColumn, rows: list[dict], datasets: Collec
 
 def check_geometry_of_dataset(measured: MeasuredColumn, rows: list[dict], dataset: str) -> dict:
     """check_geometry from case-table rows (before any DEM run): the dataset's parameter ranges
-    over all its rows (as dem.dataset computes them) and its training rows as the training set."""
+    over all its rows (as gns.dataset computes them) and its training rows as the training set."""
     mine = [dict(r, H_i=float(r["aspect_ratio"]) * float(r["L_i"])) for r in rows if r["dataset"] == dataset]
     ranges = {
         k: [min(float(r[k]) for r in mine), max(float(r[k]) for r in mine)] for k in ("L_i", "H_i", "aspect_ratio")

@@ -16,15 +16,15 @@ import h5py
 import numpy as np
 import torch
 
-from dem.dataset import DatasetError, load_dataset_metadata
 from dem.trajectory import TrajectoryError, read_attrs
+from gns.dataset import DatasetError, load_dataset_metadata
 from gns.simulator import LAYOUT_KEYS, Context
 
 STATISTICS = ("velocity_mean", "velocity_std", "acceleration_mean", "acceleration_std")
 
 
 def read_metadata(path: str | os.PathLike) -> dict:
-    """A dataset's metadata (dem.dataset's JSON), checked for what the GNS needs."""
+    """A dataset's metadata (gns.dataset's JSON), checked for what the GNS needs."""
     metadata = load_dataset_metadata(path)
     missing = [
         k
@@ -32,7 +32,7 @@ def read_metadata(path: str | os.PathLike) -> dict:
         if k not in metadata
     ]
     if missing:
-        raise DatasetError(f"{path}: dataset metadata lacks {missing}; rebuild it with dem.dataset.build_dataset")
+        raise DatasetError(f"{path}: dataset metadata lacks {missing}; rebuild it with gns.dataset.build_dataset")
     for key in STATISTICS:
         if len(metadata[key]) != 2 or not np.all(np.isfinite(metadata[key])):
             raise DatasetError(f"{path}: {key} must be two finite numbers, got {metadata[key]}")

@@ -1,5 +1,5 @@
 """The dataset stage (workflow/rules/dataset.smk): the trajectories of each named dataset ->
-metadata JSON (splits, normalisation statistics; dem.dataset) -> summary figure + case table CSV
+metadata JSON (splits, normalisation statistics; gns.dataset) -> summary figure + case table CSV
 with each case's final L* -> the report section (results/report/dataset.md).
 """
 
@@ -12,9 +12,9 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 from dem.atomic import StrPath, write_text
-from dem.dataset import SPLITS, build_dataset, load_dataset_metadata, plot_dataset
 from dem.grid import write_case_table
 from dem.runout import RunoutMethod
+from gns.dataset import SPLITS, build_dataset, load_dataset_metadata, plot_dataset
 
 log = logging.getLogger(__name__)
 # where the DEM stage writes a case's trajectory; the same path as in dataset.smk
@@ -22,7 +22,7 @@ TRAJECTORY = "results/dem/{dataset}/trajectories/{case_id}.h5"
 
 
 def build(splits: Mapping[str, Sequence[str]], out_path: StrPath, name: str) -> dict:
-    """Build dataset `name`'s metadata JSON at `out_path` (dem.dataset.build_dataset) from its
+    """Build dataset `name`'s metadata JSON at `out_path` (gns.dataset.build_dataset) from its
     trajectories, {"train"|"valid"|"test": [HDF5 paths]}. Returns the metadata dict."""
     splits = {k: list(v) for k, v in splits.items()}
     log.info("dataset %s: %s cases", name, {k: len(v) for k, v in splits.items()})

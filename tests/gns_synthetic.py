@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from dem.dataset import build_dataset
 from dem.trajectory import Trajectory, write_trajectory
+from gns.dataset import build_dataset
 
 BOX = (0.2, 0.1)  # m, width and height
 DT_FRAME = 0.004  # s

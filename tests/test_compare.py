@@ -26,9 +26,9 @@ from calibration.objective import objective
 from calibration.recovery import recovery_summary, recovery_targets, synthetic_measured
 from dem.case import CollapseCase
 from dem.collapse import simulate_collapse
-from dem.dataset import build_dataset
 from dem.runout import RunoutError, RunoutMethod
 from dem.trajectory import read_attrs, read_trajectory, write_trajectory
+from gns.dataset import build_dataset
 from pipeline.inverse import report_section, run_bayesopt, run_comparison, run_dem_at, run_dem_point, write_section
 
 RUNOUT = RunoutMethod()  # the config's default: every stage here reads L* by it

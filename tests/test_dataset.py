@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from dem.case import CollapseCase
-from dem.dataset import DatasetError, build_dataset, load_dataset_metadata, plot_dataset
 from dem.trajectory import GRAIN, Trajectory, engine_attrs, write_trajectory
+from gns.dataset import DatasetError, build_dataset, load_dataset_metadata, plot_dataset
 
 
 def write_motion(path, friction, L_i=0.01, speed=0.0, accel=0.0, n_frames=12, n=5, output_interval=0.002, rng=None):

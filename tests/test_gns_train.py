@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 import torch
 
-from dem.dataset import DatasetError
 from dem.runout import RunoutMethod
 from dem.trajectory import read_trajectory
 from gns.data import TrajectoryWindows, read_metadata
+from gns.dataset import DatasetError
 from gns.evaluate import evaluate_rollouts, rollout_runout_mse
 from gns.simulator import CheckpointError, load_simulator
 from gns.train import Trainer, TrainSettings, train

@@ -29,10 +29,10 @@ from calibration.lbfgsb import (
 from calibration.measured import MeasuredColumn
 from calibration.recovery import observation_times, packing_scatter, recover_case
 from dem.collapse import simulate_collapse
-from dem.dataset import build_dataset
 from dem.runout import METHODS, RunoutMethod, runout_at, runout_curve
 from dem.trajectory import read_attrs, write_trajectory
 from gns.data import read_metadata, read_training_attrs
+from gns.dataset import build_dataset
 from gns.runout import SOFT_TEMPERATURE, soft_runout_at, soft_top_k_mean
 from gns.simulator import LearnedSimulator, load_simulator
 from gns.train import TrainSettings, simulator_config, train

@@ -19,9 +19,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-from dem.dataset import load_dataset_metadata
 from dem.grid import read_deck
 from dem.trajectory import read_attrs, read_trajectory
+from gns.dataset import load_dataset_metadata
 from pipeline.report import assemble_report
 
 ROOT = Path(__file__).resolve().parents[1]
