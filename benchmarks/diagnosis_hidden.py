@@ -11,8 +11,11 @@ best candidate's evidence lies from the decision rule's margins, and the error b
 MSE and chi^2, fit and held out, from DEM runs).
 
 Columns: quartz, L_i = 0.02 m, a = 1 and 2, coarse-grained (size_scale 4: 153 and 307 grains),
-runout every 0.5 t* up to 5 t*, deposit profile at five points. About 10-25 minutes on 2 cores
-(load-dependent).
+runout every 0.5 t* up to 5 t*, and the deposit profile read as another lab or solver would read
+it, not as the model would by default (calibration/synthetic.py): 46 points a column (4.6 times the
+runout's), in bins of 2 real grain diameters, half a t* after the runout record ends. The model
+reads its own profile the same way (dem.runout.profile_at), and the profile counts by its effective
+number of points (calibration/residuals.py). About 10-25 minutes on 2 cores (load-dependent).
 
     python benchmarks/diagnosis_hidden.py [--size-scale 4] [--seed 2024] [--rounds 3] [--quick]
 """

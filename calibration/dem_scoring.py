@@ -155,7 +155,7 @@ def dem_evaluate(runs: DEMRuns, observables: Observables, folds: list[Fold], noi
     model = runs.model
     target = observables.measured
     runout = observables.kind == "runout"
-    sigma = np.sqrt(noise.measurement**2 + noise.packing**2 * (1 + 1 / len(runs.packings)))
+    sigma = np.sqrt(noise.measurement**2 + noise.packing**2 * (1 + 1 / len(runs.packings))) * noise.correlation
     mean = runs.fit.mean(axis=0)
     chi2 = float(np.sum(((mean - target) / sigma) ** 2))
     heldout_chi2, squared, folds_out = 0.0, [], []
@@ -172,11 +172,11 @@ def dem_evaluate(runs: DEMRuns, observables: Observables, folds: list[Fold], noi
         parameters=dict(zip(model.parameter_names, map(float, runs.theta))),
         packings=runs.packings,
         chi2=chi2,
-        n_data=observables.size,
+        n_data=noise.n_effective,
         n_parameters=model.n_parameters,
-        p_value=p_value(chi2, model.n_parameters, observables.size),
+        p_value=p_value(chi2, model.n_parameters, noise.n_effective),
         aic=aic(chi2, model.n_parameters),
-        bic=bic(chi2, model.n_parameters, observables.size),
+        bic=bic(chi2, model.n_parameters, noise.n_effective),
         objective=float(np.mean(objective)),
         objective_per_packing=objective,
         heldout_chi2=heldout_chi2,

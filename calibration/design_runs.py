@@ -114,8 +114,9 @@ class SimulationSettings:
     reference: tuple[float, float] = (0.6, 0.6)  # (mu, e) the packings are settled with
 
     def duration_for(self, column: MeasuredColumn) -> float:
-        """Simulated t/t*: up to the frame at or after the last measured t/t*."""
-        return float(np.ceil(column.t_over_tstar[-1] * FRAMES_PER_TSTAR - 1e-9) / FRAMES_PER_TSTAR)
+        """Simulated t/t*: up to the frame at or after the last measured t/t* (runout, or the profile's reading)."""
+        last = max(float(column.t_over_tstar[-1]), column.profile_time if column.profile_x is not None else 0.0)
+        return float(np.ceil(last * FRAMES_PER_TSTAR - 1e-9) / FRAMES_PER_TSTAR)
 
     def to_dict(self) -> dict:
         return {
@@ -231,6 +232,28 @@ class Library:
         missing = [m.name for m in models if m.name not in self.runs]
         if missing:
             raise LibraryError(f"the run library has no runs of model(s) {missing}; it holds {list(self.runs)}")
+
+    def restricted(self, observables: Observables) -> Library:
+        """This library's runs read at fewer outputs: those of `observables`, whose columns, runout
+        method and profile reading must be this library's and whose observation points must be a
+        subset of its points. A profile read at fewer x is the same runs read fewer times, so no DEM
+        run is repeated (used to compare a diagnosis at two profile resolutions)."""
+        wanted = json.loads(json.dumps(observables.signature()))
+        mine = json.loads(json.dumps(self.signature))
+        labels = [tuple(label) for label in mine["labels"]]
+        same = {k: v for k, v in wanted.items() if k != "labels"} == {k: v for k, v in mine.items() if k != "labels"}
+        missing = [label for label in wanted["labels"] if tuple(label) not in labels]
+        if not same or missing:
+            raise LibraryError(
+                "a library can be read at a subset of its own outputs only "
+                + (f"(not at {missing[:3]}...)" if missing else "(same columns, runout method and profile reading)")
+            )
+        index = [labels.index(tuple(label)) for label in wanted["labels"]]
+        runs = {
+            name: DesignRuns(r.model, r.theta.copy(), r.observed[:, index], r.packing.copy(), r.seconds.copy(), r.stage)
+            for name, r in self.runs.items()
+        }
+        return Library(wanted, dict(self.settings), runs)
 
     def copy(self) -> Library:
         """An independent copy (runs copied; fitted emulators shared until a model gets new runs)."""

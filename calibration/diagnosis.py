@@ -243,11 +243,13 @@ def _checked_inputs(
 
 
 def _score_all(
-    models: list[Model], library: Library, observables: Observables, sigma: np.ndarray, folds: list[Fold], seed: int
+    models: list[Model], library: Library, observables: Observables, noise: NoiseModel, folds: list[Fold], seed: int
 ) -> dict[str, ModelScore]:
-    """{model: its fit on its emulator of `library`'s runs}, sigma [q] the noise std."""
+    """{model: its fit on its emulator of `library`'s runs} against the data's `noise`."""
     return {
-        m.name: score_model(m, library.emulator(m, seed + k), observables, sigma, folds, seed=seed)
+        m.name: score_model(
+            m, library.emulator(m, seed + k), observables, noise.total, folds, seed=seed, n_data=noise.n_effective
+        )
         for k, m in enumerate(models)
     }
 
@@ -266,7 +268,7 @@ def _dem_rounds(
     fitted again. Returns (the fits the last round ran, the final fits, the last round's runs, the
     noise model with their packing scatter)."""
     by_name = {m.name: m for m in models}
-    final = _score_all(models, library, observables, noise.total, folds, settings.seed)
+    final = _score_all(models, library, observables, noise, folds, settings.seed)
     for round_ in range(settings.n_rounds):
         scores = final  # the emulator optima this round runs in the DEM (reported with its DEM scores)
         leading = sorted((scores[m.name] for m in models[1:]), key=lambda s: s.bic)[: settings.dem_top]
@@ -283,7 +285,7 @@ def _dem_rounds(
         noise, _ = settings.noise(observables, library)
         # rescored on the emulators that now hold these runs: the next round's optima, and after
         # the last round the emulators' final word, which the DEM ranking must agree with
-        final = _score_all(models, library, observables, noise.total, folds, settings.seed)
+        final = _score_all(models, library, observables, noise, folds, settings.seed)
     return scores, final, runs, noise
 
 

@@ -14,6 +14,14 @@ Schema (full description and examples in data/measured/README.md). A CSV file in
   kind          `runout`: x = t/t* (-), value = runout L* = (L - L_i)/L_i (-)
                 `profile`: final deposit, x = distance from the left wall (m), value = height (m)
   std           optional noise level: standard deviation of `value`, same units; empty = unknown
+  read_at       optional, profile rows: t/t* at which the profile was read (empty: the last
+                runout t/t*, the end of the runout record)
+  bin_width     optional, profile rows: width (m) of the bins the profile was read with, the
+                height being the top of the highest grain per bin (empty: the spacing of the x
+                points, at least one grain diameter)
+  grain_diameter optional: mean diameter (m) of the measured grains, one value per column (empty:
+                the material's, dem.case.MATERIALS; say it when the data come from a sieve
+                fraction of its own or from a coarse-grained simulation)
 
 Each column needs at least two runout points; material, aspect_ratio and L_i must agree on every
 row of a column. Every error names the file, the line and the CSV column that is wrong.
@@ -34,7 +42,8 @@ import numpy as np
 from dem.case import MATERIALS, CaseError, CollapseCase
 
 REQUIRED_FIELDS = ("column", "material", "aspect_ratio", "L_i", "kind", "x", "value")
-OPTIONAL_FIELDS = ("std",)
+OPTIONAL_FIELDS = ("std", "read_at", "bin_width", "grain_diameter")
+PROFILE_READING = ("read_at", "bin_width")  # how a profile was read: one value per column, or none
 KINDS = ("runout", "profile")
 MAX_L_I = 1.0  # m; a column length above this is almost surely given in mm or cm
 
@@ -52,7 +61,10 @@ class MeasuredColumn:
     """One measured collapse.
 
     t_over_tstar [K] (-, increasing) with runout [K] = L* (-) and runout_std [K] (-) or None;
-    profile_x [P] (m) and profile_height [P] (m), or None when no deposit profile was measured.
+    profile_x [P] (m) and profile_height [P] (m), or None when no deposit profile was measured,
+    with profile_std [P] (m) or None, and how it was read: profile_read_at (t/t*) and
+    profile_bin_width (m), None where the file does not say (`profile_time`, `profile_bin` give the
+    values used then, `profile_defaults` says which were defaulted).
     """
 
     name: str
@@ -65,6 +77,43 @@ class MeasuredColumn:
     profile_x: np.ndarray | None = None
     profile_height: np.ndarray | None = None
     source: str = ""
+    profile_std: np.ndarray | None = None
+    profile_read_at: float | None = None
+    profile_bin_width: float | None = None
+    profile_line: int | None = None  # line of the file's first profile row, for error messages
+    grain_diameter: float | None = None  # m, of the measured grains; None: the material's
+
+    @property
+    def measured_diameter(self) -> float:
+        """Mean diameter (m) of the grains that were measured: the file's, else the material's."""
+        return MATERIALS[self.material].diameter if self.grain_diameter is None else float(self.grain_diameter)
+
+    @property
+    def profile_time(self) -> float:
+        """t/t* at which the profile was read: the file's read_at, else the last runout t/t*."""
+        return float(self.t_over_tstar[-1]) if self.profile_read_at is None else float(self.profile_read_at)
+
+    @property
+    def profile_bin(self) -> float:
+        """Bin width (m) the profile was read with: the file's bin_width, else the median spacing of
+        the profile's x points, at least one real grain diameter (a narrower bin cannot hold a grain)."""
+        if self.profile_bin_width is not None:
+            return float(self.profile_bin_width)
+        if self.profile_x is None:
+            raise ValueError(f"column {self.name!r} has no profile")
+        return max(float(np.median(np.diff(self.profile_x))), MATERIALS[self.material].diameter)
+
+    @property
+    def profile_defaults(self) -> list[str]:
+        """What the file left unsaid about its profile reading, and the value used instead."""
+        if self.profile_x is None:
+            return []
+        out = []
+        if self.profile_read_at is None:
+            out.append(f"read at t/t* = {self.profile_time:g} (not stated: the end of the runout record)")
+        if self.profile_bin_width is None:
+            out.append(f"bins of {self.profile_bin * 1e3:.3g} mm (not stated: the spacing of its x points)")
+        return out
 
     @property
     def H_i(self) -> float:
@@ -89,6 +138,12 @@ class MeasuredColumn:
             raise CaseError(
                 f"duration_over_tstar = {case.duration_over_tstar} ends before the last measured "
                 f"t/t* = {self.t_over_tstar[-1]} of {self.name!r} ({self.source})"
+            )
+        if self.profile_x is not None and case.duration_over_tstar < self.profile_time:
+            raise CaseError(
+                f"{self.source}, line {self.profile_line}, column 'read_at': the profile of {self.name!r} is read at "
+                f"t/t* = {self.profile_time:g}, after the simulated window ends (duration_over_tstar = "
+                f"{case.duration_over_tstar:g})"
             )
         return case
 
@@ -194,6 +249,7 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
             f"(0 < L_i <= {MAX_L_I} m; was it given in mm?)"
         )
     series = {kind: [] for kind in KINDS}
+    grains = []  # (line, grain_diameter or NaN) of every row
     for line, row in rows:
         for field, expected in (("material", material),):
             if row[field] != expected:
@@ -213,6 +269,30 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
         x = _number(path, line, "x", row["x"])
         value = _number(path, line, "value", row["value"])
         std = _number(path, line, "std", row.get("std", ""), allow_empty=True)
+        reading = {f: _number(path, line, f, row.get(f, ""), allow_empty=True) for f in PROFILE_READING}
+        for field, value_ in reading.items():
+            if kind == "runout" and not math.isnan(value_):
+                raise MeasuredDataError(
+                    f"{path}, line {line}, column {field!r}: a runout row is read at its own t/t* (x); "
+                    f"{field} applies to profile rows only: leave it empty"
+                )
+        if not math.isnan(reading["read_at"]) and reading["read_at"] <= 0:
+            raise MeasuredDataError(
+                f"{path}, line {line}, column 'read_at': a profile is read at t/t* > 0, got {reading['read_at']}"
+            )
+        grain = _number(path, line, "grain_diameter", row.get("grain_diameter", ""), allow_empty=True)
+        if not (math.isnan(grain) or 0 < grain <= 0.1):
+            raise MeasuredDataError(
+                f"{path}, line {line}, column 'grain_diameter': {grain} is not a grain diameter in metres "
+                "(0 < d <= 0.1 m)"
+            )
+        grains.append((line, grain))
+        diameter = MATERIALS[material].diameter  # the units check: a bin holds at least a real grain
+        if not math.isnan(reading["bin_width"]) and reading["bin_width"] < diameter:
+            raise MeasuredDataError(
+                f"{path}, line {line}, column 'bin_width': {reading['bin_width']} m is below one grain diameter "
+                f"of {material} ({diameter:g} m): no bin that narrow holds a grain (was it given in mm?)"
+            )
         if x < 0:
             raise MeasuredDataError(f"{path}, line {line}, column 'x': must be >= 0, got {x}")
         if not math.isnan(std) and std <= 0:
@@ -221,16 +301,18 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
                 "standard deviation (zero would claim an exact measurement); leave the cell "
                 "empty if unknown"
             )
-        series[kind].append((line, x, value, std))
+        series[kind].append((line, x, value, std, reading))
 
+    _all_or_none(path, name, grains, [g for _, g in grains], "grain_diameter", "")
+    for line, grain in grains:
+        if not (math.isnan(grain) or grain == grains[0][1]):
+            raise MeasuredDataError(
+                f"{path}, line {line}, column 'grain_diameter': {grain:g} differs from {grains[0][1]:g} on line "
+                f"{grains[0][0]}: one measured column has one grain size"
+            )
     t, runout, std = _series(path, name, series["runout"], "t/t*", min_points=2)
-    if np.isnan(std).any() and not np.isnan(std).all():
-        line = series["runout"][int(np.flatnonzero(np.isnan(std))[0])][0]
-        raise MeasuredDataError(
-            f"{path}, line {line}, column 'std': noise level missing here but given on other "
-            f"runout rows of {name!r}; give it on every runout row or on none"
-        )
-    profile = None
+    _all_or_none(path, name, series["runout"], [p[3] for p in series["runout"]], "std", "runout")
+    profile, reading = None, {f: math.nan for f in PROFILE_READING}
     if series["profile"]:
         profile = _series(path, name, series["profile"], "profile x", min_points=2)
         negative = np.flatnonzero(profile[1] < 0)
@@ -238,6 +320,17 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
             raise MeasuredDataError(
                 f"{path}, line {series['profile'][negative[0]][0]}, column 'value': deposit height must be >= 0 m"
             )
+        _all_or_none(path, name, series["profile"], [p[3] for p in series["profile"]], "std", "profile")
+        for field in PROFILE_READING:
+            values = [p[4][field] for p in series["profile"]]
+            _all_or_none(path, name, series["profile"], values, field, "profile")
+            for (line, *_), value_ in zip(series["profile"], values):
+                if not (math.isnan(value_) or value_ == values[0]):
+                    raise MeasuredDataError(
+                        f"{path}, line {line}, column {field!r}: {value_:g} differs from {values[0]:g} on line "
+                        f"{series['profile'][0][0]}: one profile of {name!r} is read one way"
+                    )
+            reading[field] = values[0]
     column = MeasuredColumn(
         name=name,
         material=material,
@@ -249,9 +342,26 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
         profile_x=None if profile is None else profile[0],
         profile_height=None if profile is None else profile[1],
         source=str(path),
+        profile_std=None if profile is None or np.isnan(profile[2]).all() else profile[2],
+        profile_read_at=None if math.isnan(reading["read_at"]) else reading["read_at"],
+        profile_bin_width=None if math.isnan(reading["bin_width"]) else reading["bin_width"],
+        profile_line=series["profile"][0][0] if series["profile"] else None,
+        grain_diameter=None if math.isnan(grains[0][1]) else grains[0][1],
     )
     _check_runout_units(path, column, series["runout"][0][0])
     return column
+
+
+def _all_or_none(path: Path, name: str, points: list, values: list[float], field: str, kind: str) -> None:
+    """A field given on some `kind` rows of a column and not on others is an error naming the first gap."""
+    missing = [math.isnan(v) for v in values]
+    if any(missing) and not all(missing):
+        line = points[missing.index(True)][0]
+        rows = f"{kind} rows" if kind else "rows"
+        raise MeasuredDataError(
+            f"{path}, line {line}, column {field!r}: missing here but given on other {rows} of "
+            f"{name!r}; give it on every {kind + ' ' if kind else ''}row or on none"
+        )
 
 
 def _series(path, name, points, what, min_points):

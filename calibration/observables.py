@@ -1,10 +1,11 @@
 """What a DEM run is compared with the measurement on: the observables of the measured columns.
 
 Observables (`Observables`): for every measured column, the runout L* at its measured t/t* points
-and, when a deposit profile was measured, the deposit height (m) at its measured x points, taken
-from the last simulated frame (the last measured t/t*: this model's grains never quite stop
-rolling, so "final" means "at the end of the measured window"). The runout is read by the
-configured dem.runout method (`Observables.runout`), the same as every other stage's.
+and, when a deposit profile was measured, the deposit height (m) at its measured x points, read
+by dem.runout.profile_at the way the file says the measurement was read: at its t/t* (default:
+the last runout t/t*) with its bin width in metres (default: the spacing of its x points). The
+runout is read by the configured dem.runout method (`Observables.runout`), the same as every other
+stage's.
 """
 
 from __future__ import annotations
@@ -17,14 +18,10 @@ import numpy as np
 
 from calibration.measured import MeasuredColumn
 from calibration.objective import simulated_runout_at
-from dem.runout import RunoutMethod, deposit_profile
+from dem.runout import RunoutMethod, profile_at
 
 if TYPE_CHECKING:
-    from numpy.typing import ArrayLike
-
     from dem.trajectory import Trajectory
-
-PROFILE_BIN_DIAMETERS = 4.0  # deposit-profile bin width in mean grain diameters (dem.runout.deposit_profile)
 
 
 class LibraryError(ValueError):
@@ -90,12 +87,12 @@ class Observables:
 
     @property
     def measured_std(self) -> np.ndarray:
-        """[q] stated noise std; NaN where the file gives none (profile noise is not in the schema)."""
+        """[q] stated noise std (L* or m); NaN where the file gives none."""
         parts = []
         for c in self.columns:
             parts.append(c.runout_std if c.runout_std is not None else np.full(len(c.runout), np.nan))
             if c.profile_x is not None:
-                parts.append(np.full(len(c.profile_x), np.nan))
+                parts.append(c.profile_std if c.profile_std is not None else np.full(len(c.profile_x), np.nan))
         return np.concatenate(parts).astype(float)
 
     def signature(self) -> dict:
@@ -105,7 +102,11 @@ class Observables:
             "columns": [[c.name, c.material, c.aspect_ratio, c.L_i] for c in self.columns],
             "labels": [list(label) for label in self.labels],
             "runout": self.runout.to_config(),
-        }
+        } | (  # how each profile is read (only where there is one, so runout-only libraries keep their signature)
+            {"profiles": {c.name: [c.profile_time, c.profile_bin] for c in self.columns if c.profile_x is not None}}
+            if any(c.profile_x is not None for c in self.columns)
+            else {}
+        )
 
     def from_trajectories(self, trajectories: Sequence[Trajectory], columns: Sequence[int] | None = None) -> np.ndarray:
         """Observables of one simulated trajectory per column: [q] for all columns, or, with
@@ -118,12 +119,6 @@ class Observables:
             t, runout = self.runout.curve(trajectory)
             parts.append(simulated_runout_at(t, runout, column))
             if column.profile_x is not None:
-                parts.append(profile_at(trajectory, column.profile_x))
+                # read as the measurement states it was read: same time, same bins in metres
+                parts.append(profile_at(trajectory, column.profile_time, column.profile_x, column.profile_bin))
         return np.concatenate(parts)
-
-
-def profile_at(trajectory: Trajectory, x: ArrayLike) -> np.ndarray:
-    """[P] deposit height (m) of the last frame at x [P] (m); 0 beyond the deposit's end."""
-    bin_width = PROFILE_BIN_DIAMETERS * 2.0 * float(np.mean(trajectory.radius))
-    centres, height = deposit_profile(trajectory.positions[-1], trajectory.radius, bin_width=bin_width)
-    return np.interp(np.asarray(x, float), centres, height, right=0.0)

@@ -33,6 +33,7 @@ from scipy.stats import norm
 from calibration.design_runs import Library, Model
 from calibration.measured import MeasuredColumn
 from calibration.observables import Observables
+from dem.case import MATERIALS
 
 # The paper's three phases of a collapse (Jiang et al. 2024, section 4.1).
 PHASES = (
@@ -50,15 +51,59 @@ class DiagnosisError(ValueError):
 # -- noise ------------------------------------------------------------------------------------------
 @dataclass
 class NoiseModel:
-    """Per output [q]: measurement noise std and packing scatter std; their variances add."""
+    """Per output [q]: measurement noise std and packing scatter std (their variances add), and the
+    correlation factor sqrt(n / n_eff) >= 1 by which a profile point's std is widened because its
+    neighbours within a correlation length carry the same grains (1 for runout points)."""
 
     measurement: np.ndarray
     packing: np.ndarray
     source: str
+    correlation: np.ndarray | None = None  # [q]; None: every output independent
+
+    def __post_init__(self):
+        if self.correlation is None:
+            self.correlation = np.ones_like(np.asarray(self.measurement, float))
 
     @property
     def total(self) -> np.ndarray:
-        return np.sqrt(self.measurement**2 + self.packing**2)
+        """[q] std of each measured value about the model's mean response, correlation included."""
+        return np.sqrt(self.measurement**2 + self.packing**2) * self.correlation
+
+    @property
+    def n_effective(self) -> int:
+        """Independent measured values: each output counts 1 / correlation^2 (a column's profile
+        counts its effective number of points, not its row count)."""
+        return int(round(float(np.sum(1.0 / self.correlation**2))))
+
+
+def profile_resolution_std(column: MeasuredColumn, size_scale: float) -> float:
+    """Std (m) of the discrepancy between a model's and the measurement's deposit heights that comes
+    from their grain sizes alone: |d_model - d_measured| / 2.
+
+    A height is the top of the highest grain in a bin, so a deposit a few grains thick is built of
+    whole grains: a model of coarser grains (d_model = size_scale x the material's diameter) piles
+    it in thicker layers and reads it on average about half the difference of the diameters higher
+    (the offset seen in data from a finer solver, issue 19). That is the model's resolution, not
+    its physics, so it is counted as noise, not left for a mechanism to absorb. The grain-scale
+    roughness of the surface itself is already in the packing scatter of repeated runs.
+    """
+    d_model = MATERIALS[column.material].diameter * size_scale
+    return abs(d_model - column.measured_diameter) / 2.0
+
+
+def profile_correlation(column: MeasuredColumn, size_scale: float) -> float:
+    """sqrt(n / n_eff) of a column's profile: points closer than a correlation length share grains.
+
+    A reading at x sees the grains with centres within half a bin of x, and each grain reaches a
+    radius further, in the model and in the measurement, so two readings closer than
+    bin + d_model (m) are not independent: the profile spanning S (m) holds n_eff = min(n, S / (bin
+    + d_model) + 1) independent points. A profile sampled ten times finer therefore carries the same
+    evidence, and cannot outvote the runout by its row count.
+    """
+    n = len(column.profile_x)
+    length = column.profile_bin + MATERIALS[column.material].diameter * size_scale
+    span = float(column.profile_x[-1] - column.profile_x[0])
+    return math.sqrt(n / min(n, span / length + 1.0))
 
 
 def noise_model(
@@ -105,21 +150,31 @@ def noise_model(
                 f"column {c.name!r} ({c.source}) states no runout noise level; assumed std "
                 f"{assumed_runout_noise:g} L* - the verdict depends on this assumption"
             )
-    profile_rows = kind == "profile"
-    if profile_rows.any():
-        if profile_noise is not None:
-            stated[profile_rows] = profile_noise
+    correlation = np.ones(len(stated))
+    size_scale = float(library.settings["size_scale"])
+    for j, c in enumerate(observables.columns):
+        rows = (observables.column_index == j) & (kind == "profile")
+        if not rows.any():
+            continue
+        if c.profile_std is not None:
+            sources.add("profile std from the file")
+        elif profile_noise is not None:
+            stated[rows] = profile_noise
             sources.add(f"profile std {profile_noise:g} m (given)")
         else:
-            stated[profile_rows] = assumed_profile_noise
+            stated[rows] = assumed_profile_noise
             sources.add(f"profile std {assumed_profile_noise:g} m ASSUMED")
-            notes.append(f"no profile noise level given; assumed std {assumed_profile_noise:g} m")
+            notes.append(f"column {c.name!r}: no profile noise level given; assumed std {assumed_profile_noise:g} m")
+        resolution = profile_resolution_std(c, size_scale)
+        stated[rows] = np.sqrt(stated[rows] ** 2 + resolution**2)
+        correlation[rows] = profile_correlation(c, size_scale)
+        sources.add("profile: plus the grain-size discrepancy |d_model - d_measured| / 2, neighbouring bins correlated")
+        notes += [f"column {c.name!r}: profile {d}" for d in c.profile_defaults]
     if np.any(~np.isfinite(stated)) or np.any(stated <= 0):
         raise DiagnosisError("measurement noise: a noise level must be a positive standard deviation")
     packing = library.packing_std()
-    return NoiseModel(
-        stated, packing, "; ".join(sorted(sources)) + "; plus packing scatter from replicate DEM runs"
-    ), notes
+    source = "; ".join(sorted(sources)) + "; plus packing scatter from replicate DEM runs"
+    return NoiseModel(stated, packing, source, correlation), notes
 
 
 # -- input checks ------------------------------------------------------------------------------------

@@ -192,10 +192,12 @@ def score_model(
     sigma: np.ndarray,
     folds: list[Fold],
     seed: int = 0,
+    n_data: int | None = None,
 ) -> ModelScore:
     """Calibrate `model` on its emulator on all data and without each fold; its Laplace posterior.
 
-    sigma [q]: the noise std of every measured value (calibration/residuals.py's NoiseModel.total).
+    sigma [q]: the noise std of every measured value (calibration/residuals.py's NoiseModel.total);
+    n_data: independent measured values (NoiseModel.n_effective; None: every output counts one).
     """
     target = observables.measured
     theta, chi2 = fit_emulated(emulator, target, sigma, seed=seed)
@@ -236,7 +238,7 @@ def score_model(
         theta,
         predicted,
         float(chi2),
-        observables.size,
+        observables.size if n_data is None else n_data,
         model.n_parameters,
         fold_theta,
         heldout_chi2,

@@ -18,10 +18,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from calibration.design_runs import Library, Model, SimulationSettings
-from calibration.measured import MeasuredColumn
+from calibration.measured import OPTIONAL_FIELDS, REQUIRED_FIELDS, MeasuredColumn
 from calibration.mechanisms import Mechanism
 from calibration.observables import Observables
 from dem.atomic import atomic_path
+from dem.case import MATERIALS
 from dem.engines import BUILTIN, simulate_case
 from dem.runout import RunoutMethod
 
@@ -32,9 +33,14 @@ if TYPE_CHECKING:  # diagnosis does not depend on this module; this module calls
 # The test columns of the diagnosis: small quartz columns of two aspect ratios, runout every 0.5 t*
 # up to 5 t* (the paper stops at 3.5; by 5 the base model's front still creeps on while rolling
 # resistance has stopped it, which is what tells rolling resistance from side-wall drag), and the
-# deposit profile at five positions (in units of L_i from the left wall) at the last frame.
+# deposit profile read as another lab or solver would read it, not as the model would by default:
+# densely (a point every 3 real grain diameters, from 0.1 to 3 L_i: ~46 points a column against 10
+# runout points), in bins of 2 real grain diameters, half a t* after the runout record ends.
 SYNTHETIC_TIMES = (0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 4.5, 5.0)
-SYNTHETIC_PROFILE_X_OVER_L_I = (0.25, 0.75, 1.25, 2.0, 3.0)
+SYNTHETIC_PROFILE_SPAN_OVER_L_I = (0.1, 3.0)
+SYNTHETIC_PROFILE_STEP_DIAMETERS = 3.0  # spacing of the profile's x points, in real grain diameters
+SYNTHETIC_PROFILE_BIN_DIAMETERS = 2.0  # its bin width, in real grain diameters
+SYNTHETIC_PROFILE_READ_AT = 5.5  # t/t*
 # Inner part of the base box the hidden (mu, e) are drawn from: away from the edges, so that a
 # base-model truth is inside what the calibration can reach.
 TRUTH_BOX = ((0.4, 0.8), (0.4, 0.8))
@@ -74,12 +80,21 @@ def synthetic_columns(
     L_i: float = 0.02,
     aspect_ratios: Sequence[float] = (1.0, 2.0),
     times: Sequence[float] = SYNTHETIC_TIMES,
-    profile_x_over_L_i: Sequence[float] = SYNTHETIC_PROFILE_X_OVER_L_I,
+    profile_step_diameters: float | None = SYNTHETIC_PROFILE_STEP_DIAMETERS,
+    profile_read_at: float = SYNTHETIC_PROFILE_READ_AT,
+    profile_bin_diameters: float = SYNTHETIC_PROFILE_BIN_DIAMETERS,
 ) -> list[MeasuredColumn]:
     """Columns to be "measured" (values still zero): one per aspect ratio, runout L* at `times`
-    (t/t*), deposit height at `profile_x_over_L_i` x L_i (m); L_i in m."""
+    (t/t*), deposit height every `profile_step_diameters` real grain diameters over
+    SYNTHETIC_PROFILE_SPAN_OVER_L_I x L_i (None: no profile), read at t/t* = `profile_read_at` in
+    bins of `profile_bin_diameters` real grain diameters; L_i in m."""
     times = np.asarray(times, float)
-    profile_x = np.asarray(profile_x_over_L_i, float) * L_i
+    diameter = MATERIALS[material].diameter
+    profile_x = np.array([])
+    if profile_step_diameters is not None:
+        low, high = (f * L_i for f in SYNTHETIC_PROFILE_SPAN_OVER_L_I)
+        # to the micrometre, so a CSV round trip gives the same points back
+        profile_x = np.round(np.arange(low, high + 1e-12, profile_step_diameters * diameter), 6)
     return [
         MeasuredColumn(
             name=f"{material}_a{a:g}",
@@ -92,6 +107,8 @@ def synthetic_columns(
             profile_x=profile_x if len(profile_x) else None,
             profile_height=np.zeros_like(profile_x) if len(profile_x) else None,
             source="synthetic",
+            profile_read_at=profile_read_at if len(profile_x) else None,
+            profile_bin_width=profile_bin_diameters * diameter if len(profile_x) else None,
         )
         for a in aspect_ratios
     ]
@@ -131,7 +148,17 @@ def synthetic_measurement(
         profile = None
         if c.profile_x is not None:
             profile, k = np.maximum(noisy[k : k + len(c.profile_x)], 0.0), k + len(c.profile_x)
-        out.append(replace(c, runout=runout, runout_std=np.full(n_t, runout_noise), profile_height=profile))
+        out.append(
+            replace(
+                c,
+                runout=runout,
+                runout_std=np.full(n_t, runout_noise),
+                profile_height=profile,
+                profile_std=None if profile is None else np.full(len(profile), profile_noise),
+                # the truth's grains are the simulation's: say so, as a solver's data file would
+                grain_diameter=MATERIALS[c.material].diameter * settings.size_scale,
+            )
+        )
     return out, clean
 
 
@@ -142,8 +169,9 @@ def write_measured_csv(columns: Sequence[MeasuredColumn], path: str | os.PathLik
             for line in comment.splitlines():
                 handle.write(f"# {line}\n")
             writer = csv.writer(handle)
-            writer.writerow(["column", "material", "aspect_ratio", "L_i", "kind", "x", "value", "std"])
+            writer.writerow(REQUIRED_FIELDS + OPTIONAL_FIELDS)
             for c in columns:
+                grain = "" if c.grain_diameter is None else f"{c.grain_diameter:.10g}"
                 std = c.runout_std if c.runout_std is not None else [None] * len(c.runout)
                 for t, value, s in zip(c.t_over_tstar, c.runout, std):
                     writer.writerow(
@@ -156,12 +184,30 @@ def write_measured_csv(columns: Sequence[MeasuredColumn], path: str | os.PathLik
                             f"{t:g}",
                             f"{value:.6g}",
                             "" if s is None else f"{s:.6g}",
+                            "",
+                            "",
+                            grain,
                         ]
                     )
                 if c.profile_x is not None:
-                    for x, height in zip(c.profile_x, c.profile_height):
+                    std = c.profile_std if c.profile_std is not None else [None] * len(c.profile_x)
+                    read_at = "" if c.profile_read_at is None else f"{c.profile_read_at:g}"
+                    bin_width = "" if c.profile_bin_width is None else f"{c.profile_bin_width:.6g}"
+                    for x, height, s in zip(c.profile_x, c.profile_height, std):
                         writer.writerow(
-                            [c.name, c.material, c.aspect_ratio, c.L_i, "profile", f"{x:.6g}", f"{height:.6g}", ""]
+                            [
+                                c.name,
+                                c.material,
+                                c.aspect_ratio,
+                                c.L_i,
+                                "profile",
+                                f"{x:.10g}",
+                                f"{height:.6g}",
+                                "" if s is None else f"{s:.6g}",
+                                read_at,
+                                bin_width,
+                                grain,
+                            ]
                         )
 
 

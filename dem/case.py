@@ -208,6 +208,12 @@ class CollapseCase:
         return self.material.diameter * self.size_scale
 
     @property
+    def grains_across(self) -> float:
+        """Mean simulated grains across the column, L_i / diameter (the size guard's measure, see
+        check_grains_across)."""
+        return grains_across(self.L_i, self.material, self.size_scale)
+
+    @property
     def density(self) -> float:
         return self.material.density
 
@@ -286,6 +292,42 @@ class CollapseCase:
 
     def replace(self, **changes: Any) -> CollapseCase:
         return dataclasses.replace(self, **changes)
+
+
+def grains_across(L_i: float, material: str | dict | Material, size_scale: float) -> float:
+    """Mean grains across a column of length `L_i` (m): L_i / (material diameter x size_scale)."""
+    return L_i / (get_material(material).diameter * size_scale)
+
+
+def check_grains_across(
+    L_i: float, material: str | dict | Material, size_scale: float, minimum: float, where: str
+) -> None:
+    """The size guard: refuse a column fewer than `minimum` coarse-grained grains across.
+
+    Coarse graining (size_scale) keeps the column's L_i and a and swells the grains, so a short
+    column at a large size_scale is only a few grains across, and then it collapses differently:
+    the runout falls well below the fine-grained column's (config key dem.min_grains_across, README
+    "The DEM model"). The one check of every DEM column the pipeline builds from its config (the
+    datasets' cases, the DoE's and the diagnosis' runs; pipeline.config). Raises CaseError whose
+    message starts with `where` (the config key) and names the grains across, the minimum, the
+    largest size_scale that passes and the shortest L_i that passes at this size_scale.
+    """
+    material = get_material(material)
+    across = grains_across(L_i, material, size_scale)
+    if across >= minimum * (1 - 1e-9):  # the boundary passes: L_i = minimum x d x size_scale exactly
+        return
+    largest = math.floor(L_i / (minimum * material.diameter) * 100) / 100  # rounded down, so it passes
+    finer = "" if largest >= 1 else " (finer than the real grains: this column is too short at any size_scale)"
+    shortest = minimum * material.diameter * size_scale
+    digit = 10.0 ** (math.floor(math.log10(shortest)) - 2)
+    shortest = math.ceil(shortest / digit - 1e-6) * digit  # 3 significant digits, rounded up, so it passes
+    raise CaseError(
+        f"{where}: L_i = {L_i:g} m at size_scale {size_scale:g} is {across:.3g} {material.name} grains across "
+        f"(d = {material.diameter * 1e6:.0f} um x {size_scale:g}), under the minimum of {minimum:g} "
+        "(dem.min_grains_across): a column this few grains across collapses differently, its runout falls "
+        f"below the fine-grained column's. Largest size_scale that passes: {largest:g}{finer}; or "
+        f"L_i >= {shortest:.3g} m at size_scale {size_scale:g}"
+    )
 
 
 MAX_DT_OVER_CONTACT_TIME = 0.1

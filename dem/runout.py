@@ -245,6 +245,33 @@ def deposit_profile(
     return 0.5 * (edges[:-1] + edges[1:]), height
 
 
+def profile_at(trajectory: Trajectory, t_over_tstar: float, x: ArrayLike, bin_width: float) -> np.ndarray:
+    """Height [P] (m) of the grains at x [P] (m), read as a deposit profile is read off an image:
+    the top (y + r) of the highest grain whose centre lies in the bin of width `bin_width` (m)
+    centred on each x, in the frame nearest t/t*; 0 where a bin holds no grain.
+
+    Every stage that compares a simulated profile with a measured one reads it here, at the time and
+    with the bin width the measurement states (calibration.measured), so that the binning and the
+    reading time are never part of a misfit. A t/t* outside the simulated window (by more than half
+    a frame) or a bin width that is not positive is an error.
+    """
+    if not bin_width > 0:
+        raise RunoutError(f"{trajectory.source or 'trajectory'}: profile bin width must be positive, got {bin_width}")
+    times = trajectory.t_over_tstar
+    half_frame = 0.5 * (times[-1] - times[0]) / max(len(times) - 1, 1)
+    if not times[0] - half_frame <= t_over_tstar <= times[-1] + half_frame:
+        raise RunoutError(
+            f"{trajectory.source or 'trajectory'}: a profile read at t/t* = {t_over_tstar:g} lies outside the "
+            f"simulated window [{times[0]:.3g}, {times[-1]:.3g}]; simulate longer or read it earlier"
+        )
+    frame = int(np.argmin(np.abs(times - t_over_tstar)))
+    position = np.asarray(trajectory.positions[frame], np.float64)
+    top = position[:, 1] + np.asarray(trajectory.radius, np.float64)
+    x = np.asarray(x, np.float64)
+    inside = np.abs(position[None, :, 0] - x[:, None]) <= 0.5 * bin_width  # [P, N]
+    return np.where(inside, top[None, :], 0.0).max(axis=1, initial=0.0)
+
+
 def final_height(positions: np.ndarray, radius: np.ndarray, gap_tolerance: float = 2.0) -> float:
     """Highest point (m) of the connected deposit; positions [N, 2] (m), radius [N] (m)."""
     return float(deposit_profile(positions, radius, gap_tolerance=gap_tolerance)[1].max())

@@ -4,8 +4,10 @@
 schema cannot express (range order, split fractions, overrides' case ids, each gns.per_dataset
 entry as the gns section it makes, the runout method) and fills the defaults. `check_cross_keys`
 then checks the keys that name another key's entries (a dataset, a `measured` entry, a GNS) against
-the validated config and its case table (dem.grid.case_table). workflow/rules/common.smk runs both
-once, so a bad config fails before any job runs; every problem is a ConfigError naming the key.
+the validated config and its case table (dem.grid.case_table), and applies the size guard
+(dem.min_grains_across, dem.case.check_grains_across) to every DEM column the config builds.
+workflow/rules/common.smk runs both once, so a bad config fails before any job runs; every problem
+is a ConfigError naming the key.
 """
 
 from __future__ import annotations
@@ -13,14 +15,15 @@ from __future__ import annotations
 import copy
 import math
 import os
+import warnings
 from pathlib import Path
 
 import jsonschema
 import yaml
 
 from calibration.gns_objective import InverseDesignError, check_geometry_of_dataset, nearest_dataset
-from calibration.measured import load_column
-from dem.case import RENAMED_CASE_KEYS
+from calibration.measured import MeasuredColumn, MeasuredDataError, MeasuredDataWarning, load_column, read_measured
+from dem.case import RENAMED_CASE_KEYS, CaseError, check_grains_across, grains_across
 from dem.grid import SPLITS, VARIED, ConfigError, case_id_of
 from dem.runout import RunoutError, RunoutMethod
 
@@ -28,9 +31,11 @@ __all__ = [
     "ConfigError",
     "validate_config",
     "check_cross_keys",
+    "check_datasets",
     "check_gns",
     "check_doe",
     "check_inverse",
+    "check_diagnosis",
     "gns_datasets",
     "inverse_datasets",
 ]
@@ -183,15 +188,56 @@ def _check_dataset(name: str, spec: dict) -> list[str]:
 
 # --- keys that name another key's entries ------------------------------------------------------
 def check_cross_keys(config: dict, cases: dict[str, dict]) -> dict[str, str]:
-    """Every check across keys of the validated `config`, in stage order (GNS, DoE, inverse design).
+    """Every check across keys of the validated `config`, in stage order (datasets, GNS, DoE,
+    inverse design, diagnosis).
 
     cases: the case table of `config` ({"<dataset>/<case_id>": row}, dem.grid.case_table). Returns
     what the inverse-design checks resolve on the way, {inverse.measured name: the dataset whose
     GNS calibrates it} (inverse_datasets). Raises ConfigError naming the key.
     """
+    check_datasets(config, cases)
     check_gns(config)
     check_doe(config)
-    return check_inverse(config, cases)
+    resolved = check_inverse(config, cases)
+    check_diagnosis(config)
+    return resolved
+
+
+# The size guard (dem.min_grains_across): one check, dem.case.check_grains_across, for every DEM
+# column the config builds: the datasets' cases (GNS data), the DoE's runs, the diagnosis' runs.
+def _guard(L_i: float, material: str | dict, size_scale: float, config: dict, where: str) -> None:
+    try:
+        check_grains_across(L_i, material, size_scale, config["dem"]["min_grains_across"], where)
+    except CaseError as exc:
+        raise ConfigError(f"config key {exc}") from exc
+
+
+def _measured_columns(config: dict, name: str) -> dict[str, MeasuredColumn]:
+    """The columns of `measured` entry `name` (the reader's warnings are left to the stage that uses them)."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", MeasuredDataWarning)
+            return read_measured(config["measured"][name])
+    except MeasuredDataError as exc:
+        raise ConfigError(f"config key measured.{name}: {exc}") from exc
+
+
+def check_datasets(config: dict, cases: dict[str, dict]) -> None:
+    """The size guard on every case of every dataset (the case table `cases`): names the dataset,
+    the case with the fewest grains across and every case under dem.min_grains_across."""
+    for name in sorted(config["datasets"]):
+        under = []
+        for row in (row for row in cases.values() if row["dataset"] == name):
+            try:
+                _guard(row["L_i"], row["material"], row.get("size_scale", 1.0), config, name)
+            except ConfigError:
+                under.append(row)
+        if under:
+            worst = min(under, key=lambda row: grains_across(row["L_i"], row["material"], row.get("size_scale", 1.0)))
+            ids = sorted(row["case_id"] for row in under)
+            more = f" (cases under the minimum: {', '.join(ids)})" if len(ids) > 1 else ""
+            where = f"datasets.{name}, case {worst['case_id']}{more}"
+            _guard(worst["L_i"], worst["material"], worst.get("size_scale", 1.0), config, where)
 
 
 def gns_datasets(config: dict) -> list[str]:
@@ -209,7 +255,8 @@ def check_gns(config: dict) -> None:
 
 
 def check_doe(config: dict) -> None:
-    """doe.measured names `measured` entries, and no dataset takes the name of one's DoE runs."""
+    """doe.measured names `measured` entries, no dataset takes the name of one's DoE runs, and each
+    one's column passes the size guard (dem.min_grains_across) at doe.size_scale."""
     for name in config["doe"]["measured"]:
         if name not in config["measured"]:
             raise ConfigError(
@@ -218,6 +265,13 @@ def check_doe(config: dict) -> None:
             )
         if f"doe_{name}" in config["datasets"]:
             raise ConfigError(f"config key datasets.doe_{name}: the name is taken by the DoE of measured {name!r}")
+    for name in config["doe"]["measured"]:  # the DoE runs on the file's one column (load_column, doe.smk)
+        try:
+            column = load_column(config["measured"][name])
+        except MeasuredDataError as exc:
+            raise ConfigError(f"config key doe.measured: {name!r}: {exc}") from exc
+        size_scale = config["doe"]["size_scale"]
+        _guard(column.L_i, column.material, size_scale, config, f"doe.size_scale (measured {name!r})")
 
 
 def check_inverse(config: dict, cases: dict[str, dict]) -> dict[str, str]:
@@ -230,6 +284,18 @@ def check_inverse(config: dict, cases: dict[str, dict]) -> dict[str, str]:
                 f"config key inverse.recovery_datasets: {dataset!r} has no GNS (gns datasets: {with_gns})"
             )
     return resolved
+
+
+def check_diagnosis(config: dict) -> None:
+    """When diagnosis.enabled: every column of every `measured` entry passes the size guard
+    (dem.min_grains_across) at diagnosis.size_scale (the diagnosis runs each column, read_measured)."""
+    if not config["diagnosis"]["enabled"]:
+        return
+    size_scale = config["diagnosis"]["size_scale"]
+    for name in sorted(config["measured"]):
+        for column in _measured_columns(config, name).values():
+            where = f"diagnosis.size_scale (measured {name!r}, column {column.name!r})"
+            _guard(column.L_i, column.material, size_scale, config, where)
 
 
 def inverse_datasets(config: dict, cases: dict[str, dict]) -> dict[str, str]:

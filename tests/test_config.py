@@ -165,3 +165,94 @@ def test_old_checkpoint_key_names_its_new_name():
 
     with pytest.raises(CheckpointError, match="connectivity_radius is now connectivity_radius_m"):
         SimulatorConfig.from_dict({"connectivity_radius": 0.004})
+
+
+# --- the size guard (dem.min_grains_across, dem.case.check_grains_across) ------------------------
+GUARD = "under the minimum of 8 (dem.min_grains_across)"
+
+
+def test_grains_across_is_the_column_length_in_simulated_grains():
+    from dem.case import CollapseCase
+
+    case = CollapseCase("quartz", 0.01, 2.0, 0.5, 0.6, size_scale=5)
+    assert case.grains_across == pytest.approx(0.01 / (425e-6 * 5))  # 4.7: the diagnosis' default at L_i = 0.01 m
+
+
+def test_dataset_too_few_grains_across_names_the_dataset_the_cases_and_the_largest_passing_scale():
+    """tiny_friction: L_i = 0.01 m of quartz at size_scale 4 is 5.9 grains across; 0.01/(8 x 425 um) = 2.94."""
+
+    def at(size_scale):
+        def edit(config):
+            del config["dem"]["min_grains_across"]  # the default, 8
+            config["datasets"]["tiny_friction"]["size_scale"] = size_scale
+            config["datasets"]["tiny_multiple"]["size_scale"] = 2  # copper 0.01 m: 15 across
+
+        return validated("test.yaml", edit)
+
+    message = cross_key_error(at(4))
+    assert message.startswith(
+        "config key datasets.tiny_friction, case case_000 (cases under the minimum: case_000, case_001, case_002, "
+        "case_003, case_004): L_i = 0.01 m at size_scale 4 is 5.88 quartz grains across"
+    )
+    assert GUARD in message and "Largest size_scale that passes: 2.94;" in message
+    assert "L_i >= 0.0136 m at size_scale 4" in message  # 8 x 4 x 425 um
+    config = at(2.94)  # the largest passing scale does pass, one step above it does not
+    assert check_cross_keys(config, case_table(config)) == {}
+    assert "datasets.tiny_friction" in cross_key_error(at(2.95))
+
+
+def test_dataset_range_names_only_the_cases_under_the_minimum():
+    """The paper's L_i range [0.01, 0.02] m at config.yaml's size_scale 3: only the shortest case is under 8."""
+    config = validated(edit=lambda c: c["datasets"]["quartz_friction"].update(L_i={"range": [0.01, 0.02]}))
+    short = [row for row in case_table(config).values() if row["dataset"] == "quartz_friction" and row["L_i"] < 0.0102]
+    assert [row["case_id"] for row in short] == ["case_000"]
+    message = cross_key_error(config)
+    assert message.startswith(
+        f"config key datasets.quartz_friction, case case_000: L_i = {short[0]['L_i']:g} m at size_scale 3 is "
+    )
+    assert GUARD in message and "Largest size_scale that passes: 2.94;" in message
+
+
+def test_a_lower_minimum_from_the_config_is_applied():
+    config = validated(edit=lambda c: c["datasets"]["quartz_friction"].update(L_i={"range": [0.01, 0.02]}))
+    config["dem"]["min_grains_across"] = 7.5
+    assert check_cross_keys(config, case_table(config)) == {"quartz": "quartz_multiple"}
+    with pytest.raises(ConfigError, match=re.escape("dem.min_grains_across: 1 is out of range; allowed: >= 2")):
+        validated(edit=lambda c: c["dem"].update(min_grains_across=1))
+
+
+def short_quartz_csv(tmp_path) -> str:
+    """The shipped quartz curve as a column of L_i = 0.01 m (a = 6)."""
+    text = (ROOT / "data" / "measured" / "quartz_a6.csv").read_text()
+    assert text.count("quartz_a6,quartz,6.0,0.02,") >= 2
+    path = tmp_path / "short.csv"
+    path.write_text(text.replace("quartz_a6,quartz,6.0,0.02,", "short_a6,quartz,6.0,0.01,"))
+    return str(path)
+
+
+def test_diagnosis_of_a_column_too_few_grains_across_at_its_size_scale(tmp_path):
+    """The issue's case: diagnosis.size_scale 5 at L_i = 0.01 m of quartz is 4.7 grains across."""
+    short = short_quartz_csv(tmp_path)
+    config = validated(edit=lambda c: c["measured"].update(short=short))
+    message = cross_key_error(config)
+    assert message.startswith(
+        "config key diagnosis.size_scale (measured 'short', column 'short_a6'): L_i = 0.01 m at size_scale 5 "
+        "is 4.71 quartz grains across"
+    )
+    assert GUARD in message and "Largest size_scale that passes: 2.94;" in message
+    config["diagnosis"]["size_scale"] = 2.94
+    assert check_cross_keys(config, case_table(config)) == {"quartz": "quartz_multiple"}
+    config["diagnosis"].update(size_scale=5, enabled=False)  # no diagnosis, no diagnosis runs to guard
+    assert check_cross_keys(config, case_table(config)) == {"quartz": "quartz_multiple"}
+
+
+def test_doe_column_too_few_grains_across_at_doe_size_scale():
+    """The measured quartz column (L_i = 0.02 m) at doe.size_scale 6 is 7.8 across; 0.02/(8 x 425 um) = 5.88."""
+    config = validated(edit=lambda c: c["doe"].update(size_scale=6))
+    message = "config key doe.size_scale (measured 'quartz'): L_i = 0.02 m at size_scale 6 is 7.84 quartz grains across"
+    with pytest.raises(ConfigError, match=re.escape(message)):
+        check_doe(config)
+    assert cross_key_error(config).startswith(message)
+    assert "Largest size_scale that passes: 5.88;" in cross_key_error(config)
+    config["doe"]["size_scale"] = 5.88
+    check_doe(config)

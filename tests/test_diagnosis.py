@@ -2,7 +2,9 @@
 and a hidden mechanism found in synthetic DEM data (plus a null case) on tiny coarse-grained columns.
 
 The DEM part (one module fixture) builds a CI-sized run library: quartz L_i = 0.02 m, a = 1 and 2,
-size_scale 5 (98 and 196 grains), 6 + 3 base runs and 5 per candidate, one DEM scoring round.
+size_scale 5 (98 and 196 grains), 6 + 3 base runs and 5 per candidate, one DEM scoring round on 3
+packings. Its data are read as another solver would: a dense profile (46 points a column) in bins of
+2 real grain diameters, half a t* after the runout record ends.
 benchmarks/diagnosis_hidden.py runs the full-size version (size_scale 4, five hidden cases).
 """
 
@@ -253,6 +255,59 @@ def test_benchmark_margins_never_mix_dem_and_emulator_bic():
     }
 
 
+def test_candidates_figure_has_numeric_ticks_and_the_rules_thresholds():
+    """The thresholds are drawn where the rule applies them (DEM runs: ΔBIC vs base and vs the
+    runner-up, held-out chi^2 vs the base model's and the runner-up's), and every axis has numbers."""
+    import matplotlib.pyplot as plt
+
+    from calibration.diagnosis_report import candidates_figure
+
+    rule = DecisionRule()
+    dem = {"base": dem_entry(120, 130, p=2), "cohesion": dem_entry(22, 30), "rolling_resistance": dem_entry(25, 35)}
+    cause, checks, _ = decide(dem, rule, [], "cohesion")  # runner-up only 3 behind: no cause
+
+    def evidence(name, emulator_bic, emulator_heldout):  # the part of an Evidence the figure reads
+        return SimpleNamespace(
+            model=name,
+            emulator=SimpleNamespace(bic=emulator_bic, heldout_chi2=emulator_heldout),
+            dem=dem.get(name),
+        )
+
+    result = SimpleNamespace(
+        name="test",
+        cause=cause,
+        checks=checks,
+        decision_rule=rule,
+        best_candidate="cohesion",
+        base=evidence("base", 150.0, 160.0),
+        candidates={
+            n: evidence(n, b, h)
+            for n, b, h in [("cohesion", 40.0, 35.0), ("rolling_resistance", 45.0, 50.0), ("gate_lift", 90.0, 100.0)]
+        },
+    )
+    fig = candidates_figure(result)
+    try:
+        fig.canvas.draw()
+        bic_ax, heldout_ax = fig.axes[:2]
+        for ax in (bic_ax, heldout_ax):
+            numbers = [float(t.get_text().replace("−", "-")) for t in ax.get_xticklabels() if t.get_text()]
+            assert len(numbers) >= 3 and ax.get_xlabel()
+
+        def lines_at(ax):
+            return {round(float(line.get_xdata()[0]), 6) for line in ax.get_lines() if len(set(line.get_xdata())) == 1}
+
+        base, best, runner_up = dem["base"], dem["cohesion"], dem["rolling_resistance"]
+        assert round(rule.min_delta_bic_vs_base, 6) in lines_at(bic_ax)
+        assert round(base.bic - runner_up.bic + rule.min_delta_bic_vs_runner_up, 6) in lines_at(bic_ax)
+        assert round((1 - rule.min_heldout_gain) * base.heldout_chi2, 6) in lines_at(heldout_ax)
+        tie = rule.heldout_tie_sd * math.sqrt(2 * best.n_heldout)
+        assert round(runner_up.heldout_chi2 + tie, 6) in lines_at(heldout_ax)
+        legend = " ".join(t.get_text() for t in bic_ax.get_legend().get_texts())
+        assert "≥ 10 to name a cause" in legend and "FAILED" in legend  # bic_beats_runner_up failed
+    finally:
+        plt.close(fig)
+
+
 # -- bad input (a small library of real arrays, no DEM) ------------------------------------------------
 def small_library(observables, scale=1.0):
     """Design runs of the base model only: the measured values times (1.5 - friction), 3 replicates."""
@@ -326,7 +381,7 @@ CI_SETTINGS = DiagnosisSettings(
     n_base=6,
     n_per_mechanism=5,
     n_rounds=1,
-    n_packings=2,
+    n_packings=3,  # on 2, the CI case's sidewall friction beat rolling resistance by BIC 5-12 run to run
     dem_top=2,
     profile_noise=5e-4,
     seed=0,
@@ -373,7 +428,7 @@ def test_hidden_mechanism_is_named_from_a_csv(ci_library, tmp_path):
         "n_base": 6,
         "n_per_mechanism": 5,
         "n_rounds": 1,
-        "n_packings": 2,
+        "n_packings": 3,
         "profile_noise": PROFILE_NOISE,
         "enabled": True,
     }
@@ -462,3 +517,55 @@ def test_runout_in_metres_is_refused_before_any_run(ci_library):
     ]
     with pytest.raises(DiagnosisError, match="metres"):
         diagnose(metres, CI_SETTINGS, library=library)
+
+
+# -- the profile: read as stated, noise as stated, never outvoting the runout by its row count --------
+def profile_column(step_diameters, std=None):
+    """A quartz column (L_i 2 cm, a = 2) with runout at 10 times and a profile every `step_diameters`
+    real grain diameters, read in bins of 2 diameters at t/t* 5.5."""
+    (column,) = synthetic_columns(aspect_ratios=(2.0,), profile_step_diameters=step_diameters)
+    height = np.interp(column.profile_x, [0.0, 0.06], [0.03, 0.0])
+    runout = np.linspace(0.3, 3.0, len(column.t_over_tstar))
+    return replace(column, runout=runout, profile_height=height, profile_std=std)
+
+
+def test_a_dense_profile_counts_no_more_than_a_sparse_one():
+    """The same deposit at 3 and at 0.75 grain diameters per point: four times the rows, the same
+    evidence (effective points and the chi^2 weight of a common offset within 10%)."""
+    weights = {}
+    for step in (3.0, 0.75):
+        observables = Observables([profile_column(step)])
+        noise, notes = noise_model(observables, small_library(observables, scale=1.0), profile_noise=5e-4)
+        profile = observables.kind == "profile"
+        rows = int(profile.sum())
+        offset_chi2 = float(np.sum((1e-3 / noise.total[profile]) ** 2))  # a 1 mm offset of the whole profile
+        weights[step] = (rows, noise.n_effective - int((~profile).sum()), offset_chi2)
+        # the grain sizes enter the profile's std: d = 4 x 425 um model grains, 425 um real ones
+        np.testing.assert_allclose(noise.measurement[profile], math.hypot(5e-4, 3 * 425e-6 / 2))
+        assert np.all(noise.correlation[~profile] == 1.0) and noise.correlation[profile].min() >= 1.0
+    (rows_sparse, eff_sparse, chi2_sparse), (rows_dense, eff_dense, chi2_dense) = weights[3.0], weights[0.75]
+    assert rows_dense >= 3.9 * rows_sparse
+    assert abs(eff_dense - eff_sparse) <= 1  # limited by the correlation length, not the sampling
+    assert chi2_dense == pytest.approx(chi2_sparse, rel=0.1)
+    assert eff_sparse < rows_sparse  # even the sparse one: bins + a model grain are wider than its step
+
+
+def test_profile_std_from_the_file_is_honoured():
+    observables = Observables([profile_column(3.0, std=np.full(46, 2e-3))])
+    noise, notes = noise_model(observables, small_library(observables), profile_noise=5e-4)
+    profile = observables.kind == "profile"
+    assert noise.measurement[profile].min() > 2e-3 and "profile std from the file" in noise.source
+
+
+def test_the_same_data_at_two_profile_resolutions_gives_the_same_verdict(ci_library, null_diagnosis):
+    """The null data read at every 4th profile point (the same DEM runs read fewer times): the
+    verdict stays the same."""
+    columns, library, _ = ci_library
+    truth = draw_truth(np.random.default_rng(80), None)  # the null fixture's data
+    coarse = [
+        replace(c, profile_x=c.profile_x[::4], profile_height=c.profile_height[::4], profile_std=c.profile_std[::4])
+        for c in hidden_data(columns, truth, 80)
+    ]
+    result = diagnose(coarse, CI_SETTINGS, library=library.restricted(Observables(coarse, CI_SETTINGS.runout)))
+    assert sum(len(c.profile_x) for c in coarse) * 3.5 < sum(len(c.profile_x) for c in columns)
+    assert result.cause == null_diagnosis.cause == "none", result.verdict

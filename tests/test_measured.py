@@ -23,8 +23,17 @@ def write(tmp_path, text, name="m.csv"):
     return path
 
 
-def runout_rows(values=QUARTZ_RUNOUT, times=TIMES, name="q", a=6.0, L_i=0.02, std=""):
-    return "".join(f"{name},quartz,{a},{L_i},runout,{t},{v},{std}\n" for t, v in zip(times, values))
+def runout_rows(values=QUARTZ_RUNOUT, times=TIMES, name="q", a=6.0, L_i=0.02, std="", extra=""):
+    return "".join(f"{name},quartz,{a},{L_i},runout,{t},{v},{std}{extra}\n" for t, v in zip(times, values))
+
+
+READ_HEADER = "column,material,aspect_ratio,L_i,kind,x,value,std,read_at,bin_width\n"
+
+
+def profile_rows(x=(0.01, 0.02, 0.03), height=(0.03, 0.01, 0.002), std="", read_at="", bin_width=""):
+    """Profile rows of column q; std, read_at, bin_width: one value for every row or one per row."""
+    cells = [v if isinstance(v, list) else [v] * len(x) for v in (std, read_at, bin_width)]
+    return "".join(f"q,quartz,6.0,0.02,profile,{xi},{h},{s},{r},{b}\n" for xi, h, s, r, b in zip(x, height, *cells))
 
 
 def test_shipped_curves_match_the_paper():
@@ -95,6 +104,29 @@ def test_collapse_case_of_a_measured_column():
         ),
         (HEADER, "no data rows"),
         ("# only a comment\n", "empty file"),
+        # how a profile was read (read_at, bin_width) and its std
+        (READ_HEADER + runout_rows(extra=",4.0,") + profile_rows(), "line 2, column 'read_at': a runout row"),
+        (READ_HEADER + runout_rows(extra=",,") + profile_rows(read_at="0"), "line 9, column 'read_at'.*t/t\\* > 0"),
+        (
+            READ_HEADER + runout_rows(extra=",,") + profile_rows(bin_width="0.0002"),
+            "line 9, column 'bin_width'.*below one grain",
+        ),
+        (
+            READ_HEADER + runout_rows(extra=",,") + profile_rows(bin_width="-1"),
+            "line 9, column 'bin_width'.*below one grain",
+        ),
+        (
+            READ_HEADER + runout_rows(extra=",,") + profile_rows(read_at=["4", "", "4"]),
+            "line 10, column 'read_at'.*every profile row or on none",
+        ),
+        (
+            READ_HEADER + runout_rows(extra=",,") + profile_rows(read_at=["4", "4.5", "4"]),
+            "line 10, column 'read_at'.*differs from 4 on line 9",
+        ),
+        (
+            READ_HEADER + runout_rows(extra=",,") + profile_rows(std=["0.001", "", "0.001"]),
+            "line 10, column 'std'.*every profile row or on none",
+        ),
     ],
 )
 def test_bad_files_name_file_line_and_column(tmp_path, text, where):
@@ -135,3 +167,35 @@ def test_implausible_runout_warns(tmp_path):
     path = write(tmp_path, HEADER + runout_rows(values=np.array(QUARTZ_RUNOUT) * 10))
     with pytest.warns(MeasuredDataWarning, match="far from"):
         read_measured(path)
+
+
+def test_profile_reading_and_std_are_kept_and_defaults_said(tmp_path):
+    """A profile states when and how it was read and its noise; an old file gets defaults, said."""
+    stated = read_measured(
+        write(
+            tmp_path, READ_HEADER + runout_rows(extra=",,") + profile_rows(std="0.0005", read_at="4", bin_width="0.001")
+        )
+    )["q"]
+    assert stated.profile_time == 4.0 and stated.profile_bin == 0.001 and stated.profile_defaults == []
+    np.testing.assert_allclose(stated.profile_std, [0.0005] * 3)
+    old = read_measured(
+        write(
+            tmp_path,
+            HEADER
+            + runout_rows()
+            + "".join(f"q,quartz,6.0,0.02,profile,{x},{h},\n" for x, h in ((0.01, 0.03), (0.02, 0.01), (0.04, 0.0))),
+            name="old.csv",
+        )
+    )["q"]
+    assert old.profile_std is None and old.profile_read_at is None and old.profile_bin_width is None
+    assert old.profile_time == 3.5  # the end of the runout record
+    assert old.profile_bin == pytest.approx(0.015)  # the median spacing of its x points
+    assert "not stated: the end of the runout record" in old.profile_defaults[0]
+    assert "15 mm (not stated: the spacing of its x points)" in old.profile_defaults[1]
+
+
+def test_profile_read_after_the_simulated_window_is_refused(tmp_path):
+    column = read_measured(write(tmp_path, READ_HEADER + runout_rows(extra=",,") + profile_rows(read_at="5")))["q"]
+    assert column.collapse_case(0.5, 0.5, duration_over_tstar=5.0).duration_over_tstar == 5.0
+    with pytest.raises(CaseError, match=r"m.csv, line 9, column 'read_at'.*t/t\* = 5, after the simulated window"):
+        column.collapse_case(0.5, 0.5, duration_over_tstar=4.0)

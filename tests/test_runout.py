@@ -32,6 +32,7 @@ from dem.runout import (
     check_same_method,
     dense_mask,
     deposit_mask,
+    profile_at,
     runout_at,
     runout_curve,
 )
@@ -365,3 +366,23 @@ def test_runout_study_statistics_have_known_answers():
     assert stats["scatter_by_phase"]["spreading"] == pytest.approx(np.std([2.0, 1.0], ddof=1))
     assert stats["final_mean"] == pytest.approx(2.25)
     assert method_statistics(t, np.maximum.accumulate(curves, axis=1))["flicker"] == 0.0
+
+
+def test_profile_is_read_like_an_image_at_the_stated_time_and_bin_width():
+    """Known answer: the highest grain top whose centre lies within half a bin of each x, in the
+    frame nearest the stated t/t*; 0 over an empty bin; the grain count of the bin does not matter."""
+    block = scene(width=3, floor=4)  # block tops at 12 R, a single layer on the floor to x = 14 R
+    later = block.copy()
+    later[:, 1] = np.maximum(later[:, 1] - 4 * R, R)  # frame 1: the block has sunk by 2 grains
+    traj = trajectory([block, later])  # frames at t/t* = 0 and 0.1
+    x = [3 * R, 9 * R, 13 * R, 30 * R]
+    np.testing.assert_allclose(profile_at(traj, 0.0, x, bin_width=2 * R), [12 * R, 2 * R, 2 * R, 0.0])
+    np.testing.assert_allclose(profile_at(traj, 0.1, x, bin_width=2 * R), [8 * R, 2 * R, 2 * R, 0.0])
+    np.testing.assert_allclose(profile_at(traj, 0.04, x, bin_width=2 * R), [12 * R, 2 * R, 2 * R, 0.0])  # nearest
+    # a bin wide enough to reach the block from x = 7 R sees its top; a narrow one does not
+    assert profile_at(traj, 0.0, [7.5 * R], bin_width=2 * R)[0] == pytest.approx(2 * R)
+    assert profile_at(traj, 0.0, [7.5 * R], bin_width=6 * R)[0] == pytest.approx(12 * R)
+    with pytest.raises(RunoutError, match="t/t\\* = 0.3 lies outside the simulated window"):
+        profile_at(traj, 0.3, x, bin_width=2 * R)
+    with pytest.raises(RunoutError, match="bin width must be positive"):
+        profile_at(traj, 0.0, x, bin_width=0.0)

@@ -18,7 +18,8 @@ config.update(pipeline.config.validate_config(config, Path(workflow.basedir, "wo
 CASES = dem.grid.case_table(config)
 DATASETS = sorted(config["datasets"])
 # Keys that name another key's entries (gns.datasets, doe.measured, inverse.*: a dataset, a
-# `measured` entry, a GNS) checked once, before any job runs. On the way it resolves the dataset
+# `measured` entry, a GNS) and the size guard (dem.min_grains_across: every dataset case, DoE and
+# diagnosis column) checked once, before any job runs. On the way it resolves the dataset
 # whose GNS calibrates each inverse.measured column: {name: dataset} (inverse.smk).
 INVERSE_DATASET = pipeline.config.check_cross_keys(config, CASES)
 # How every stage reads L* off a run (dem.runout.RunoutMethod), read once here and passed to every
