@@ -15,6 +15,7 @@ include: "workflow/rules/doe.smk"
 include: "workflow/rules/inverse.smk"
 include: "workflow/rules/diagnosis.smk"
 include: "workflow/rules/runout.smk"
+include: "workflow/rules/calibrated.smk"
 # later stages go here, before report.smk (the report collects what they registered)
 include: "workflow/rules/report.smk"
 

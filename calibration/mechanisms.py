@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import ClassVar
 
 from dem.case import GRAVITY, CollapseCase
 
@@ -70,16 +71,22 @@ class Mechanism:
 
 
 class RollingResistance(Mechanism):
+    engine_field: ClassVar[str] = "rolling_friction"  # the CollapseCase field it switches on
+
     def case_fields(self, value: float, case: CollapseCase) -> dict:
         return {"rolling_friction": self.check(value)}
 
 
 class Cohesion(Mechanism):
+    engine_field: ClassVar[str] = "cohesion_energy"  # the CollapseCase field it switches on
+
     def case_fields(self, value: float, case: CollapseCase) -> dict:
         return {"cohesion_energy": cohesion_energy_from_bond(self.check(value), case)}
 
 
 class BasalFriction(Mechanism):
+    engine_field: ClassVar[str] = "friction_base"  # the CollapseCase field it switches on
+
     def case_fields(self, value: float, case: CollapseCase) -> dict:
         return {"friction_base": self.check(value)}
 
@@ -89,6 +96,7 @@ class BasalFriction(Mechanism):
 
 @dataclass(frozen=True)
 class SidewallFriction(Mechanism):
+    engine_field: ClassVar[str] = "sidewall_friction"
     channel_width: float = 0.01  # m, width of the quasi-2D channel (fixed, not fitted)
 
     def case_fields(self, value: float, case: CollapseCase) -> dict:
@@ -96,6 +104,8 @@ class SidewallFriction(Mechanism):
 
 
 class GateLift(Mechanism):
+    engine_field: ClassVar[str] = "gate_lift_speed"  # the CollapseCase field it switches on
+
     def case_fields(self, value: float, case: CollapseCase) -> dict:
         slowness = self.check(value)
         return {"gate_lift_speed": 1.0 / slowness if slowness > 0 else 0.0}

@@ -23,7 +23,9 @@ import yaml
 
 from calibration.gns_objective import InverseDesignError, check_geometry_of_dataset, nearest_dataset
 from calibration.measured import MeasuredColumn, MeasuredDataError, MeasuredDataWarning, load_column, read_measured
+from calibration.mechanisms import get_mechanisms
 from dem.case import RENAMED_CASE_KEYS, CaseError, check_grains_across, grains_across
+from dem.engines import ENGINES, EngineError, get_engine
 from dem.grid import SPLITS, VARIED, ConfigError, case_id_of
 from dem.runout import RunoutError, RunoutMethod
 
@@ -200,6 +202,7 @@ def check_cross_keys(config: dict, cases: dict[str, dict]) -> dict[str, str]:
     check_doe(config)
     resolved = check_inverse(config, cases)
     check_diagnosis(config)
+    check_calibration(config)
     return resolved
 
 
@@ -296,6 +299,35 @@ def check_diagnosis(config: dict) -> None:
         for column in _measured_columns(config, name).values():
             where = f"diagnosis.size_scale (measured {name!r}, column {column.name!r})"
             _guard(column.L_i, column.material, size_scale, config, where)
+
+
+def check_calibration(config: dict) -> None:
+    """calibration.model auto needs the diagnosis; a mechanism the chosen dem.engine cannot run (for
+    auto: any diagnosis candidate) is refused before any job runs."""
+    section = config["calibration"]
+    if not section["enabled"] or not config["measured"]:
+        return
+    model = section["model"]
+    if model == "auto" and not config["diagnosis"]["enabled"]:
+        raise ConfigError(
+            "config key calibration.model: auto takes the diagnosis' answer, but diagnosis.enabled is false; "
+            "name the model (base or a mechanism) or enable the diagnosis"
+        )
+    names = config["diagnosis"]["candidates"] if model == "auto" else [] if model == "base" else [model]
+    name = config["dem"]["engine"]
+    try:  # auto: the engine it picks on this machine; a named one need not be installed to be judged
+        engine = get_engine(name, config["dem"]) if name == "auto" else ENGINES[name]
+    except EngineError as exc:
+        raise ConfigError(f"config key dem.engine: {exc}") from exc
+    fields = {m.name: m.engine_field for m in get_mechanisms(names, config["diagnosis"]["channel_width"])}
+    missing = [name for name, field in fields.items() if field not in engine.mechanisms]
+    if missing:
+        what = "the diagnosis candidates" if model == "auto" else "the model"
+        raise ConfigError(
+            f"config key calibration.model: {model} calibrates {what} {missing}, which dem.engine {engine.name} "
+            f"cannot run (it runs {list(engine.mechanisms) or 'none of the candidate mechanisms'}); use the "
+            "builtin engine, or name a model it can run (with auto: narrow diagnosis.candidates)"
+        )
 
 
 def inverse_datasets(config: dict, cases: dict[str, dict]) -> dict[str, str]:

@@ -26,13 +26,11 @@ from calibration.diagnosis import LIBRARY_SETTINGS, DiagnosisSettings, diagnose
 from calibration.diagnosis_result import Diagnosis, Evidence
 from calibration.measured import MeasuredColumn, MeasuredDataWarning, read_measured
 from calibration.observables import Observables
-from dem.atomic import write_text
-
-PathLike = str | os.PathLike
+from dem.atomic import StrPath, write_text
 
 
 # -- the jobs --------------------------------------------------------------------------------------------
-def run_library(measured_path: PathLike, library_path: PathLike, section: dict, *, runout: dict | None) -> Library:
+def run_library(measured_path: StrPath, library_path: StrPath, section: dict, *, runout: dict | None) -> Library:
     """Design runs for the columns of a measured-data CSV (workflow rule diagnosis_library); their
     runouts read by `runout` (the config's runout section), which the library records."""
     columns, _ = read_columns(measured_path)
@@ -43,9 +41,9 @@ def run_library(measured_path: PathLike, library_path: PathLike, section: dict, 
 
 
 def run_diagnosis(
-    measured_path: PathLike,
-    library_path: PathLike,
-    out_dir: PathLike,
+    measured_path: StrPath,
+    library_path: StrPath,
+    out_dir: StrPath,
     section: dict,
     *,
     runout: dict | None,
@@ -69,7 +67,7 @@ def run_diagnosis(
 
 
 def run_section(
-    names: list[str], diagnosis_paths: list[PathLike], section_path: PathLike
+    names: list[str], diagnosis_paths: list[StrPath], section_path: StrPath
 ) -> dict[str, tuple[Diagnosis, Path]]:
     """The report section (workflow rule diagnosis_section) from the diagnosis.json of each data set
     in `names` (same order as `diagnosis_paths`); the figures lie beside each JSON file. Returns
@@ -80,7 +78,7 @@ def run_section(
 
 
 # -- the files ---------------------------------------------------------------------------------------------
-def read_columns(path: PathLike) -> tuple[list[MeasuredColumn], list[str]]:
+def read_columns(path: StrPath) -> tuple[list[MeasuredColumn], list[str]]:
     """Columns of a measured-data CSV and the warnings its reader raised (as strings)."""
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", MeasuredDataWarning)
@@ -88,12 +86,12 @@ def read_columns(path: PathLike) -> tuple[list[MeasuredColumn], list[str]]:
     return columns, [str(w.message) for w in caught if issubclass(w.category, MeasuredDataWarning)]
 
 
-def write_diagnosis(result: Diagnosis, path: PathLike) -> None:
+def write_diagnosis(result: Diagnosis, path: StrPath) -> None:
     """diagnosis.json (`result.to_dict()`), atomically."""
     write_text(path, json.dumps(result.to_dict(), indent=1, default=_json_default) + "\n")
 
 
-def read_diagnosis(path: PathLike) -> Diagnosis:
+def read_diagnosis(path: StrPath) -> Diagnosis:
     """The Diagnosis of a diagnosis.json (`write_diagnosis`)."""
     return Diagnosis.from_dict(json.loads(Path(path).read_text()))
 
@@ -116,7 +114,7 @@ def _parameters(evidence: Evidence) -> str:
     return ", ".join(parts)
 
 
-def section_markdown(results: dict[str, tuple[Diagnosis, PathLike]], section_path: PathLike) -> str:
+def section_markdown(results: dict[str, tuple[Diagnosis, StrPath]], section_path: StrPath) -> str:
     """The report section for {name: (Diagnosis, folder with its figures)}."""
     lines = [
         "What the calibrated DEM still gets wrong, and whether a missing mechanism explains it. "
@@ -170,6 +168,6 @@ def section_markdown(results: dict[str, tuple[Diagnosis, PathLike]], section_pat
     return "\n".join(lines) + "\n"
 
 
-def write_section(results: dict[str, tuple[Diagnosis, PathLike]], section_path: PathLike) -> None:
+def write_section(results: dict[str, tuple[Diagnosis, StrPath]], section_path: StrPath) -> None:
     """Write section_markdown(results) to `section_path`, atomically."""
     write_text(section_path, section_markdown(results, section_path))

@@ -31,13 +31,13 @@ def train(
     threads: int | None = None,
 ) -> dict:
     """Train (or resume training) the GNS of the dataset at `metadata_path` with the config's `gns`
-    settings (gns.train.TrainSettings); outputs in `out_dir` (model_best.pt, metrics.csv,
+    settings (gns.settings.TrainSettings); outputs in `out_dir` (model_best.pt, metrics.csv,
     loss_curve.png, checkpoint_last.pt). A checkpoint made with other settings or data is moved
     aside and training starts afresh. runout: how the validation runout MSE reads L*. threads:
     torch threads (None: torch's default). Returns gns.train.train's result."""
     import torch
 
-    from gns.train import TrainSettings
+    from gns.settings import TrainSettings
     from gns.train import train as train_gns
 
     if threads:

@@ -243,6 +243,7 @@ def test_diagnosis_of_a_column_too_few_grains_across_at_its_size_scale(tmp_path)
     config["diagnosis"]["size_scale"] = 2.94
     assert check_cross_keys(config, case_table(config)) == {"quartz": "quartz_multiple"}
     config["diagnosis"].update(size_scale=5, enabled=False)  # no diagnosis, no diagnosis runs to guard
+    config["calibration"]["model"] = "base"  # (auto would need the diagnosis)
     assert check_cross_keys(config, case_table(config)) == {"quartz": "quartz_multiple"}
 
 

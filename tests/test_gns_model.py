@@ -13,8 +13,9 @@ from gns.data import TrajectoryWindows, read_metadata
 from gns.graph import NeighbourCapWarning, radius_graph
 from gns.network import EncodeProcessDecode
 from gns.rollout import RolloutError, context_from_trajectory, rollout
+from gns.settings import TrainSettings, simulator_config
 from gns.simulator import CheckpointError, Context, LearnedSimulator, load_simulator, model_payload
-from gns.train import TrainSettings, one_step_loss, pushforward_loss, random_walk_noise, simulator_config
+from gns.train import one_step_loss, pushforward_loss, random_walk_noise
 from tests.gns_synthetic import synthetic_dataset
 
 TINY = dict(latent_size=16, n_message_passing=2, connectivity_radius=4.0, noise_std=0.05)

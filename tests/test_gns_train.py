@@ -22,8 +22,9 @@ from dem.trajectory import read_trajectory
 from gns.data import TrajectoryWindows, read_metadata
 from gns.dataset import DatasetError
 from gns.evaluate import evaluate_rollouts, rollout_runout_mse
+from gns.settings import TrainSettings
 from gns.simulator import CheckpointError, load_simulator
-from gns.train import Trainer, TrainSettings, train
+from gns.train import Trainer, train
 from pipeline import gns as gns_stage
 from tests.gns_synthetic import synthetic_dataset
 

@@ -34,8 +34,9 @@ from dem.trajectory import read_attrs, write_trajectory
 from gns.data import read_metadata, read_training_attrs
 from gns.dataset import build_dataset
 from gns.runout import SOFT_TEMPERATURE, soft_runout_at, soft_top_k_mean
+from gns.settings import TrainSettings, simulator_config
 from gns.simulator import LearnedSimulator, load_simulator
-from gns.train import TrainSettings, simulator_config, train
+from gns.train import train
 from tests.test_compare import tiny_case
 
 TINY_MODEL = dict(latent_size=16, n_message_passing=2, connectivity_radius=1.6, noise_std=0.05)

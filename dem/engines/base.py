@@ -50,6 +50,7 @@ class Engine:
     name = "engine"
     executable = None  # default solver command (looked up on PATH) or None for in-process
     install_hint = ""
+    mechanisms: tuple[str, ...] = ()  # candidate-mechanism case fields (MECHANISMS) it can run
 
     def __init__(self, solver_path: str | None = None):
         """solver_path: the solver executable (path or command name); None: `executable` on PATH."""

@@ -15,7 +15,7 @@ from pathlib import Path
 
 from dem.atomic import write_text
 from dem.case import CollapseCase
-from dem.engines.base import Engine, EngineError, read_error
+from dem.engines.base import MECHANISMS, Engine, EngineError, read_error
 from dem.trajectory import Trajectory, TrajectoryError, read_trajectory, write_trajectory
 
 DECK = "case.json"
@@ -26,6 +26,7 @@ LOG = "builtin.log"
 
 class BuiltinEngine(Engine):
     name = "builtin"
+    mechanisms = MECHANISMS  # it runs every candidate mechanism
     install_hint = "The builtin engine is part of this package (dem.collapse)."
 
     def availability(self) -> tuple[bool, str]:

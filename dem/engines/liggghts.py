@@ -50,6 +50,7 @@ DUMP_COLUMNS = ("id", "type", "x", "y", "radius", "mass")
 
 class LiggghtsEngine(SolverEngine):
     name = "liggghts"
+    mechanisms = SUPPORTED
     executable = "liggghts"
     deck_file, grains_file, log_file = DECK, DATA, LOG
     frames_dir, frame_glob = FRAMES, "frame.*.txt"

@@ -40,6 +40,7 @@ GRID_CELL_DIAMETERS = 4.0  # fluid-grid cell size in largest grain diameters (no
 
 class MfixEngine(SolverEngine):
     name = "mfix"
+    mechanisms = ()  # the deck is the paper's model only
     executable = "mfixsolver"
     deck_file, grains_file, log_file = DECK, PARTICLES, LOG
     frames_dir, frame_glob = ".", f"{VTK_FILEBASE}_*.vtp"

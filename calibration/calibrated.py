@@ -1,0 +1,218 @@
+"""The calibrated model an engineer takes away: which model (the paper's base model, or the base
+model plus the mechanism the diagnosis named), its parameters, and how well DEM runs at them
+reproduce the measurement, judged on several packings against their own scatter.
+
+Model (`resolve_model`): the config's choice, or `auto`: the diagnosis' cause, else its best
+candidate, with how decisive the evidence was.
+
+Routes to the parameters, each ending in the same validation:
+- the diagnosis' own calibration of that model (an emulator of its design runs, checked in DEM);
+- Bayesian optimisation on DEM runs of the measured column (one packing, seed CALIBRATION_SEED).
+
+Validation (`validate`): DEM runs at the parameters on packings the calibration never saw
+(VALIDATION_SEED0, +1, ...); the score is the runout MSE of their mean curve against the
+measurement, beside each packing's own MSE and the packing scatter. A run that fails (blows up,
+an engine error) is reported with its packing and never averaged in.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from calibration.bayesopt import BOSettings, bayesian_optimisation
+from calibration.design_runs import Model, SimulationSettings
+from calibration.diagnosis_result import Diagnosis
+from calibration.measured import MeasuredColumn
+from calibration.mechanisms import candidate_mechanisms, get_mechanisms
+from calibration.objective import runout_mse, simulated_runout_at
+from calibration.optimise import OptimisationHistory, one_at_a_time
+from dem.case import CaseError
+from dem.engines import EngineError, simulate_case
+from dem.integrate import SimulationError
+from dem.runout import RunoutError, RunoutMethod
+from dem.trajectory import TrajectoryError
+
+log = logging.getLogger(__name__)
+
+MODELS = ("auto", "base") + tuple(candidate_mechanisms())
+CALIBRATION_SEED = 0  # the packing the Bayesian optimisation runs on
+VALIDATION_SEED0 = 5001  # validation packings: never a calibration's, a diagnosis' or a hidden truth's
+FAILURES = (SimulationError, EngineError, TrajectoryError, RunoutError, CaseError)
+
+
+class CalibrationError(ValueError):
+    """The calibrated model cannot be set up; the message names the key or the file."""
+
+
+# -- which model --------------------------------------------------------------------------------
+def resolve_model(choice: str, diagnosis: Diagnosis | None, channel_width: float = 0.01) -> tuple[Model, str]:
+    """(Model, why it was chosen). choice: `base`, a candidate mechanism's name, or `auto` (the
+    diagnosis' cause, else its best candidate: `diagnosis` is then required)."""
+    if choice not in MODELS:
+        raise CalibrationError(f"calibration.model: unknown model {choice!r}; choose one of {list(MODELS)}")
+    if choice == "base":
+        return Model(), "the config asks for the base model (mu, e)"
+    if choice != "auto":
+        return Model(get_mechanisms([choice], channel_width)[0]), f"the config asks for the base model + {choice}"
+    if diagnosis is None:
+        raise CalibrationError("calibration.model: auto needs the diagnosis of this column (diagnosis.enabled)")
+    if diagnosis.cause != "none":
+        return (
+            Model(get_mechanisms([diagnosis.cause], channel_width)[0]),
+            f"auto: the diagnosis named {diagnosis.cause} (every check of its decision rule passed). "
+            + diagnosis.verdict,
+        )
+    failed = [name for name, passed in diagnosis.checks.items() if not passed]
+    best = diagnosis.best_candidate
+    return (
+        Model(get_mechanisms([best], channel_width)[0]),
+        f"auto: the diagnosis named no cause ({', '.join(failed)} failed), so its best candidate, {best}, is "
+        f"calibrated: weaker evidence than a named cause. {diagnosis.verdict}",
+    )
+
+
+def diagnosis_parameters(diagnosis: Diagnosis, model: Model) -> np.ndarray:
+    """theta [p] the diagnosis calibrated `model` to: its DEM-scored optimum where it has one, else
+    its emulator's."""
+    evidence = diagnosis.base if model.mechanism is None else diagnosis.candidates[model.name]
+    parameters = evidence.dem.parameters if evidence.dem is not None else evidence.emulator.parameters
+    return np.array([parameters[name] for name in model.parameter_names], float)
+
+
+# -- DEM runs of the model ------------------------------------------------------------------------
+@dataclass
+class Validation:
+    """DEM runs of a model at `parameters` on several packings, against the measured runout.
+
+    t_over_tstar [K]: the measured times; curves [R][K]: L* of each packing that ran (None where it
+    failed, `failed` says why); mean [K] and std [K] over the runs that ran; mse: the runout MSE of
+    the mean curve (NaN when none ran); mse_each [R]: each run's own MSE (NaN where it failed).
+    """
+
+    route: str
+    parameters: dict
+    seeds: list[int]
+    t_over_tstar: list[float]
+    curves: list[list[float] | None]
+    failed: dict[int, str]
+    mean: list[float]
+    std: list[float]
+    mse: float
+    mse_each: list[float]
+    seconds: float
+    dem_runs: int = 0  # DEM runs the route spent before the validation (calibration cost)
+    calibration_seconds: float = 0.0  # wall time the route spent before the validation
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def n_ran(self) -> int:
+        return sum(curve is not None for curve in self.curves)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def model_runout(
+    model: Model,
+    column: MeasuredColumn,
+    theta: Sequence[float],
+    settings: SimulationSettings,
+    seed: int,
+    runout: RunoutMethod,
+    dem_config: dict | None,
+) -> np.ndarray:
+    """L* [K] at the measured t/t* of one DEM run of `model` at theta [p] on packing `seed`, with the
+    engine of dem_config (the config's dem section). Raises one of FAILURES when the run fails."""
+    case = model.case(column, theta, settings, seed)
+    trajectory = simulate_case(case, dem_config)
+    t, curve = runout.curve(trajectory)
+    return simulated_runout_at(t, curve, column)
+
+
+def validate(
+    route: str,
+    model: Model,
+    column: MeasuredColumn,
+    theta: Sequence[float],
+    settings: SimulationSettings,
+    runout: RunoutMethod,
+    dem_config: dict | None,
+    n_packings: int = 4,
+    dem_runs: int = 0,
+    calibration_seconds: float = 0.0,
+) -> Validation:
+    """The model at theta [p] run on n_packings validation packings (VALIDATION_SEED0 + k); dem_runs
+    and calibration_seconds: what the route spent to find theta (reported beside the score)."""
+    started = time.perf_counter()
+    seeds = [VALIDATION_SEED0 + k for k in range(n_packings)]
+    curves, failed = [], {}
+    for seed in seeds:
+        try:
+            curves.append(model_runout(model, column, theta, settings, seed, runout, dem_config).tolist())
+        except FAILURES as exc:  # reported with its packing, never averaged in
+            log.warning("%s: validation run on packing %d failed: %s", route, seed, exc)
+            curves.append(None)
+            failed[seed] = f"{type(exc).__name__}: {exc}"
+    ran = np.array([c for c in curves if c is not None])
+    mean = ran.mean(axis=0) if len(ran) else np.full(len(column.runout), math.nan)
+    std = ran.std(axis=0, ddof=1) if len(ran) > 1 else np.full(len(column.runout), math.nan)
+    return Validation(
+        route=route,
+        parameters=dict(zip(model.parameter_names, map(float, theta))),
+        seeds=seeds,
+        t_over_tstar=column.t_over_tstar.tolist(),
+        curves=curves,
+        failed=failed,
+        mean=mean.tolist(),
+        std=std.tolist(),
+        mse=float(runout_mse(mean, column.runout)) if len(ran) else math.nan,
+        mse_each=[float(runout_mse(np.array(c), column.runout)) if c is not None else math.nan for c in curves],
+        seconds=time.perf_counter() - started,
+        dem_runs=dem_runs,
+        calibration_seconds=calibration_seconds,
+    )
+
+
+def bayesopt_model(
+    model: Model,
+    column: MeasuredColumn,
+    settings: SimulationSettings,
+    runout: RunoutMethod,
+    dem_config: dict | None,
+    budget: int = 24,
+    n_initial: int = 8,
+    seed: int = 0,
+    progress: Callable[[float], None] | None = None,
+) -> OptimisationHistory:
+    """GP expected-improvement BO of the runout MSE over `model`'s box, one DEM run per point on
+    packing CALIBRATION_SEED; a run that fails scores the worst value seen so far (never the best)."""
+    worst = {"value": 1.0}
+
+    def dem_objective(theta: np.ndarray) -> float:
+        try:
+            curve = model_runout(model, column, theta, settings, CALIBRATION_SEED, runout, dem_config)
+            value = float(runout_mse(curve, column.runout))
+        except FAILURES as exc:
+            log.warning("BO run at %s failed (%s): scored as the worst so far", np.round(theta, 4).tolist(), exc)
+            return worst["value"]
+        worst["value"] = max(worst["value"], value)
+        return value
+
+    def reported(batch: int, seconds: float, values: np.ndarray) -> None:
+        if progress is not None:
+            progress(batch / budget)
+
+    result = bayesian_optimisation(
+        one_at_a_time(dem_objective),
+        model.bounds.tolist(),
+        list(model.parameter_names),
+        BOSettings(budget=budget, n_initial=n_initial, seed=seed),
+        progress=reported,
+    )
+    return result.history

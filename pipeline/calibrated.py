@@ -1,0 +1,229 @@
+"""The calibrated-model stage (workflow/rules/calibrated.smk): the answer to the user's question,
+first in the report.
+
+  - `run_calibrated` (rule calibrated): for one measured column, the model (config `calibration.model`,
+    `auto`: the diagnosis' answer), its parameters by each route, every route validated by DEM runs
+    on several packings -> results/calibrated/<name>/calibrated.json and calibrated.png;
+  - `run_section` (rule calibrated_section): results/report/calibrated.md.
+
+The methods are calibration/calibrated.py's.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from calibration.calibrated import (
+    CALIBRATION_SEED,
+    bayesopt_model,
+    diagnosis_parameters,
+    resolve_model,
+    validate,
+)
+from calibration.design_runs import Model, SimulationSettings
+from calibration.measured import MeasuredColumn, load_column
+from dem.atomic import StrPath, atomic_path, write_text
+from dem.progress import progress_logger
+from dem.runout import RunoutMethod
+from pipeline.diagnosis import read_diagnosis
+
+log = logging.getLogger(__name__)
+
+
+def run_calibrated(
+    measured_path: StrPath,
+    diagnosis_path: StrPath | None,
+    out_json: StrPath,
+    out_figure: StrPath,
+    section: dict,
+    diagnosis_section: dict,
+    *,
+    runout: dict | None,
+    dem: dict | None,
+    name: str = "",
+) -> dict:
+    """Calibrate and validate the model of one measured column (workflow rule calibrated).
+
+    section: the config's `calibration` section (model, budget, n_initial, validation_packings,
+    seed); diagnosis_section: the config's `diagnosis` section (its size_scale and channel width are
+    the calibrated model's: parameters fitted at one scale are effective values of that scale);
+    runout, dem: the config's runout and dem sections.
+    """
+    started = time.perf_counter()
+    column = load_column(measured_path)
+    diagnosis = read_diagnosis(diagnosis_path) if diagnosis_path else None
+    model, why = resolve_model(section["model"], diagnosis, diagnosis_section["channel_width"])
+    settings = SimulationSettings(size_scale=diagnosis_section["size_scale"])
+    runout = RunoutMethod.from_config(runout)
+    n_packings = section["validation_packings"]
+    log.info("%s: calibrating %s (%s)", name, model.name, why)
+    routes, answers = [], []  # every route validated; those that calibrate `model`
+    if diagnosis is not None:
+        # the diagnosis' own fits: the paper's model (mu, e) beside the calibrated one, when it is another
+        runs = sum(diagnosis.simulator.design_runs.values()) + diagnosis.simulator.refinement_runs
+        for route_model in [Model()] + ([model] if model.mechanism is not None else []):
+            theta = diagnosis_parameters(diagnosis, route_model)
+            route = f"{route_model.name}, diagnosis fit"
+            routes.append(
+                validate(route, route_model, column, theta, settings, runout, dem, n_packings, runs, diagnosis.seconds)
+            )
+            answers += [routes[-1]] if route_model == model else []
+            log.info("%s: %s validated, MSE %.4g", name, route, routes[-1].mse)
+    bo_started = time.perf_counter()
+    history = bayesopt_model(
+        model,
+        column,
+        settings,
+        runout,
+        dem,
+        budget=section["budget"],
+        n_initial=section["n_initial"],
+        seed=section["seed"],
+        progress=progress_logger(f"BO of {model.name} on DEM runs of {name}", log),
+    )
+    theta, _ = history.best
+    bo_seconds = time.perf_counter() - bo_started
+    route = f"{model.name}, BO on DEM"
+    routes.append(
+        validate(route, model, column, theta, settings, runout, dem, n_packings, section["budget"], bo_seconds)
+    )
+    routes[-1].extra = {"history": history.to_dict()}
+    answers.append(routes[-1])
+    log.info("%s: BO optimum validated, MSE %.4g", name, routes[-1].mse)
+    best = min(answers, key=lambda r: r.mse if math.isfinite(r.mse) else math.inf)
+    result = {
+        "name": name,
+        "measured": str(measured_path),
+        "column": column.name,
+        "model": model.name,
+        "parameters": list(model.parameter_names),
+        "bounds": model.bounds.tolist(),
+        "why": why,
+        "answer": best.route,
+        "routes": [r.to_dict() for r in routes],
+        "size_scale": settings.size_scale,
+        "engine": (dem or {}).get("engine", "builtin"),
+        "runout": runout.to_config(),
+        "validation_packings": n_packings,
+        "calibration_packing": CALIBRATION_SEED,
+        "seconds": time.perf_counter() - started,
+    }
+    write_text(out_json, json.dumps(result, indent=1, default=_json_default) + "\n")
+    plot_calibrated(result, column, out_figure)
+    return result
+
+
+def _json_default(value: object) -> object:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
+
+
+# -- figure and report section -----------------------------------------------------------------------
+def plot_calibrated(result: dict, column: MeasuredColumn, path: StrPath) -> None:
+    """Measured points, each route's mean DEM curve over the validation packings with its packing
+    band (mean +- one std) and the single packings as thin lines."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 4.8))
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for k, route in enumerate(result["routes"]):
+        colour = colours[k % len(colours)]
+        t = np.array(route["t_over_tstar"])
+        for curve in route["curves"]:
+            if curve is not None:
+                ax.plot(t, curve, color=colour, lw=0.6, alpha=0.4)
+        mean, std = np.array(route["mean"]), np.array(route["std"])
+        if np.isfinite(std).all():
+            ax.fill_between(t, mean - std, mean + std, color=colour, alpha=0.15)
+        n_ran = sum(c is not None for c in route["curves"])
+        ax.plot(
+            t, mean, color=colour, lw=2, label=f"{route['route']}: MSE {route['mse']:.3g} (mean of {n_ran} packings)"
+        )
+    ax.plot(column.t_over_tstar, column.runout, "ko", ms=6, label=f"measured ({column.name})")
+    ax.set(
+        xlabel="t / t*",
+        ylabel="L* = (L - L_i) / L_i",
+        title=f"{result['name']}: calibrated {result['model']} model, DEM at size_scale {result['size_scale']:g}",
+    )
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=120)
+    plt.close(fig)
+
+
+def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
+    """The report's first section: the answer per measured column."""
+    lines = [
+        "The answer: which DEM model reproduces each measurement, its parameters, and how well DEM runs "
+        "at them do, scored on the mean runout curve of several packings the calibration never saw "
+        "(packing scatter beside it).",
+        "",
+    ]
+    for result in results:
+        answer = next(r for r in result["routes"] if r["route"] == result["answer"])
+        figure = Path(os.path.relpath(Path(result["figure"]), Path(section_path).parent)).as_posix()
+        parameters = ", ".join(f"{k} = {v:.3g}" for k, v in answer["parameters"].items())
+        lines += [
+            f"### {result['name']}: {result['model']} model",
+            "",
+            f"**{parameters}** (route: {answer['route']}), validated runout MSE **{answer['mse']:.3g}** "
+            f"on the mean of {len(answer['seeds']) - len(answer['failed'])} packings "
+            f"(each packing alone: {_span(answer['mse_each'])}).",
+            "",
+            f"Why this model: {result['why']}",
+            "",
+            "| route | parameters | DEM runs to calibrate | time to calibrate | validated MSE (packing mean) | "
+            "MSE per packing | failed runs | validation time |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- |",
+        ]
+        for route in result["routes"]:
+            values = ", ".join(f"{k} {v:.3g}" for k, v in route["parameters"].items())
+            failed = "; ".join(f"packing {k}: {v}" for k, v in route["failed"].items()) or "none"
+            lines.append(
+                f"| {route['route']} | {values} | {route['dem_runs']} | {route['calibration_seconds']:.0f} s | "
+                f"{route['mse']:.4g} | {_span(route['mse_each'])} | {failed} | {route['seconds']:.0f} s |"
+            )
+        lines += [
+            "",
+            f"DEM: {result['engine']} engine, size_scale {result['size_scale']:g} (parameters fitted at one scale are "
+            f"effective values of that scale), runout read by {result['runout']['method']}; the Bayesian "
+            f"optimisation ran on packing seed {result['calibration_packing']}, the validation on "
+            f"{result['validation_packings']} others. The answer is the route of this model with the lower "
+            "validated MSE (so the choice, not each route's score, has seen the validation packings); the "
+            "diagnosis fit's time is the diagnosis job's, its design runs' DEM time aside.",
+            "",
+            f"![calibrated model of {result['name']}]({figure})",
+            "",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def _span(values: Sequence[float]) -> str:
+    finite = [v for v in values if math.isfinite(v)]
+    return f"{min(finite):.3g}-{max(finite):.3g}" if finite else "none ran"
+
+
+def run_section(json_paths: Sequence[StrPath], figure_paths: Sequence[StrPath], section_path: StrPath) -> None:
+    """results/report/calibrated.md from every calibrated.json (workflow rule calibrated_section)."""
+    results = []
+    for path, figure in zip(json_paths, figure_paths, strict=True):
+        data = json.loads(Path(path).read_text())
+        data["figure"] = str(figure)
+        results.append(data)
+    write_text(section_path, section_markdown(results, section_path))

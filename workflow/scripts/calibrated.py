@@ -1,0 +1,19 @@
+"""The calibrated model of one measured column: calibrated.json and calibrated.png."""
+
+import logging
+
+from pipeline.calibrated import run_calibrated
+
+logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
+result = run_calibrated(
+    snakemake.input.measured,
+    snakemake.input.diagnosis or None,
+    snakemake.output.result,
+    snakemake.output.figure,
+    snakemake.params.settings,
+    snakemake.params.diagnosis,
+    runout=snakemake.params.runout,
+    dem=snakemake.params.dem,
+    name=snakemake.wildcards.name,
+)
+logging.info("%s: %s model, answer %s", result["name"], result["model"], result["answer"])
