@@ -56,8 +56,9 @@ def main():
     from dem.trajectory import Trajectory, read_attrs, read_trajectory
     from gns.data import read_metadata
     from gns.rollout import rollout_trajectory
+    from gns.settings import TrainSettings
     from gns.simulator import load_simulator
-    from gns.train import Trainer, TrainSettings
+    from gns.train import Trainer
 
     torch.set_num_threads(args.threads)
     metadata = read_metadata(args.dataset)
