@@ -12,7 +12,11 @@ Routes to the parameters, each ending in the same validation:
 Validation (`validate`): DEM runs at the parameters on packings the calibration never saw
 (VALIDATION_SEED0, +1, ...); the score is the runout MSE of their mean curve against the
 measurement, beside each packing's own MSE and the packing scatter. A run that fails (blows up,
-an engine error) is reported with its packing and never averaged in.
+an engine error) is reported with its packing and never averaged in. The same validation one
+size_scale finer says how far the answer transfers (`validate` with finer settings).
+
+Prediction (`predict`): the calibrated model's final runout and deposit height for columns of other
+aspect ratios (same material, L_i and scale), beside the measured column.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -35,7 +39,7 @@ from calibration.optimise import OptimisationHistory, one_at_a_time
 from dem.case import CaseError
 from dem.engines import EngineError, simulate_case
 from dem.integrate import SimulationError
-from dem.runout import RunoutError, RunoutMethod
+from dem.runout import RunoutError, RunoutMethod, final_height
 from dem.trajectory import TrajectoryError
 
 log = logging.getLogger(__name__)
@@ -216,3 +220,71 @@ def bayesopt_model(
         progress=reported,
     )
     return result.history
+
+
+# -- what an engineer does next: predict other columns ----------------------------------------------
+PREDICTION_TSTAR = 6.0  # simulated t/t* of a prediction: long enough for the front to stop
+
+
+@dataclass
+class Prediction:
+    """Final state of the calibrated model's collapse per aspect ratio (one packing each):
+    final_runout [A] = L* at PREDICTION_TSTAR, final_height [A] (m) of the connected deposit, and
+    H_f / L_i; None where the run failed (`failed` says why)."""
+
+    aspect_ratios: list[float]
+    final_runout: list[float | None]
+    final_height: list[float | None]
+    height_over_L_i: list[float | None]
+    failed: dict[str, str]
+    seed: int
+    seconds: float
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def predict(
+    model: Model,
+    column: MeasuredColumn,
+    theta: Sequence[float],
+    settings: SimulationSettings,
+    aspect_ratios: Sequence[float],
+    runout: RunoutMethod,
+    dem_config: dict | None,
+    seed: int = VALIDATION_SEED0,
+) -> Prediction:
+    """The model at theta [p] on columns of `column`'s material and L_i at each aspect ratio,
+    simulated to t/t* = PREDICTION_TSTAR on packing `seed`."""
+    started = time.perf_counter()
+    runouts, heights, failed = [], [], {}
+    for a in aspect_ratios:
+        other = replace(
+            column,
+            name=f"{column.name}_a{a:g}",
+            aspect_ratio=float(a),
+            t_over_tstar=np.array([PREDICTION_TSTAR]),
+            runout=np.array([math.nan]),
+            runout_std=None,
+            profile_x=None,
+            profile_height=None,
+            profile_std=None,
+        )
+        try:
+            trajectory = simulate_case(model.case(other, theta, settings, seed), dem_config)
+            runouts.append(float(runout.curve(trajectory)[1][-1]))
+            heights.append(final_height(trajectory.positions[-1], trajectory.radius))
+        except FAILURES as exc:
+            log.warning("prediction at a = %g failed: %s", a, exc)
+            failed[f"{a:g}"] = f"{type(exc).__name__}: {exc}"
+            runouts.append(None)
+            heights.append(None)
+    return Prediction(
+        aspect_ratios=[float(a) for a in aspect_ratios],
+        final_runout=runouts,
+        final_height=heights,
+        height_over_L_i=[None if h is None else h / column.L_i for h in heights],
+        failed=failed,
+        seed=seed,
+        seconds=time.perf_counter() - started,
+    )

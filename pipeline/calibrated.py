@@ -23,13 +23,15 @@ import numpy as np
 
 from calibration.calibrated import (
     CALIBRATION_SEED,
+    PREDICTION_TSTAR,
     bayesopt_model,
     diagnosis_parameters,
+    predict,
     resolve_model,
     validate,
 )
 from calibration.design_runs import Model, SimulationSettings
-from calibration.measured import MeasuredColumn, load_column
+from calibration.measured import MeasuredColumn, expected_final_runout, load_column
 from dem.atomic import StrPath, atomic_path, write_text
 from dem.progress import progress_logger
 from dem.runout import RunoutMethod
@@ -43,6 +45,7 @@ def run_calibrated(
     diagnosis_path: StrPath | None,
     out_json: StrPath,
     out_figure: StrPath,
+    out_prediction: StrPath,
     section: dict,
     diagnosis_section: dict,
     *,
@@ -52,9 +55,11 @@ def run_calibrated(
 ) -> dict:
     """Calibrate and validate the model of one measured column (workflow rule calibrated).
 
-    section: the config's `calibration` section (model, budget, n_initial, validation_packings,
-    seed); diagnosis_section: the config's `diagnosis` section (its size_scale and channel width are
-    the calibrated model's: parameters fitted at one scale are effective values of that scale);
+    section: the config's `calibration` section (model, budget, n_initial, validation_packings, seed,
+    finer_size_scale, predict_aspect_ratios); out_figure: the validation figure; out_prediction: the
+    prediction across aspect ratios; diagnosis_section: the config's `diagnosis` section (its
+    size_scale and channel width are the calibrated model's: parameters fitted at one scale are
+    effective values of that scale);
     runout, dem: the config's runout and dem sections.
     """
     started = time.perf_counter()
@@ -99,6 +104,15 @@ def run_calibrated(
     answers.append(routes[-1])
     log.info("%s: BO optimum validated, MSE %.4g", name, routes[-1].mse)
     best = min(answers, key=lambda r: r.mse if math.isfinite(r.mse) else math.inf)
+    theta = [best.parameters[parameter] for parameter in model.parameter_names]
+    transfer = None
+    if section["finer_size_scale"]:  # how far the answer transfers: the same validation with finer grains
+        finer = SimulationSettings(size_scale=section["finer_size_scale"])
+        transfer = validate(
+            f"{best.route}, at size_scale {finer.size_scale:g}", model, column, theta, finer, runout, dem, n_packings
+        )
+        log.info("%s: at size_scale %g, MSE %.4g", name, finer.size_scale, transfer.mse)
+    prediction = predict(model, column, theta, settings, section["predict_aspect_ratios"], runout, dem)
     result = {
         "name": name,
         "measured": str(measured_path),
@@ -109,6 +123,10 @@ def run_calibrated(
         "why": why,
         "answer": best.route,
         "routes": [r.to_dict() for r in routes],
+        "transfer": None if transfer is None else transfer.to_dict(),
+        "prediction": prediction.to_dict(),
+        "measured_final_runout": float(column.runout[-1]),
+        "prediction_measured_a": column.aspect_ratio,
         "size_scale": settings.size_scale,
         "engine": (dem or {}).get("engine", "builtin"),
         "runout": runout.to_config(),
@@ -118,6 +136,7 @@ def run_calibrated(
     }
     write_text(out_json, json.dumps(result, indent=1, default=_json_default) + "\n")
     plot_calibrated(result, column, out_figure)
+    plot_prediction(result, column, out_prediction)
     return result
 
 
@@ -167,6 +186,41 @@ def plot_calibrated(result: dict, column: MeasuredColumn, path: StrPath) -> None
     plt.close(fig)
 
 
+def plot_prediction(result: dict, column: MeasuredColumn, path: StrPath) -> None:
+    """Final runout L* and deposit height H_f / L_i of the calibrated model against the aspect ratio,
+    the measured column's final L* on it, and the experimental scaling of Lube et al. (2005)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    p = result["prediction"]
+    a = np.array(p["aspect_ratios"])
+    runout = np.array([np.nan if v is None else v for v in p["final_runout"]])
+    height = np.array([np.nan if v is None else v for v in p["height_over_L_i"]])
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
+    fine = np.linspace(max(a.min(), 0.1), a.max(), 100)
+    left.plot(fine, [expected_final_runout(x) for x in fine], "k:", lw=1, label="Lube et al. (2005) scaling")
+    left.plot(a, runout, "o-", color="tab:green", label=f"calibrated {result['model']} model (DEM)")
+    measured = f"measured ({column.name}, at its last t/t*)"
+    left.plot([column.aspect_ratio], [result["measured_final_runout"]], "ks", ms=8, label=measured)
+    left.set(xlabel="aspect ratio a = H_i / L_i", ylabel="final runout L*", title="final runout")
+    right.plot(a, height, "o-", color="tab:green")
+    right.set(xlabel="aspect ratio a = H_i / L_i", ylabel="H_f / L_i", title="deposit height")
+    for ax in (left, right):
+        ax.grid(alpha=0.3)
+    left.legend(fontsize=8)
+    fig.suptitle(
+        f"{result['name']}: predictions of the calibrated model (L_i = {column.L_i:g} m, size_scale "
+        f"{result['size_scale']:g}, t/t* = {PREDICTION_TSTAR:g}, one packing each)",
+        fontsize=10,
+    )
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=120)
+    plt.close(fig)
+
+
 def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
     """The report's first section: the answer per measured column."""
     lines = [
@@ -209,6 +263,36 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
             "diagnosis fit's time is the diagnosis job's, its design runs' DEM time aside.",
             "",
             f"![calibrated model of {result['name']}]({figure})",
+            "",
+        ]
+        transfer = result["transfer"]
+        if transfer is not None:
+            verdict = (
+                "the answer transfers."
+                if transfer["mse"] <= 2 * answer["mse"]
+                else "the parameters are effective values of their scale: recalibrate at the scale you run."
+            )
+            lines += [
+                f"**Scale transfer.** The same parameters one size_scale finer ({transfer['route']}): validated "
+                f"MSE **{transfer['mse']:.3g}** (each packing {_span(transfer['mse_each'])}) against "
+                f"{answer['mse']:.3g} at size_scale {result['size_scale']:g}: {verdict}",
+                "",
+            ]
+        p = result["prediction"]
+        cells = [f"{v:.3g}" if v is not None else "failed" for v in p["final_runout"]]
+        heights = [f"{v:.3g}" if v is not None else "failed" for v in p["height_over_L_i"]]
+        lines += [
+            "**Prediction** (same material, L_i and scale; one packing each): final runout at t/t* = "
+            f"{PREDICTION_TSTAR:g} and deposit height by aspect ratio; the measured column (a = "
+            f"{result['prediction_measured_a']:g}) reached L* = {result['measured_final_runout']:.3g} by its "
+            "last time.",
+            "",
+            "| a | " + " | ".join(f"{a:g}" for a in p["aspect_ratios"]) + " |",
+            "| --- |" + " --- |" * len(p["aspect_ratios"]),
+            "| final L* | " + " | ".join(cells) + " |",
+            "| H_f / L_i | " + " | ".join(heights) + " |",
+            "",
+            f"![predictions of {result['name']}]({Path(figure).with_name('prediction.png').as_posix()})",
             "",
         ]
     return "\n".join(lines) + "\n"

@@ -75,20 +75,28 @@ def test_the_stage_writes_its_answer_figure_and_report_section(tmp_path):
         + "".join(f"tiny,quartz,2,0.01,runout,{t},{v},\n" for t, v in zip(COLUMN.t_over_tstar, COLUMN.runout))
     )
     section = {"model": "base", "budget": 4, "n_initial": 2, "validation_packings": 2, "seed": 0}
+    section.update(finer_size_scale=3.5, predict_aspect_ratios=[1.0, 2.0])
     out = tmp_path / "calibrated"
     result = run_calibrated(
-        csv, None, out / "calibrated.json", out / "calibrated.png", section,
+        csv, None, out / "calibrated.json", out / "calibrated.png", out / "prediction.png", section,
         {"size_scale": 4.0, "channel_width": 0.01}, runout=RUNOUT.to_config(), dem=None, name="tiny",
     )  # fmt: skip
     assert result["model"] == "base" and result["answer"] == "base, BO on DEM"
     (route,) = result["routes"]
     assert route["dem_runs"] == 4 and len(route["extra"]["history"]["values"]) == 4
     assert route["mse"] == pytest.approx(runout_mse(np.array(route["mean"]), COLUMN.runout))
-    assert (out / "calibrated.png").stat().st_size > 10_000
+    assert (out / "calibrated.png").stat().st_size > 10_000 and (out / "prediction.png").stat().st_size > 10_000
+    transfer = result["transfer"]  # the answer again, grains 4 / 3.5 times finer: more grains, other curves
+    assert transfer["parameters"] == route["parameters"] and transfer["mean"] != route["mean"]
+    prediction = result["prediction"]
+    assert prediction["aspect_ratios"] == [1.0, 2.0] and prediction["failed"] == {}
+    assert 0 < prediction["final_runout"][0] < prediction["final_runout"][1]  # taller columns run further
+    assert prediction["height_over_L_i"][0] < prediction["height_over_L_i"][1]
     run_section([out / "calibrated.json"], [out / "calibrated.png"], tmp_path / "report" / "calibrated.md")
     text = (tmp_path / "report" / "calibrated.md").read_text()
     assert "### tiny: base model" in text and "](../calibrated/calibrated.png)" in text
-    assert f"validated runout MSE **{route['mse']:.3g}**" in text
+    assert f"validated runout MSE **{route['mse']:.3g}**" in text and "**Scale transfer.**" in text
+    assert "| final L* | " in text and "](../calibrated/prediction.png)" in text
 
 
 def config_with(model, engine="builtin", diagnosis_enabled=True):

@@ -14,6 +14,7 @@ rule calibrated:
     output:
         result="results/calibrated/{name}/calibrated.json",
         figure="results/calibrated/{name}/calibrated.png",
+        prediction="results/calibrated/{name}/prediction.png",
     log:
         "results/logs/calibrated/calibrated/{name}.log",
     benchmark:
@@ -36,6 +37,7 @@ rule calibrated_section:
     input:
         results=expand("results/calibrated/{name}/calibrated.json", name=CALIBRATED_NAMES),
         figures=expand("results/calibrated/{name}/calibrated.png", name=CALIBRATED_NAMES),
+        predictions=expand("results/calibrated/{name}/prediction.png", name=CALIBRATED_NAMES),
     output:
         "results/report/calibrated.md",
     log:

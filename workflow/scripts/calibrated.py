@@ -10,6 +10,7 @@ result = run_calibrated(
     snakemake.input.diagnosis or None,
     snakemake.output.result,
     snakemake.output.figure,
+    snakemake.output.prediction,
     snakemake.params.settings,
     snakemake.params.diagnosis,
     runout=snakemake.params.runout,
