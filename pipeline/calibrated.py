@@ -38,6 +38,7 @@ from dem.runout import RunoutMethod
 from pipeline.diagnosis import read_diagnosis
 
 log = logging.getLogger(__name__)
+BASE = ("friction", "restitution")
 
 
 def run_calibrated(
@@ -52,6 +53,7 @@ def run_calibrated(
     runout: dict | None,
     dem: dict | None,
     name: str = "",
+    base_routes: dict[str, StrPath] | None = None,
 ) -> dict:
     """Calibrate and validate the model of one measured column (workflow rule calibrated).
 
@@ -60,7 +62,9 @@ def run_calibrated(
     prediction across aspect ratios; diagnosis_section: the config's `diagnosis` section (its
     size_scale and channel width are the calibrated model's: parameters fitted at one scale are
     effective values of that scale);
-    runout, dem: the config's runout and dem sections.
+    runout, dem: the config's runout and dem sections. base_routes: the paper's base-model routes of
+    this column, {"inverse": inverse.json, "bayesopt": bayesopt.json, "doe": analysis.json} (any of
+    them), whose optima are validated on the same packings, side by side (`base_route_optima`).
     """
     started = time.perf_counter()
     column = load_column(measured_path)
@@ -82,6 +86,9 @@ def run_calibrated(
             )
             answers += [routes[-1]] if route_model == model else []
             log.info("%s: %s validated, MSE %.4g", name, route, routes[-1].mse)
+    for route, theta, runs in base_route_optima(base_routes or {}):
+        routes.append(validate(route, Model(), column, theta, settings, runout, dem, n_packings, runs))
+        log.info("%s: %s validated, MSE %.4g", name, route, routes[-1].mse)
     bo_started = time.perf_counter()
     history = bayesopt_model(
         model,
@@ -138,6 +145,25 @@ def run_calibrated(
     plot_calibrated(result, column, out_figure)
     plot_prediction(result, column, out_prediction)
     return result
+
+
+def base_route_optima(files: dict[str, StrPath]) -> list[tuple[str, list[float], int]]:
+    """(route, (mu, e), DEM runs it spent) of each base-model route's optimum in `files`
+    ({"inverse": inverse.json, "bayesopt": bayesopt.json, "doe": analysis.json}; DEM runs 0 where
+    the route spent a GNS dataset's instead: the comparison section counts those)."""
+    out = []
+    if files.get("inverse"):
+        data = json.loads(Path(files["inverse"]).read_text())
+        out.append(("base, GNS inverse design", [dict(zip(data["names"], data["best_params"]))[k] for k in BASE], 0))
+    if files.get("doe"):
+        data = json.loads(Path(files["doe"]).read_text())
+        for model, fit in data["models"].items():
+            out.append((f"base, DoE ({model})", [fit["optimum"]["natural"][k] for k in BASE], data["n_runs"]))
+    if files.get("bayesopt"):
+        data = json.loads(Path(files["bayesopt"]).read_text())
+        best = dict(zip(data["names"], data["best_params"]))
+        out.append(("base, BO on DEM", [best[k] for k in BASE], len(data["values"])))
+    return out
 
 
 def _json_default(value: object) -> object:

@@ -121,3 +121,30 @@ def test_a_model_the_engine_cannot_run_is_refused_before_any_job():
         check_calibration(config_with("auto", "liggghts"))
     with pytest.raises(ConfigError, match="auto takes the diagnosis' answer, but diagnosis.enabled is false"):
         check_calibration(config_with("auto", diagnosis_enabled=False))
+
+
+def test_the_papers_base_routes_are_read_for_validation_beside_the_model(tmp_path):
+    """The optima of the GNS inverse design, the DoE fits and the base BO, as their stages write them."""
+    import json
+
+    from pipeline.calibrated import base_route_optima
+
+    (tmp_path / "inverse.json").write_text(
+        json.dumps({"names": ["restitution", "friction"], "best_params": [0.4, 0.7]})
+    )
+    optimum = {"natural": {"friction": 0.9, "restitution": 0.3}}
+    doe = {"n_runs": 50, "models": {"eq9": {"optimum": optimum}, "quadratic": {"optimum": optimum}}}
+    (tmp_path / "analysis.json").write_text(json.dumps(doe))
+    bo = {"names": ["friction", "restitution"], "best_params": [0.8, 0.5], "values": [1.0] * 20}
+    (tmp_path / "bayesopt.json").write_text(json.dumps(bo))
+    files = {
+        k: tmp_path / f
+        for k, f in (("inverse", "inverse.json"), ("doe", "analysis.json"), ("bayesopt", "bayesopt.json"))
+    }
+    assert base_route_optima(files) == [
+        ("base, GNS inverse design", [0.7, 0.4], 0),  # in (mu, e) order whatever the file's order
+        ("base, DoE (eq9)", [0.9, 0.3], 50),
+        ("base, DoE (quadratic)", [0.9, 0.3], 50),
+        ("base, BO on DEM", [0.8, 0.5], 20),
+    ]
+    assert base_route_optima({}) == []

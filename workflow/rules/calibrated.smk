@@ -11,6 +11,14 @@ rule calibrated:
     input:
         measured=lambda w: config["measured"][w.name],
         diagnosis=lambda w: (f"results/diagnosis/{w.name}/diagnosis.json" if config["diagnosis"]["enabled"] else []),
+        # the paper's base-model routes, validated on the same packings beside the calibrated model
+        inverse=lambda w: [f"results/inverse/{w.name}/inverse.json"] if w.name in INVERSE_NAMES else [],
+        bayesopt=lambda w: (
+            [f"results/inverse/{w.name}/bayesopt.json"]
+            if w.name in INVERSE_NAMES and INVERSE["bayesopt_budget"]
+            else []
+        ),
+        doe=lambda w: [f"results/doe/{w.name}/analysis.json"] if w.name in DOE_NAMES else [],
     output:
         result="results/calibrated/{name}/calibrated.json",
         figure="results/calibrated/{name}/calibrated.png",

@@ -16,5 +16,6 @@ result = run_calibrated(
     runout=snakemake.params.runout,
     dem=snakemake.params.dem,
     name=snakemake.wildcards.name,
+    base_routes={key: files[0] for key in ("inverse", "bayesopt", "doe") if (files := getattr(snakemake.input, key))},
 )
 logging.info("%s: %s model, answer %s", result["name"], result["model"], result["answer"])
