@@ -275,8 +275,9 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
         for route in result["routes"]:
             values = ", ".join(f"{k} {v:.3g}" for k, v in route["parameters"].items())
             failed = "; ".join(f"packing {k}: {v}" for k, v in route["failed"].items()) or "none"
+            runs = route["dem_runs"] or "those of the GNS dataset"
             lines.append(
-                f"| {route['route']} | {values} | {route['dem_runs']} | {route['calibration_seconds']:.0f} s | "
+                f"| {route['route']} | {values} | {runs} | {route['calibration_seconds']:.0f} s | "
                 f"{route['mse']:.4g} | {_span(route['mse_each'])} | {failed} | {route['seconds']:.0f} s |"
             )
         lines += [
