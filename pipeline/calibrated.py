@@ -17,6 +17,7 @@ import math
 import os
 import time
 from collections.abc import Sequence
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +32,7 @@ from calibration.calibrated import (
     validate,
 )
 from calibration.design_runs import Model, SimulationSettings
+from calibration.diagnosis_result import Diagnosis
 from calibration.measured import MeasuredColumn, expected_final_runout, load_column
 from dem.atomic import StrPath, atomic_path, write_text
 from dem.progress import progress_logger
@@ -130,6 +132,8 @@ def run_calibrated(
         "why": why,
         "answer": best.route,
         "routes": [r.to_dict() for r in routes],
+        # 95% intervals of the model's parameters: the diagnosis' Laplace posterior (about its own fit)
+        "intervals": None if diagnosis is None else model_intervals(diagnosis, model),
         "transfer": None if transfer is None else transfer.to_dict(),
         "prediction": prediction.to_dict(),
         "measured_final_runout": float(column.runout[-1]),
@@ -145,6 +149,13 @@ def run_calibrated(
     plot_calibrated(result, column, out_figure)
     plot_prediction(result, column, out_prediction)
     return result
+
+
+def model_intervals(diagnosis: Diagnosis, model: Model) -> list[dict]:
+    """[{name, value, std, low, high, identifiable, why}] of `model`'s parameters: the diagnosis'
+    Laplace posterior of its emulator fit (calibration/uncertainty.py)."""
+    evidence = diagnosis.base if model.mechanism is None else diagnosis.candidates[model.name]
+    return [asdict(p) for p in evidence.emulator.posterior.parameters]
 
 
 def base_route_optima(files: dict[str, StrPath]) -> list[tuple[str, list[float], int]]:
@@ -268,6 +279,17 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
             "",
             f"Why this model: {result['why']}",
             "",
+        ]
+        if result.get("intervals"):
+            spans = ", ".join(
+                f"{p['name']} [{p['low']:.3g}, {p['high']:.3g}]" + ("" if p["identifiable"] else " (not identifiable)")
+                for p in result["intervals"]
+            )
+            lines += [
+                f"95% intervals (the diagnosis' Laplace posterior of this model, about its own fit): {spans}.",
+                "",
+            ]
+        lines += [
             "| route | parameters | DEM runs to calibrate | time to calibrate | validated MSE (packing mean) | "
             "MSE per packing | failed runs | validation time |",
             "| --- | --- | --- | --- | --- | --- | --- | --- |",
