@@ -17,7 +17,7 @@ Schema (full description and examples in data/measured/README.md). A CSV file in
   read_at       optional, profile rows: t/t* at which the profile was read (empty: the last
                 runout t/t*, the end of the runout record)
   bin_width     optional, profile rows: width (m) of the bins the profile was read with, the
-                height being the top of the highest grain per bin (empty: the spacing of the x
+                height being the highest point of grain in its strip (empty: the spacing of the x
                 points, at least one grain diameter)
   grain_diameter optional: mean diameter (m) of the measured grains, one value per column (empty:
                 the material's, dem.case.MATERIALS; say it when the data come from a sieve

@@ -247,8 +247,11 @@ def deposit_profile(
 
 def profile_at(trajectory: Trajectory, t_over_tstar: float, x: ArrayLike, bin_width: float) -> np.ndarray:
     """Height [P] (m) of the grains at x [P] (m), read as a deposit profile is read off an image:
-    the top (y + r) of the highest grain whose centre lies in the bin of width `bin_width` (m)
-    centred on each x, in the frame nearest t/t*; 0 where a bin holds no grain.
+    the highest point of grain in the strip of width `bin_width` (m) centred on each x, in the frame
+    nearest t/t*; 0 where no grain reaches into the strip. A grain whose centre lies in the strip
+    shows its top (y + r); one beside it, the height of its rim at the strip's nearer edge. (Counting
+    centres only would leave a strip narrower than a grain empty, or read a lower grain, at random:
+    a coarse-grained model read in the bins of finer measured grains would then be mostly noise.)
 
     Every stage that compares a simulated profile with a measured one reads it here, at the time and
     with the bin width the measurement states (calibration.measured), so that the binning and the
@@ -266,10 +269,13 @@ def profile_at(trajectory: Trajectory, t_over_tstar: float, x: ArrayLike, bin_wi
         )
     frame = int(np.argmin(np.abs(times - t_over_tstar)))
     position = np.asarray(trajectory.positions[frame], np.float64)
-    top = position[:, 1] + np.asarray(trajectory.radius, np.float64)
+    radius = np.asarray(trajectory.radius, np.float64)
     x = np.asarray(x, np.float64)
-    inside = np.abs(position[None, :, 0] - x[:, None]) <= 0.5 * bin_width  # [P, N]
-    return np.where(inside, top[None, :], 0.0).max(axis=1, initial=0.0)
+    # horizontal distance from each grain centre to the strip [P, N]; 0 for a centre inside it
+    gap = np.maximum(np.abs(position[None, :, 0] - x[:, None]) - 0.5 * bin_width, 0.0)
+    rim = np.sqrt(np.maximum(radius[None, :] ** 2 - gap**2, 0.0))
+    height = np.where(gap < radius[None, :], position[None, :, 1] + rim, 0.0)
+    return height.max(axis=1, initial=0.0)
 
 
 def final_height(positions: np.ndarray, radius: np.ndarray, gap_tolerance: float = 2.0) -> float:

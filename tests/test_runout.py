@@ -369,8 +369,9 @@ def test_runout_study_statistics_have_known_answers():
 
 
 def test_profile_is_read_like_an_image_at_the_stated_time_and_bin_width():
-    """Known answer: the highest grain top whose centre lies within half a bin of each x, in the
-    frame nearest the stated t/t*; 0 over an empty bin; the grain count of the bin does not matter."""
+    """Known answer: the highest point of grain in the strip of a bin centred on each x (a centre in
+    it shows its top, a grain beside it its rim), in the frame nearest the stated t/t*; 0 where no
+    grain reaches into the strip."""
     block = scene(width=3, floor=4)  # block tops at 12 R, a single layer on the floor to x = 14 R
     later = block.copy()
     later[:, 1] = np.maximum(later[:, 1] - 4 * R, R)  # frame 1: the block has sunk by 2 grains
@@ -382,6 +383,9 @@ def test_profile_is_read_like_an_image_at_the_stated_time_and_bin_width():
     # a bin wide enough to reach the block from x = 7 R sees its top; a narrow one does not
     assert profile_at(traj, 0.0, [7.5 * R], bin_width=2 * R)[0] == pytest.approx(2 * R)
     assert profile_at(traj, 0.0, [7.5 * R], bin_width=6 * R)[0] == pytest.approx(12 * R)
+    # a strip narrower than a grain between two columns of grains sees their rims, not nothing
+    rim = 11 * R + np.sqrt(R**2 - (0.5 * R) ** 2)  # the block's top grain at 5 R, 0.5 R from the strip
+    assert profile_at(traj, 0.0, [6 * R], bin_width=R)[0] == pytest.approx(rim)
     with pytest.raises(RunoutError, match="t/t\\* = 0.3 lies outside the simulated window"):
         profile_at(traj, 0.3, x, bin_width=2 * R)
     with pytest.raises(RunoutError, match="bin width must be positive"):
