@@ -34,7 +34,8 @@ from calibration.calibrated import (
 from calibration.design_runs import Model, SimulationSettings
 from calibration.diagnosis_result import Diagnosis
 from calibration.measured import MeasuredColumn, expected_final_runout, load_column
-from dem.atomic import StrPath, atomic_path, write_text
+from dem.atomic import StrPath, write_text
+from dem.plots import save_figure
 from dem.progress import progress_logger
 from dem.runout import RunoutMethod
 from pipeline.diagnosis import read_diagnosis
@@ -218,9 +219,7 @@ def plot_calibrated(result: dict, column: MeasuredColumn, path: StrPath) -> None
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left")
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def plot_prediction(result: dict, column: MeasuredColumn, path: StrPath) -> None:
@@ -253,9 +252,7 @@ def plot_prediction(result: dict, column: MeasuredColumn, path: StrPath) -> None
         fontsize=10,
     )
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=120)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
