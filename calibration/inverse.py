@@ -330,11 +330,10 @@ def inverse_design(
 # -- outputs ----------------------------------------------------------------------------------------
 def write_result(result: InverseResult, path: str | os.PathLike) -> None:
     """inverse.json (atomically)."""
-    import json
 
-    from dem.atomic import write_text
+    from dem.atomic import write_json
 
-    write_text(path, json.dumps(result.to_dict(), indent=1) + "\n")
+    write_json(path, result.to_dict())
 
 
 def read_result(path: str | os.PathLike) -> dict:

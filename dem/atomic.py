@@ -7,10 +7,13 @@ that a later stage or Snakemake could take as complete.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+
+import numpy as np
 
 StrPath = str | os.PathLike  # a file or folder path, as every writer and reader accepts
 
@@ -34,3 +37,16 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
 def write_text(path: str | os.PathLike, text: str) -> None:
     with atomic_path(path) as tmp:
         tmp.write_text(text)
+
+
+def write_json(path: str | os.PathLike, data: object) -> None:
+    """`data` as indented JSON (numpy arrays and scalars as plain lists and numbers), atomically."""
+    write_text(path, json.dumps(data, indent=1, default=_plain) + "\n")
+
+
+def _plain(value: object) -> object:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")

@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from dem.atomic import write_text
+from dem.atomic import write_json
 from dem.trajectory import TrajectoryError, read_trajectory
 
 if TYPE_CHECKING:
@@ -149,7 +149,7 @@ def build_dataset(splits: dict[str, list[str]], out_path: str | os.PathLike, nam
         "materials": sorted(materials),
         "engines": sorted(engines),
     }
-    write_text(out_path, json.dumps(metadata, indent=1) + "\n")
+    write_json(out_path, metadata)
     return metadata
 
 

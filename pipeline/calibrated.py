@@ -33,8 +33,9 @@ from calibration.calibrated import (
 )
 from calibration.design_runs import Model, SimulationSettings
 from calibration.diagnosis_result import Diagnosis
+from calibration.inverse import read_result
 from calibration.measured import MeasuredColumn, expected_final_runout, load_column
-from dem.atomic import StrPath, write_text
+from dem.atomic import StrPath, write_json, write_text
 from dem.plots import save_figure
 from dem.progress import progress_logger
 from dem.runout import RunoutMethod
@@ -146,7 +147,7 @@ def run_calibrated(
         "calibration_packing": CALIBRATION_SEED,
         "seconds": time.perf_counter() - started,
     }
-    write_text(out_json, json.dumps(result, indent=1, default=_json_default) + "\n")
+    write_json(out_json, result)
     plot_calibrated(result, column, out_figure)
     plot_prediction(result, column, out_prediction)
     return result
@@ -165,7 +166,7 @@ def base_route_optima(files: dict[str, StrPath]) -> list[tuple[str, list[float],
     the route spent a GNS dataset's instead: the comparison section counts those)."""
     out = []
     if files.get("inverse"):
-        data = json.loads(Path(files["inverse"]).read_text())
+        data = read_result(files["inverse"])
         out.append(("base, GNS inverse design", [dict(zip(data["names"], data["best_params"]))[k] for k in BASE], 0))
     if files.get("doe"):
         data = json.loads(Path(files["doe"]).read_text())
@@ -176,14 +177,6 @@ def base_route_optima(files: dict[str, StrPath]) -> list[tuple[str, list[float],
         best = dict(zip(data["names"], data["best_params"]))
         out.append(("base, BO on DEM", [best[k] for k in BASE], len(data["values"])))
     return out
-
-
-def _json_default(value: object) -> object:
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
 
 
 # -- figure and report section -----------------------------------------------------------------------

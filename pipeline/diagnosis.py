@@ -19,14 +19,12 @@ import warnings
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
 from calibration.design_runs import Library
 from calibration.diagnosis import LIBRARY_SETTINGS, DiagnosisSettings, diagnose
 from calibration.diagnosis_result import Diagnosis, Evidence
 from calibration.measured import MeasuredColumn, MeasuredDataWarning, read_measured
 from calibration.observables import Observables
-from dem.atomic import StrPath, write_text
+from dem.atomic import StrPath, write_json, write_text
 
 
 # -- the jobs --------------------------------------------------------------------------------------------
@@ -88,20 +86,12 @@ def read_columns(path: StrPath) -> tuple[list[MeasuredColumn], list[str]]:
 
 def write_diagnosis(result: Diagnosis, path: StrPath) -> None:
     """diagnosis.json (`result.to_dict()`), atomically."""
-    write_text(path, json.dumps(result.to_dict(), indent=1, default=_json_default) + "\n")
+    write_json(path, result.to_dict())
 
 
 def read_diagnosis(path: StrPath) -> Diagnosis:
     """The Diagnosis of a diagnosis.json (`write_diagnosis`)."""
     return Diagnosis.from_dict(json.loads(Path(path).read_text()))
-
-
-def _json_default(value):
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
 
 
 # -- the report section --------------------------------------------------------------------------------------

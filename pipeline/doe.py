@@ -20,7 +20,7 @@ import pandas as pd
 
 from calibration.measured import MeasuredColumn, load_column
 from calibration.objective import objective, runout_mse
-from dem.atomic import StrPath, write_text
+from dem.atomic import StrPath, write_json, write_text
 from dem.engines import simulate_case
 from dem.progress import progress_logger
 from dem.runout import RunoutMethod, runout_at, runout_curve
@@ -154,16 +154,6 @@ def write_section(
 
 
 # ---- stage IO ----
-
-
-def write_json(path: StrPath, data: object) -> None:
-    write_text(path, json.dumps(data, indent=1, default=_plain) + "\n")
-
-
-def _plain(value):
-    if isinstance(value, np.generic):
-        return value.item()
-    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
 
 
 # ---- report section ----

@@ -46,7 +46,7 @@ from calibration.inverse_plots import plot_deposits, plot_paths
 from calibration.measured import MeasuredColumn, load_column
 from calibration.objective import objective
 from calibration.recovery import plot_recovery, recovery_study
-from dem.atomic import StrPath, write_text
+from dem.atomic import StrPath, write_json, write_text
 from dem.progress import progress_logger
 from dem.runout import RunoutMethod, check_same_method, runout_curve
 from dem.trajectory import read_trajectory, write_trajectory
@@ -244,7 +244,7 @@ def run_recovery(
         dem_config=dem,
         **study_kwargs,
     )
-    write_text(out_json, json.dumps(summary, indent=1) + "\n")
+    write_json(out_json, summary)
     plot_recovery(
         summary,
         out_figure,

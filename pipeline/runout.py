@@ -6,13 +6,12 @@ results/runout/methods.json, its figure and the report section (results/report/r
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from dem.atomic import StrPath, write_text
+from dem.atomic import StrPath, write_json, write_text
 from dem.progress import progress_logger
 from dem.runout import RunoutMethod
 from dem.runout_study import PACKINGS, PERTURBATION, RERUNS, compare_methods, markdown_table, plot_methods
@@ -45,7 +44,7 @@ def run_runout_methods(
         cases, n_packings=n_packings, n_reruns=n_reruns, rollouts=rollouts, progress=progress
     )
     study["configured"] = runout.to_config()
-    write_text(out_json, json.dumps(study, indent=1) + "\n")
+    write_json(out_json, study)
     plot_methods(curves, out_figure)
     figure = Path(os.path.relpath(out_figure, Path(out_section).parent)).as_posix()
     text = "\n".join(
