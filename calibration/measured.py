@@ -303,13 +303,9 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
             )
         series[kind].append((line, x, value, std, reading))
 
-    _all_or_none(path, name, grains, [g for _, g in grains], "grain_diameter", "")
-    for line, grain in grains:
-        if not (math.isnan(grain) or grain == grains[0][1]):
-            raise MeasuredDataError(
-                f"{path}, line {line}, column 'grain_diameter': {grain:g} differs from {grains[0][1]:g} on line "
-                f"{grains[0][0]}: one measured column has one grain size"
-            )
+    grain = _one_value(
+        path, name, grains, [g for _, g in grains], "grain_diameter", "", "one measured column has one grain size"
+    )
     t, runout, std = _series(path, name, series["runout"], "t/t*", min_points=2)
     _all_or_none(path, name, series["runout"], [p[3] for p in series["runout"]], "std", "runout")
     profile, reading = None, {f: math.nan for f in PROFILE_READING}
@@ -323,14 +319,9 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
         _all_or_none(path, name, series["profile"], [p[3] for p in series["profile"]], "std", "profile")
         for field in PROFILE_READING:
             values = [p[4][field] for p in series["profile"]]
-            _all_or_none(path, name, series["profile"], values, field, "profile")
-            for (line, *_), value_ in zip(series["profile"], values):
-                if not (math.isnan(value_) or value_ == values[0]):
-                    raise MeasuredDataError(
-                        f"{path}, line {line}, column {field!r}: {value_:g} differs from {values[0]:g} on line "
-                        f"{series['profile'][0][0]}: one profile of {name!r} is read one way"
-                    )
-            reading[field] = values[0]
+            reading[field] = _one_value(
+                path, name, series["profile"], values, field, "profile", f"one profile of {name!r} is read one way"
+            )
     column = MeasuredColumn(
         name=name,
         material=material,
@@ -346,7 +337,7 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
         profile_read_at=None if math.isnan(reading["read_at"]) else reading["read_at"],
         profile_bin_width=None if math.isnan(reading["bin_width"]) else reading["bin_width"],
         profile_line=series["profile"][0][0] if series["profile"] else None,
-        grain_diameter=None if math.isnan(grains[0][1]) else grains[0][1],
+        grain_diameter=None if math.isnan(grain) else grain,
     )
     _check_runout_units(path, column, series["runout"][0][0])
     return column
@@ -362,6 +353,19 @@ def _all_or_none(path: Path, name: str, points: list, values: list[float], field
             f"{path}, line {line}, column {field!r}: missing here but given on other {rows} of "
             f"{name!r}; give it on every {kind + ' ' if kind else ''}row or on none"
         )
+
+
+def _one_value(path: Path, name: str, points: list, values: list[float], field: str, kind: str, why: str) -> float:
+    """The one value a field has on every `kind` row of a column (NaN: on none); given on some rows
+    only, or differing between rows, is an error naming the line."""
+    _all_or_none(path, name, points, values, field, kind)
+    for (line, *_), value in zip(points, values):
+        if not (math.isnan(value) or value == values[0]):
+            raise MeasuredDataError(
+                f"{path}, line {line}, column {field!r}: {value:g} differs from {values[0]:g} on line "
+                f"{points[0][0]}: {why}"
+            )
+    return values[0]
 
 
 def _series(path, name, points, what, min_points):
