@@ -100,7 +100,7 @@ def phases(case: CollapseCase, radius: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 def render_deck(case: CollapseCase, packing: Trajectory) -> tuple[str, str]:
     """(collapse.mfx text, particle_input.dat text) for `case` from the last frame of `packing`."""
-    refuse_unsupported(case, "mfix")
+    refuse_unsupported(case, "mfix", MfixEngine.mechanisms)
     positions = np.asarray(packing.positions[-1], float)
     radius = np.asarray(packing.radius, float)
     phase, phase_diameter, worst = phases(case, radius)
