@@ -11,6 +11,7 @@ from calibration.design_runs import Model, SimulationSettings
 from calibration.measured import MeasuredColumn
 from calibration.mechanisms import get_mechanisms
 from calibration.objective import runout_mse
+from dem.engines.liggghts import LiggghtsEngine
 from dem.runout import RunoutMethod
 from pipeline.calibrated import run_calibrated, run_section
 from pipeline.config import ConfigError, check_calibration
@@ -61,11 +62,16 @@ def test_validation_scores_the_mean_curve_of_its_packings():
 
 
 def test_a_run_that_fails_is_reported_with_its_packing_never_averaged():
-    """MFIX runs no cohesion: every run is refused by the engine, reported, and the score is NaN."""
+    """LIGGGHTS does not model cohesion: every run is refused by the engine (or, where LIGGGHTS is
+    not installed, the engine cannot start), reported with its packing, and the score is NaN."""
     model = Model(get_mechanisms(["cohesion"])[0])
-    result = validate("cohesion", model, COLUMN, (0.5, 0.6, 10.0), SETTINGS, RUNOUT, {"engine": "mfix"}, n_packings=2)
+    config = {"engine": "liggghts"}
+    result = validate("cohesion", model, COLUMN, (0.5, 0.6, 10.0), SETTINGS, RUNOUT, config, n_packings=2)
     assert result.n_ran == 0 and np.isnan(result.mse) and set(result.failed) == set(result.seeds)
-    assert all("EngineError" in why or "Engine" in why for why in result.failed.values())
+    assert np.isnan(result.mean).all() and np.isnan(result.mse_each).all()
+    installed, _ = LiggghtsEngine().availability()
+    expected = "does not model cohesion_energy" if installed else "EngineNotInstalled"
+    assert all(expected in why for why in result.failed.values()), result.failed
 
 
 def test_the_stage_writes_its_answer_figure_and_report_section(tmp_path):
