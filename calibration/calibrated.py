@@ -21,23 +21,28 @@ aspect ratios (same material, L_i and scale), beside the measured column.
 
 from __future__ import annotations
 
+import json
 import logging
 import math
+import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
 
 import numpy as np
 
 from calibration.bayesopt import BOSettings, bayesian_optimisation
 from calibration.design_runs import Model, SimulationSettings
 from calibration.diagnosis_result import Diagnosis
+from calibration.emulator import latin_hypercube
 from calibration.measured import MeasuredColumn
-from calibration.mechanisms import candidate_mechanisms, get_mechanisms
+from calibration.mechanisms import BASE_BOUNDS, candidate_mechanisms, get_mechanisms
 from calibration.objective import runout_mse, simulated_runout_at
 from calibration.optimise import OptimisationHistory, one_at_a_time
-from dem.case import CaseError
+from dem.case import CaseError, CollapseCase
 from dem.engines import EngineError, simulate_case
+from dem.grid import assign_splits, case_id_of
 from dem.integrate import SimulationError
 from dem.runout import RunoutError, RunoutMethod, final_height
 from dem.trajectory import TrajectoryError
@@ -81,12 +86,124 @@ def resolve_model(choice: str, diagnosis: Diagnosis | None, channel_width: float
     )
 
 
+BOX_WIDENING = 2.0  # the calibration box: the diagnosis' 95% interval of the mechanism, this many times as wide ...
+BOX_MIN_FRACTION = 0.25  # ... and at least this fraction of the candidate's whole range
+
+
+def calibration_box(model: Model, diagnosis: Diagnosis | None, box: str = "diagnosis") -> Model:
+    """The model with the range its mechanism's parameter is calibrated in: box "full" (the
+    candidate's whole range, calibration/mechanisms.py) or "diagnosis": centred on the diagnosis'
+    estimate, BOX_WIDENING times its 95% interval and at least BOX_MIN_FRACTION of the whole range,
+    inside it. Every route (GNS dataset, DoE, BO) then spends its runs where the measurement puts
+    the parameter instead of across magnitudes the diagnosis has ruled out; a parameter the
+    diagnosis could not pin down (not identifiable) keeps the whole range."""
+    if box not in ("diagnosis", "full"):
+        raise CalibrationError(f"calibration.box: unknown box {box!r}; choose diagnosis or full")
+    mechanism = model.mechanism
+    if mechanism is None or box == "full" or diagnosis is None:
+        return model
+    estimate = diagnosis_parameters(diagnosis, model)[-1]
+    (interval,) = [
+        p for p in diagnosis.candidates[model.name].emulator.posterior.parameters if p.name == mechanism.parameter
+    ]
+    if not interval.identifiable:
+        return model
+    low, high = mechanism.bounds
+    half = max(BOX_WIDENING * 0.5 * (interval.high - interval.low), BOX_MIN_FRACTION * 0.5 * (high - low))
+    half = min(half, 0.5 * (high - low))
+    centre = min(max(estimate, low + half), high - half)  # the box slides inside the whole range
+    return Model(replace(mechanism, bounds=(float(centre - half), float(centre + half))))
+
+
+def model_record(model: Model, why: str, name: str = "") -> dict:
+    """model.json: the model one measured column is calibrated as (the DAG's answer to `auto`)."""
+    return {
+        "name": name,
+        "model": model.name,
+        "parameters": list(model.parameter_names),
+        "bounds": model.bounds.tolist(),
+        "log_scale": [bool(v) for v in model.box.log_scale],
+        "why": why,
+    }
+
+
+def read_model(path: str | os.PathLike, channel_width: float = 0.01) -> tuple[Model, str]:
+    """(Model, why) from a model.json written with model_record; CalibrationError naming the file
+    when it is not one."""
+    try:
+        record = json.loads(Path(path).read_text())
+        choice = record["model"]
+        model = Model() if choice == "base" else Model(get_mechanisms([choice], channel_width)[0])
+        bounds = [tuple(map(float, b)) for b in record["bounds"]]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise CalibrationError(f"{path}: not a calibrated-model file ({type(exc).__name__}: {exc})") from exc
+    if list(model.parameter_names) != list(record.get("parameters", [])):
+        raise CalibrationError(
+            f"{path}: parameters {record.get('parameters')} differ from model {choice}'s {list(model.parameter_names)}"
+        )
+    whole = [tuple(b) for b in model.bounds.tolist()]
+    if model.mechanism is not None:  # the calibration box of the mechanism, inside its whole range
+        low, high = bounds[-1]
+        if not whole[-1][0] <= low < high <= whole[-1][1]:
+            raise CalibrationError(
+                f"{path}: {model.mechanism.parameter} range [{low:g}, {high:g}] is not inside its whole range "
+                f"[{whole[-1][0]:g}, {whole[-1][1]:g}]"
+            )
+        model = Model(replace(model.mechanism, bounds=(low, high)))
+    if bounds[: len(BASE_BOUNDS)] != list(BASE_BOUNDS):
+        raise CalibrationError(f"{path}: bounds of friction and restitution {bounds[:2]} are not {list(BASE_BOUNDS)}")
+    return model, str(record.get("why", ""))
+
+
 def diagnosis_parameters(diagnosis: Diagnosis, model: Model) -> np.ndarray:
     """theta [p] the diagnosis calibrated `model` to: its DEM-scored optimum where it has one, else
     its emulator's."""
     evidence = diagnosis.base if model.mechanism is None else diagnosis.candidates[model.name]
     parameters = evidence.dem.parameters if evidence.dem is not None else evidence.emulator.parameters
     return np.array([parameters[name] for name in model.parameter_names], float)
+
+
+# -- the GNS dataset of the model -------------------------------------------------------------------
+DATASET_SEED0 = 3001  # packings of the model's GNS dataset: never a validation's (VALIDATION_SEED0)
+
+
+@dataclass(frozen=True)
+class DatasetCase:
+    """One DEM case of the model's GNS dataset: parameters {name: value} of the model, its split."""
+
+    case_id: str
+    split: str
+    parameters: dict
+    case: CollapseCase
+
+
+def model_dataset_cases(
+    model: Model, template: CollapseCase, n_cases: int, seed: int, splits: dict
+) -> list[DatasetCase]:
+    """The GNS dataset of `model` on the column of `template` (a case of the base model's GNS dataset
+    of the measured column: its geometry, grain scale, frame interval and duration): n_cases seeded
+    Latin-hypercube points over model.box, each on its own packing (DATASET_SEED0 + k), split by
+    `splits` ({train, valid, test: fraction}) spread along the design like every dataset's, the
+    cases in the order of the model's last parameter (the mechanism's)."""
+    if n_cases < 3:
+        raise CalibrationError(f"calibration.gns_cases: {n_cases} cases cannot fill train, valid and test")
+    theta = latin_hypercube(model.box, n_cases, seed)
+    # in the order of the mechanism's parameter: the valid and test splits, spread along the order,
+    # then span its range (a random order once put every valid case at weak cohesion)
+    theta = theta[np.argsort(theta[:, -1], kind="stable")]
+    cases = []
+    for k, (point, split) in enumerate(zip(theta, assign_splits(n_cases, splits))):
+        case_id = case_id_of(k, n_cases)
+        case = template.replace(
+            friction=float(point[0]),
+            restitution=float(point[1]),
+            seed=DATASET_SEED0 + k,
+            name=f"{template.name.split('/')[0]}:{model.name}/{case_id}",
+        )
+        if model.mechanism is not None:
+            case = case.replace(**model.mechanism.case_fields(float(point[2]), case))
+        cases.append(DatasetCase(case_id, split, dict(zip(model.parameter_names, map(float, point))), case))
+    return cases
 
 
 # -- DEM runs of the model ------------------------------------------------------------------------

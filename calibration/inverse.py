@@ -45,7 +45,8 @@ from gns.simulator import LearnedSimulator
 log = logging.getLogger(__name__)
 
 BOUNDS = ((0.3, 0.9), (0.3, 0.9))
-JACOBIAN_STEP = 2e-2  # central-difference step of the posterior's Jacobian
+JACOBIAN_STEP = 2e-2  # central-difference step of the posterior's Jacobian, for a parameter range of PAPER_WIDTH
+PAPER_WIDTH = 0.6  # the paper's box width of mu and e; a wider parameter (a Bond number) steps in proportion
 # A rollout is a chaotic function of the parameters (so is the DEM): below some scale the objective
 # is noise, not trend. The objective ROUGHNESS_RADIUS from the optimum, reported with every result,
 # shows how large that noise is (its spread against the trend over JACOBIAN_STEP).
@@ -167,7 +168,7 @@ def posterior_at(
     optimum: ArrayLike,
     bounds: Sequence[Sequence[float]],
     model_error_std: float | None = None,
-    step: float = JACOBIAN_STEP,
+    step: float | ArrayLike = JACOBIAN_STEP,
     start_packing_std: ArrayLike | None = None,
 ) -> tuple[LaplacePosterior, np.ndarray, dict]:
     """Laplace posterior (calibration.uncertainty) at `optimum` from a central-difference Jacobian of
@@ -180,7 +181,10 @@ def posterior_at(
     finite_difference_jacobian(lambda theta: points.append(np.array(theta)) or np.zeros(1), optimum, bounds, step)
     low, high = np.asarray(bounds, float).T
     angles = np.pi / 4 + np.arange(ROUGHNESS_PROBES) * 2 * np.pi / ROUGHNESS_PROBES
-    probes = [np.clip(optimum + ROUGHNESS_RADIUS * np.array([np.cos(a), np.sin(a)]), low, high) for a in angles]
+    # in the plane of the first two parameters (mu, e), each probe ROUGHNESS_RADIUS away
+    probes = [optimum.copy() for _ in angles]
+    for probe, a in zip(probes, angles):
+        probe[:2] = np.clip(optimum[:2] + ROUGHNESS_RADIUS * np.array([np.cos(a), np.sin(a)]), low[:2], high[:2])
     runouts = objective.runout_values(np.vstack([optimum] + points + probes))
     replay = iter(runouts[1 : 1 + len(points)])
     jacobian = finite_difference_jacobian(lambda theta: next(replay), optimum, bounds, step)
@@ -200,7 +204,7 @@ def posterior_at(
         "values": probe_values,
         "optimum_value": values[0],
         "spread": float(np.max(probe_values + values[:1]) - np.min(probe_values + values[:1])),
-        "jacobian_step": step,
+        "jacobian_step": np.broadcast_to(step, optimum.shape).tolist() if np.ndim(step) else step,
         "jacobian_step_values": values[1 : 1 + len(points)],
     }
     return posterior, runouts[0], roughness
@@ -274,11 +278,18 @@ def inverse_design(
         )
 
     t0 = time.perf_counter()
-    settings = LBFGSBSettings(starts, gradient, fd_step, max_iterations, ftol, gtol, max_evaluations)
+    widths = np.array([high - low for low, high in bounds])
+    scale = np.maximum(widths / PAPER_WIDTH, 1.0)  # mu and e as the paper's; a wide range in proportion
+    settings = LBFGSBSettings(starts, gradient, fd_step, max_iterations, ftol, gtol, max_evaluations, scale)
     optimum = multistart_lbfgsb(evaluate, bounds, names, settings, progress)
     t1 = time.perf_counter()
     posterior, best_runout, roughness = posterior_at(
-        objective, optimum.params, bounds, model_error_std, start_packing_std=start_packing_std
+        objective,
+        optimum.params,
+        bounds,
+        model_error_std,
+        JACOBIAN_STEP * (scale if np.any(scale != 1) else 1.0),
+        start_packing_std,
     )
     t2 = time.perf_counter()
     online = dict(objective.timing)  # where the online time went: rollouts, forward, backward

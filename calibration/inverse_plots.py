@@ -44,6 +44,8 @@ def plot_paths(
     from dem.plots import plt, save_figure
 
     names = result["names"]
+    if len(names) != 2:  # no plane to draw the paths in: each parameter against the iteration
+        return plot_traces(result, path, title)
     (x_low, x_high), (y_low, y_high) = result["bounds"]
     fig, ax = plt.subplots(figsize=(6.4, 5.2))
     values = [v for s in result["starts"] for v in s["evaluations"]["values"]]
@@ -121,6 +123,40 @@ def plot_paths(
         title=title or f"GNS inverse design of {result['measured']} ({result['gradient']} gradients)",
     )
     ax.legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def plot_traces(result: dict, path: str | os.PathLike, title: str = "") -> None:
+    """The optimisation paths of every start, one panel per design parameter (any number of them):
+    the parameter at each iteration, the bounds as the panel's limits, the optimum with its 95%
+    posterior interval; the last panel is the objective per iteration."""
+    from dem.plots import plt, save_figure
+
+    names, bounds = result["names"], result["bounds"]
+    posterior = {p["name"]: p for p in result["posterior"]["parameters"]}
+    fig, axes = plt.subplots(1, len(names) + 1, figsize=(3.2 * (len(names) + 1), 3.4))
+    for k, start in enumerate(result["starts"]):
+        colour = plt.get_cmap("tab10")(k % 10)
+        points = np.array([p["params"] for p in start["iterates"]])
+        values = [p["value"] for p in start["iterates"]]
+        for j, ax in enumerate(axes[:-1]):
+            ax.plot(points[:, j], "o-", color=colour, ms=3, lw=1)
+        axes[-1].semilogy(
+            values, "o-", color=colour, ms=3, lw=1, label=f"start {k + 1}: {values[0]:.3g} -> {values[-1]:.3g}"
+        )
+    for j, (ax, name) in enumerate(zip(axes, names)):
+        p = posterior.get(name)
+        if p is not None:
+            ax.axhspan(p["low"], p["high"], color="r", alpha=0.12, label="95% interval")
+        ax.axhline(result["best_params"][j], color="r", lw=1.2, label=f"optimum {result['best_params'][j]:.3g}")
+        ax.set(ylim=bounds[j], xlabel="iteration", ylabel=name)
+        ax.legend(fontsize=7)
+        ax.grid(alpha=0.3)
+    axes[-1].set(xlabel="iteration", ylabel="objective (runout MSE), GNS")
+    axes[-1].legend(fontsize=7)
+    axes[-1].grid(alpha=0.3)
+    fig.suptitle(title or f"GNS inverse design of {result['measured']} ({result['gradient']} gradients)", fontsize=10)
     fig.tight_layout()
     save_figure(fig, path)
 

@@ -92,6 +92,9 @@ class LBFGSBSettings:
     ftol: float = FTOL
     gtol: float = GTOL
     max_evaluations: int | None = None
+    # [P] units L-BFGS-B steps in (x / scale): parameters whose ranges differ by orders of magnitude
+    # (friction in [0.3, 0.9], a Bond number in [0, 60]) would otherwise get one step length for all
+    scale: ArrayLike | None = None
 
 
 @dataclass
@@ -213,6 +216,7 @@ def multistart_lbfgsb(
         check_step(fd_step, bounds)
     histories = [OptimisationHistory(names=list(names)) for _ in starts]
     iterates = [[] for _ in starts]
+    scale = np.ones(starts.shape[1]) if settings.scale is None else np.asarray(settings.scale, float)
 
     def timed_batch(points):
         t0 = time.perf_counter()
@@ -239,12 +243,13 @@ def multistart_lbfgsb(
             if stall["count"] >= STALL_EVALUATIONS:
                 raise _Stalled
 
-        def fun(x):
+        def fun(z):
+            x = z * scale
             if use_gradient:
                 ((answer, seconds),) = lockstep.request(index, x)
                 histories[index].record(x, answer[0], seconds, index, len(iterates[index]))
                 check_stall(float(answer[0]))
-                return float(answer[0]), np.asarray(answer[1], float)
+                return float(answer[0]), np.asarray(answer[1], float) * scale
             steps = np.array([fd_step if x[j] + fd_step <= bounds[j][1] else -fd_step for j in range(len(x))])
             stencil = np.vstack([x, x + np.diag(steps)])
             answers = lockstep.request(index, stencil)
@@ -253,10 +258,10 @@ def multistart_lbfgsb(
             check_stall(value)
             # the step as represented (x + h) - x, as scipy's approx_derivative takes it
             gradient_fd = [(float(answers[j + 1][0]) - value) / (stencil[j + 1][j] - x[j]) for j in range(len(x))]
-            return value, np.array(gradient_fd)
+            return value, np.array(gradient_fd) * scale
 
         def callback(intermediate_result):
-            iterates[index].append((intermediate_result.x.tolist(), float(intermediate_result.fun)))
+            iterates[index].append(((intermediate_result.x * scale).tolist(), float(intermediate_result.fun)))
 
         try:
             options = {
@@ -267,12 +272,18 @@ def multistart_lbfgsb(
                 "maxfun": settings.max_evaluations or 2 * max_iterations,
             }
             outcomes[index] = minimize(
-                fun, starts[index], method="L-BFGS-B", jac=True, bounds=bounds, options=options, callback=callback
+                fun,
+                starts[index] / scale,
+                method="L-BFGS-B",
+                jac=True,
+                bounds=[(low / s, high / s) for (low, high), s in zip(bounds, scale)],
+                options=options,
+                callback=callback,
             )
         except _Stalled:
             params, value = histories[index].best
             outcomes[index] = OptimizeResult(
-                x=np.asarray(params),
+                x=np.asarray(params) / scale,
                 fun=value,
                 success=False,
                 nit=len(iterates[index]),
@@ -302,7 +313,7 @@ def multistart_lbfgsb(
         if value < float(outcome.fun):
             message += f"; best evaluated point kept (L-BFGS-B ended at {float(outcome.fun):.4g})"
         else:
-            params, value = outcome.x, float(outcome.fun)
+            params, value = outcome.x * scale, float(outcome.fun)
         results.append(
             StartResult(
                 start=starts[k].tolist(),

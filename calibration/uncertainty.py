@@ -131,15 +131,17 @@ def finite_difference_jacobian(
     model: Callable[[np.ndarray], ArrayLike],
     theta: ArrayLike,
     bounds: Sequence[tuple[float, float]],
-    step: float = 1e-2,
+    step: float | ArrayLike = 1e-2,
 ) -> np.ndarray:
-    """[K, p] central differences of model(theta) -> [K], steps kept inside the bounds."""
+    """[K, p] central differences of model(theta) -> [K], steps (a scalar or one per parameter [p])
+    kept inside the bounds."""
     theta = np.asarray(theta, float)
+    steps = np.broadcast_to(np.asarray(step, float), theta.shape)
     columns = []
     for j in range(len(theta)):
         low, high = bounds[j]
         up, down = theta.copy(), theta.copy()
-        up[j] = min(theta[j] + step, high)
-        down[j] = max(theta[j] - step, low)
+        up[j] = min(theta[j] + steps[j], high)
+        down[j] = max(theta[j] - steps[j], low)
         columns.append((np.asarray(model(up)) - np.asarray(model(down))) / (up[j] - down[j]))
     return np.stack(columns, axis=1)

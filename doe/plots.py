@@ -1,8 +1,10 @@
-"""DoE figures: fitted response surfaces with the design points and optimum, and runout curves
-before/after calibration against the measured points (the paper's Fig. 11)."""
+"""DoE figures: fitted response surfaces with the design points and optimum (two factors; or every
+pair of k factors, the others held at the optimum), and runout curves before/after calibration
+against the measured points (the paper's Fig. 11)."""
 
 from __future__ import annotations
 
+import itertools
 import os
 from typing import TYPE_CHECKING
 
@@ -14,6 +16,7 @@ if TYPE_CHECKING:
     import pandas as pd
 
     from calibration.measured import MeasuredColumn
+    from doe.regression import SurfaceFit
 
 SURFACE_POINTS = 101  # per axis
 
@@ -73,6 +76,71 @@ def plot_response_surfaces(
         ax.legend(fontsize=7, loc="upper right")
     fig.colorbar(shading, ax=axes[0].tolist(), label=f"{response} (fitted surface and runs)")
     fig.suptitle(f"DoE response surfaces{' - ' + measured_name if measured_name else ''}", fontsize=10)
+    save_figure(fig, path)
+
+
+def plot_surface_pairs(
+    fit: SurfaceFit, responses: pd.DataFrame, path: str | os.PathLike, response: str = "mse", title: str = ""
+) -> None:
+    """One contour panel per pair of the fit's k factors (natural units): the fitted surface with
+    the other factor(s) held at the fit's optimum, every design run projected onto the pair and
+    coloured by its observed response (a run without a finite response, e.g. a failed DEM run, as
+    a red cross), and the optimum (star).
+
+    fit: doe.regression.SurfaceFit over k >= 2 factors; responses: the factor columns and `response`.
+    """
+    optimum = fit.optimum()
+    natural = optimum["natural"]
+    best = np.array([optimum["coded"][f.name] for f in fit.factors])
+    pairs = list(itertools.combinations(range(len(fit.factors)), 2))
+    axis = np.linspace(-1, 1, SURFACE_POINTS)
+    gx, gy = np.meshgrid(axis, axis, indexing="xy")
+    surfaces = []
+    for i, j in pairs:
+        coded = np.tile(best, (gx.size, 1))
+        coded[:, i], coded[:, j] = gx.ravel(), gy.ravel()
+        surfaces.append(fit.predict(coded).reshape(gx.shape))
+    observed = responses[response].to_numpy(float)
+    ran = np.isfinite(observed)
+    # one colour scale for every panel and the runs, so that panels compare
+    low = min(observed[ran].min(initial=np.inf), *(s.min() for s in surfaces))
+    high = max(observed[ran].max(initial=-np.inf), *(s.max() for s in surfaces))
+    levels = np.linspace(low, high, 21)
+    fig, axes = plt.subplots(1, len(pairs), figsize=(4.8 * len(pairs) + 1.0, 4.8), squeeze=False, layout="constrained")
+    for ax, (i, j), surface in zip(axes[0], pairs, surfaces):
+        fx, fy = fit.factors[i], fit.factors[j]
+        shading = ax.contourf(fx.decode(gx), fy.decode(gy), surface, levels=levels, cmap="viridis")
+        ax.contour(fx.decode(gx), fy.decode(gy), surface, levels=levels[::2], colors="w", linewidths=0.4)
+        x, y = responses[fx.name].to_numpy(float), responses[fy.name].to_numpy(float)
+        # design runs and optimum sit on the bounds: drawn whole over the frame (clip_on=False)
+        ax.scatter(
+            x[ran],
+            y[ran],
+            c=observed[ran],
+            cmap="viridis",
+            vmin=low,
+            vmax=high,
+            edgecolors="k",
+            s=36,
+            zorder=3,
+            clip_on=False,
+            label="DEM runs (observed, projected onto the panel)",
+        )
+        if not ran.all():
+            ax.plot(x[~ran], y[~ran], "rx", ms=10, mew=2, zorder=4, clip_on=False, label="failed DEM runs")
+        ax.plot(natural[fx.name], natural[fy.name], "r*", ms=16, mec="w", zorder=5, clip_on=False, label="optimum")
+        held = ", ".join(f"{f.name} = {natural[f.name]:.3g}" for k, f in enumerate(fit.factors) if k not in (i, j))
+        ax.set(xlabel=fx.name, ylabel=fy.name, xlim=(fx.low, fx.high), ylim=(fy.low, fy.high))
+        ax.set_title(f"held at the optimum: {held}" if held else "", fontsize=9)
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=len(labels), fontsize=8)
+    fig.colorbar(shading, ax=axes[0].tolist(), label=f"{response} (fitted {fit.model} surface and runs)")
+    at = ", ".join(f"{name} = {value:.3g}" for name, value in natural.items())
+    heading = (
+        f"{fit.model} response surface (R$^2$ = {fit.r_squared:.2f}); optimum {at}, "
+        f"predicted {response} {optimum['predicted']:.3g}"
+    )
+    fig.suptitle(f"{title}\n{heading}" if title else heading, fontsize=10)
     save_figure(fig, path)
 
 

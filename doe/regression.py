@@ -1,8 +1,9 @@
 """Response-surface regression of the DoE response, ANOVA effect table, pure error and optimum.
 
-Two models of the response (the runout MSE) on the coded factors x = (value - centre)/half_range:
-  eq9        main effects + interaction, the paper's eq. (9):  b0 + b1 x1 + b2 x2 + b12 x1 x2
-  quadratic  the full second-order response surface:           eq9 + b11 x1^2 + b22 x2^2
+Two models of the response (the runout MSE) on k >= 2 coded factors x = (value - centre)/half_range:
+  eq9        main effects + every two-factor interaction; for k = 2 the paper's eq. (9):
+             b0 + b1 x1 + b2 x2 + b12 x1 x2
+  quadratic  the full second-order response surface: eq9 + every square (k = 2: + b11 x1^2 + b22 x2^2)
 Fitted by ordinary least squares with statsmodels; the effect table is statsmodels' ANOVA with
 partial (type III) sums of squares, i.e. JMP's "Effect Tests" that the paper's Table 4 reports,
 with LogWorth = -log10(p). Replicated design points (the centre run with another packing seed)
@@ -12,6 +13,7 @@ surface within the factor bounds.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
@@ -28,23 +30,48 @@ if TYPE_CHECKING:
     from doe.design import Factor
 
 MODELS = ("eq9", "quadratic")
-SYMBOLS = {"friction": "mu", "restitution": "e"}
-GRID_POINTS = 201  # per coded axis, for the global search before the bounded polish
+# symbols of the prediction expression; a factor not listed is written by its name
+SYMBOLS = {
+    "friction": "mu",
+    "restitution": "e",
+    "rolling_friction": "mu_r",
+    "bond_number": "Bo",
+    "friction_base": "mu_base",
+    "sidewall_friction": "mu_wall",
+}
+# points of the global search grid before the bounded polish, all axes together: 201 per axis in
+# 2-D (a 0.01 coded step), 33 per axis in 3-D; a fixed total keeps the search cheap for any k
+GRID_TOTAL = 201**2
 
 
 class RegressionError(ValueError):
     """The responses cannot be fitted; the message says why."""
 
 
-def formula(model: str, factors: Sequence[Factor], response: str = "response") -> str:
-    """statsmodels/patsy formula of `model` on the coded factor columns x_<name>."""
+def model_terms(model: str, factors: Sequence[Factor]) -> list[str]:
+    """Formula terms of `model` (intercept aside) on the coded columns x_<name>: the main effects,
+    every two-factor interaction x_a:x_b, and for the quadratic model every square I(x_a ** 2)."""
     x = [f"x_{f.name}" for f in factors]
-    terms = x + [":".join(x)]
+    terms = x + [f"{a}:{b}" for a, b in itertools.combinations(x, 2)]
     if model == "quadratic":
         terms += [f"I({name} ** 2)" for name in x]
     elif model != "eq9":
         raise RegressionError(f"unknown model {model!r}; known: {list(MODELS)}")
-    return f"{response} ~ " + " + ".join(terms)
+    return terms
+
+
+def formula(model: str, factors: Sequence[Factor], response: str = "response") -> str:
+    """statsmodels/patsy formula of `model` on the coded factor columns x_<name>."""
+    return f"{response} ~ " + " + ".join(model_terms(model, factors))
+
+
+def grid_points_per_axis(n_factors: int, total: int = GRID_TOTAL) -> int:
+    """Largest odd number of points per coded axis (3 at least) whose grid over n_factors axes has
+    at most `total` points (odd: the centre and the face centres of the design are grid points)."""
+    n = 3
+    while (n + 2) ** n_factors <= total:
+        n += 2
+    return n
 
 
 def term_label(term: str, factors: Sequence[Factor]) -> str:
@@ -115,12 +142,12 @@ class SurfaceFit:
     def optimum(self) -> dict:
         """Minimum of the fitted surface within the bounds (coded [-1, 1] on every factor).
 
-        A dense grid finds the best basin (a bilinear or saddle surface has its minimum on the
-        boundary), then bounded L-BFGS-B polishes it. Returns coded and natural coordinates, the
-        predicted response and its 95% confidence interval, and the factors whose optimum sits on
-        a bound (on_bound).
+        A grid of about GRID_TOTAL points finds the best basin (a bilinear or saddle surface has
+        its minimum on the boundary), then bounded L-BFGS-B polishes it. Returns coded and natural
+        coordinates, the predicted response and its 95% confidence interval, and the factors whose
+        optimum sits on a bound (on_bound).
         """
-        axes = np.linspace(-1, 1, GRID_POINTS)
+        axes = np.linspace(-1, 1, grid_points_per_axis(len(self.factors)))
         grid = np.stack([g.ravel() for g in np.meshgrid(*[axes] * len(self.factors), indexing="ij")], axis=1)
         start = grid[int(np.argmin(self.predict(grid)))]
         polished = optimize.minimize(
@@ -156,13 +183,18 @@ def coded_frame(responses: pd.DataFrame, factors: Sequence[Factor], response: st
 
 def fit_surface(responses: pd.DataFrame, model: str, factors: Sequence[Factor], response: str = "mse") -> SurfaceFit:
     """OLS fit of `model` to responses (one row per run, factor columns in natural units)."""
+    if len(factors) < 2:
+        raise RegressionError(f"a response surface needs at least 2 factors, got {len(factors)}")
     frame = coded_frame(responses, factors, response)
-    n_terms = 4 if model == "eq9" else 6
-    if len(frame) <= n_terms:
-        raise RegressionError(f"{len(frame)} runs cannot fit the {model} model ({n_terms} coefficients)")
-    return SurfaceFit(
-        model=model, factors=tuple(factors), result=smf.ols(formula(model, factors), frame).fit(), response=response
-    )
+    n_coefficients = len(model_terms(model, factors)) + 1  # + the intercept
+    if len(frame) <= n_coefficients:
+        raise RegressionError(f"{len(frame)} runs cannot fit the {model} model ({n_coefficients} coefficients)")
+    ols = smf.ols(formula(model, factors), frame)
+    # a design that cannot separate the terms (e.g. no run off the corners for the squares) would
+    # otherwise be fitted silently by a pseudo-inverse
+    if np.linalg.matrix_rank(ols.exog) < n_coefficients:
+        raise RegressionError(f"the runs cannot separate the {n_coefficients} coefficients of the {model} model")
+    return SurfaceFit(model=model, factors=tuple(factors), result=ols.fit(), response=response)
 
 
 def pure_error(responses: pd.DataFrame, factors: Sequence[Factor], response: str = "mse") -> dict:

@@ -10,7 +10,8 @@ Metadata JSON (written by `build_dataset`, read by `load_dataset_metadata`):
   n_particles           {"min", "max", "mean"} grains per trajectory
   velocity_mean/_std    [2] position change per frame x[t] - x[t-1] (m), training split only
   acceleration_mean/_std [2] x[t+1] - 2 x[t] + x[t-1] (m per frame^2), training split only
-  parameter_ranges      {"friction", "restitution", "L_i", "H_i", "aspect_ratio": [min, max]}, all splits
+  parameter_ranges      {"friction", "restitution"[, a mechanism's parameter], "L_i", "H_i", "aspect_ratio":
+                        [min, max]}, all splits; the DEM parameters first, in the order the GNS takes them
   material_diameter     mean simulated grain diameter 2r over all grains of all trajectories (m)
   sequence_length       frames of the shortest trajectory (sequence_length_max: the longest)
   n_cases               {"train", "valid", "test"}; materials, engines: sorted lists
@@ -34,7 +35,8 @@ if TYPE_CHECKING:
     from dem.runout import RunoutMethod
 
 SPLITS = ("train", "valid", "test")
-PARAMETERS = ("friction", "restitution", "L_i", "H_i", "aspect_ratio")
+DEM_PARAMETERS = ("friction", "restitution")  # the paper's model; an extended model's dataset adds its own
+LAYOUT = ("L_i", "H_i", "aspect_ratio")
 REQUIRED_KEYS = (
     "name",
     "splits",
@@ -83,9 +85,15 @@ class _RunningMoments:
         return np.sqrt(self.m2 / self.count)
 
 
-def build_dataset(splits: dict[str, list[str]], out_path: str | os.PathLike, name: str) -> dict:
+def build_dataset(
+    splits: dict[str, list[str]],
+    out_path: str | os.PathLike,
+    name: str,
+    parameters: tuple[str, ...] | list[str] = DEM_PARAMETERS,
+) -> dict:
     """Scan the trajectories of `splits` ({"train"|"valid"|"test": [HDF5 paths]}) one at a time and
-    write the metadata JSON atomically at `out_path`. Returns the metadata dict."""
+    write the metadata JSON atomically at `out_path`. parameters: the DEM parameters the GNS takes
+    (trajectory attributes; the paper's (mu, e), or an extended model's). Returns the metadata dict."""
     unknown = set(splits) - set(SPLITS)
     if unknown:
         raise DatasetError(f"dataset {name}: unknown split(s) {sorted(unknown)}; allowed: {list(SPLITS)}")
@@ -96,7 +104,7 @@ def build_dataset(splits: dict[str, list[str]], out_path: str | os.PathLike, nam
     dt_frame = dt_source = None
     bounds = np.array([[np.inf, -np.inf], [np.inf, -np.inf]])
     n_particles, frames, diameters = [], [], _RunningMoments(dim=1)
-    ranges = {k: [np.inf, -np.inf] for k in PARAMETERS}
+    ranges = {k: [np.inf, -np.inf] for k in tuple(parameters) + LAYOUT}
     velocity, acceleration = _RunningMoments(), _RunningMoments()
     materials, engines = set(), set()
     for split in SPLITS:
@@ -117,7 +125,10 @@ def build_dataset(splits: dict[str, list[str]], out_path: str | os.PathLike, nam
             n_particles.append(traj.n_particles)
             frames.append(traj.n_frames)
             diameters.add(2.0 * np.asarray(traj.radius, np.float64)[:, None])
-            for key in PARAMETERS:
+            absent = [key for key in ranges if key not in a]
+            if absent:
+                raise DatasetError(f"{path}: no attribute(s) {absent}; dataset {name} takes {list(ranges)}")
+            for key in ranges:
                 ranges[key] = [min(ranges[key][0], float(a[key])), max(ranges[key][1], float(a[key]))]
             materials.add(str(a["material"]))
             engines.add(str(a["engine"]))
@@ -212,7 +223,9 @@ def plot_dataset(metadata: dict, path: str | os.PathLike, runout: RunoutMethod |
 
     fig, (ax_p, ax_r) = plt.subplots(1, 2, figsize=(11, 4.2))
     ranges = metadata["parameter_ranges"]
-    varied = [k for k in PARAMETERS if ranges[k][1] > ranges[k][0] and k != "H_i"]
+    # the varied parameters, a mechanism's first (the one an extended model's dataset adds)
+    order = [k for k in ranges if k not in DEM_PARAMETERS + LAYOUT] + list(DEM_PARAMETERS + LAYOUT)
+    varied = [k for k in order if ranges[k][1] > ranges[k][0] and k != "H_i"]
     x_key, y_key = (varied + ["friction", "restitution"])[:2] if varied else ("friction", "restitution")
     if x_key == y_key:
         y_key = "restitution" if x_key != "restitution" else "friction"

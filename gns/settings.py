@@ -44,6 +44,9 @@ class TrainSettings:
     log_every: int = 50
     seed: int = 0
     device: str = "auto"  # "auto": cuda when present, else cpu
+    # warm start: a trained GNS (model_best.pt) whose weights this one starts from (gns.simulator.warm_start),
+    # e.g. the base model's GNS of the same column for the GNS of an extended model; None: random weights
+    init_from: str | None = None
 
     def __post_init__(self):
         if self.pushforward_steps < 0 or not 0.0 <= self.pushforward_fraction <= 1.0:

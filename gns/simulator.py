@@ -317,3 +317,64 @@ def load_simulator(
     if metadata is not None:
         simulator.config.check_compatible(metadata, where=f"{path} with dataset {metadata.get('name', '?')}")
     return simulator.to(device or "cpu").eval()
+
+
+def warm_start(simulator: LearnedSimulator, path: str | os.PathLike) -> dict:
+    """Start `simulator` from the weights of the trained GNS at `path` (model or training checkpoint)
+    of the same architecture, whose DEM parameters may be fewer (e.g. the base model's (mu, e)
+    when this one adds a mechanism's parameter).
+
+    Every weight of the same shape is copied. The node encoder's first layer is copied column block
+    by column block (config.node_layout), the parameters block by parameter name; the columns of a
+    parameter the other model lacks start at zero, so the warm-started GNS begins as the other one,
+    blind to the new parameter, and training only has to learn what it changes. Buffers (the
+    normalisation statistics, bounds, parameter ranges) stay this dataset's. Returns
+    {"from": path, "new_parameters": [...], "copied": n tensors}; CheckpointError when the
+    architectures differ."""
+    source = load_simulator(path)
+    old, new = source.config, simulator.config
+    missing = [k for k in old.parameter_names if k not in new.parameter_names]
+    if missing:
+        raise CheckpointError(f"warm start from {path}: it takes parameters {missing} this model lacks")
+    old_weights = dict(source.named_parameters())
+    first = "network.node_encoder.0.weight"  # [hidden, node features]: the only shape that may differ
+    copied = 0
+    with torch.no_grad():
+        for name, weight in simulator.named_parameters():
+            other = old_weights.get(name)
+            if name == first and other is not None and other.shape[0] == weight.shape[0]:
+                weight.copy_(_node_columns(other, old, new, weight.shape[1], path))
+            elif other is None or other.shape != weight.shape:
+                raise CheckpointError(
+                    f"warm start from {path}: weight {name} is {None if other is None else tuple(other.shape)} "
+                    f"there and {tuple(weight.shape)} here; warm start needs the same latent size and layers"
+                )
+            else:
+                weight.copy_(other)
+            copied += 1
+    new_parameters = [k for k in new.parameter_names if k not in old.parameter_names]
+    return {"from": str(path), "new_parameters": new_parameters, "copied": copied}
+
+
+def _node_columns(
+    weight: torch.Tensor, old: SimulatorConfig, new: SimulatorConfig, width: int, path: str | os.PathLike
+) -> torch.Tensor:
+    """The node encoder's first-layer weight [hidden, F_old] laid out for `new`'s features [hidden,
+    F_new]: blocks by name, the parameters block by parameter name, a new parameter's column zero."""
+
+    def columns(config: SimulatorConfig) -> dict:
+        out, start = {}, 0
+        for block, size in config.node_layout:
+            names = config.parameter_names if block == "parameters" else range(size)
+            out.update({(block, k): start + j for j, k in enumerate(names)})
+            start += size
+        return out
+
+    old_columns, new_columns = columns(old), columns(new)
+    result = torch.zeros(weight.shape[0], width, dtype=weight.dtype)
+    for key, j in new_columns.items():
+        if key in old_columns:
+            result[:, j] = weight[:, old_columns[key]]
+        elif key[0] != "parameters":
+            raise CheckpointError(f"warm start from {path}: node feature {key} has no counterpart there")
+    return result

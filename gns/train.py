@@ -41,7 +41,7 @@ from dem.trajectory import read_trajectory
 from gns.data import Batch, TrajectoryWindows, read_metadata, split_paths
 from gns.graph import graph_summary, radius_graph
 from gns.settings import TrainSettings, simulator_config
-from gns.simulator import CheckpointError, LearnedSimulator, SimulatorConfig, model_payload
+from gns.simulator import CheckpointError, LearnedSimulator, SimulatorConfig, model_payload, warm_start
 
 log = logging.getLogger(__name__)
 TRAIN_FORMAT = "gns-train-1"
@@ -143,6 +143,9 @@ class Trainer:
         self.valid_indices = np.linspace(0, len(self.valid_windows) - 1, n_valid).round().astype(int)
         torch.manual_seed(settings.seed)
         self.simulator = LearnedSimulator(self.config).to(self.device)
+        self.warm_started = warm_start(self.simulator, settings.init_from) if settings.init_from else None
+        if self.warm_started:
+            log.info("warm start: %s", self.warm_started)
         self.optimizer = torch.optim.Adam(self.simulator.parameters(), lr=settings.learning_rate)
         self.averaged = copy.deepcopy(self.simulator)  # the EMA of the weights (ema_decay)
         self.sampler = np.random.default_rng(settings.seed)
@@ -372,6 +375,7 @@ class Trainer:
         return {
             "step": self.step,
             "resumed_from": self.resumed_from,
+            "warm_start": self.warm_started,
             "best": self.best,
             "last_train_loss": self.history[-1]["train_loss"] if self.history else None,
             "out_dir": str(self.out_dir),

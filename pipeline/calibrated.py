@@ -25,28 +25,205 @@ import numpy as np
 from calibration.calibrated import (
     CALIBRATION_SEED,
     PREDICTION_TSTAR,
+    CalibrationError,
     bayesopt_model,
+    calibration_box,
     diagnosis_parameters,
+    model_record,
     predict,
+    read_model,
     resolve_model,
     validate,
 )
 from calibration.design_runs import Model, SimulationSettings
 from calibration.diagnosis_result import Diagnosis
-from calibration.inverse import read_result
 from calibration.measured import MeasuredColumn, expected_final_runout, load_column
 from dem.atomic import StrPath, write_json, write_text
 from dem.plots import save_figure
 from dem.progress import progress_logger
 from dem.runout import RunoutMethod
+from pipeline.benchmarks import benchmark_seconds
 from pipeline.diagnosis import read_diagnosis
 
 log = logging.getLogger(__name__)
 BASE = ("friction", "restitution")
 
 
+def run_model_bayesopt(
+    measured_path: StrPath,
+    model_path: StrPath,
+    out_json: StrPath,
+    section: dict,
+    diagnosis_section: dict,
+    *,
+    runout: dict | None,
+    dem: dict | None,
+    name: str = "",
+) -> dict:
+    """The Bayesian-optimisation route of the model of one measured column (workflow rule
+    calibrated_bayesopt): section["budget"] DEM runs on packing CALIBRATION_SEED -> bayesopt.json
+    (route, the optimum, the history of every run, dem_runs, seconds)."""
+    started = time.perf_counter()
+    column = load_column(measured_path)
+    model, _ = read_model(model_path, diagnosis_section["channel_width"])
+    history = bayesopt_model(
+        model,
+        column,
+        SimulationSettings(size_scale=diagnosis_section["size_scale"]),
+        RunoutMethod.from_config(runout),
+        dem,
+        budget=section["budget"],
+        n_initial=section["n_initial"],
+        seed=section["seed"],
+        progress=progress_logger(f"BO of {model.name} on DEM runs of {name}", log),
+    )
+    theta, value = history.best
+    result = {
+        "name": name,
+        "route": f"{model.name}, BO on DEM",
+        "parameters": list(model.parameter_names),
+        "optimum": dict(zip(model.parameter_names, map(float, theta))),
+        "value": float(value),
+        "dem_runs": len(history.values),
+        "history": history.to_dict(),
+        "seconds": time.perf_counter() - started,
+    }
+    write_json(out_json, result)
+    return result
+
+
+def choose_model(
+    diagnosis_path: StrPath | None,
+    out_json: StrPath,
+    choice: str,
+    channel_width: float,
+    name: str = "",
+    box: str = "diagnosis",
+) -> dict:
+    """model.json of one measured column (workflow rule calibrated_model): the config's choice
+    (calibration.model), `auto` resolved by the diagnosis at diagnosis_path, with the range its
+    mechanism is calibrated in (calibration.box, calibration.calibrated.calibration_box). Returns the record."""
+    diagnosis = read_diagnosis(diagnosis_path) if diagnosis_path else None
+    model, why = resolve_model(choice, diagnosis, channel_width)
+    boxed = calibration_box(model, diagnosis, box)
+    if boxed.mechanism is not None and boxed.mechanism.bounds != model.mechanism.bounds:
+        why += (
+            f" Calibrated in {boxed.mechanism.parameter} [{boxed.mechanism.bounds[0]:.3g}, "
+            f"{boxed.mechanism.bounds[1]:.3g}] (calibration.box {box}: the diagnosis' 95% interval widened, of the "
+            f"whole range [{model.mechanism.bounds[0]:g}, {model.mechanism.bounds[1]:g}])."
+        )
+    record = model_record(boxed, why, name)
+    write_json(out_json, record)
+    return record
+
+
+# Every route whose optimum is validated, by key (workflow rule calibrated_validate, one job each):
+#   diagnosis-base, diagnosis-model  the diagnosis' own fits (diagnosis.json) of the paper's model and of the model
+#   base-inverse, base-bayesopt      the paper's base-model routes (inverse/<name>/inverse.json, bayesopt.json)
+#   base-doe-<eq9|quadratic>         the paper's DoE (doe/<name>/analysis.json)
+#   model-inverse, model-doe, model-bayesopt  the model's own routes (calibrated/<name>/*.json)
+ROUTE_SOURCES = {
+    "diagnosis-base": "diagnosis",
+    "diagnosis-model": "diagnosis",
+    "base-inverse": "inverse",
+    "base-bayesopt": "bayesopt",
+    "model-inverse": "inverse",
+    "model-doe": "doe",
+    "model-bayesopt": "bayesopt",
+}
+
+
+def route_optimum(key: str, source: StrPath, model: Model) -> tuple[str, Model, list[float], int, float, dict]:
+    """(route label, the model it calibrates, theta [p], DEM runs it spent, seconds it took, extra)
+    of route `key` (ROUTE_SOURCES, or base-doe-<surface>) from its file `source`; extra: what the
+    report shows beside the validation. DEM runs and seconds are 0 where the file does not hold
+    them (the stage passes the route's benchmark files instead)."""
+    data = json.loads(Path(source).read_text())
+    if key.startswith("diagnosis-"):
+        diagnosis = read_diagnosis(source)
+        route_model = Model() if key == "diagnosis-base" else model
+        runs = sum(diagnosis.simulator.design_runs.values()) + diagnosis.simulator.refinement_runs
+        theta = diagnosis_parameters(diagnosis, route_model).tolist()
+        return f"{route_model.name}, diagnosis fit", route_model, theta, runs, diagnosis.seconds, {}
+    if key.startswith("base-doe-"):
+        surface = key.removeprefix("base-doe-")
+        optimum = data["models"][surface]["optimum"]["natural"]
+        return f"base, DoE ({surface})", Model(), [optimum[k] for k in BASE], data["n_runs"], 0.0, {}
+    if key == "base-inverse":
+        best = dict(zip(data["names"], data["best_params"]))
+        return "base, GNS inverse design", Model(), [best[k] for k in BASE], 0, 0.0, {}
+    if key == "base-bayesopt":
+        best = dict(zip(data["names"], data["best_params"]))
+        return "base, BO on DEM", Model(), [best[k] for k in BASE], len(data["values"]), 0.0, {}
+    names = model.parameter_names
+    if key == "model-inverse":
+        best = dict(zip(data["names"], data["best_params"]))
+        extra = {"gns_objective": data["best_value"], "intervals": data["posterior"]["parameters"]}
+        return f"{model.name}, GNS inverse design", model, [best[k] for k in names], 0, 0.0, extra
+    if key == "model-bayesopt":
+        extra = {"history": data["history"]}
+        return data["route"], model, [data["optimum"][k] for k in names], data["dem_runs"], data["seconds"], extra
+    if key == "model-doe":
+        surface = data["models"]["quadratic"]
+        extra = {
+            "predicted_mse": surface["optimum"]["predicted"],
+            "r_squared": surface["r_squared"],
+            "lack_of_fit_p": surface["lack_of_fit"]["p_value"],
+            "significant": [e["source"] for e in surface["effects"] if e["p_value"] < 0.05],
+            "failures": data["failures"],
+        }
+        return data["route"], model, [data["optimum"][k] for k in names], data["dem_runs"], data["seconds"], extra
+    raise CalibrationError(f"{source}: unknown calibration route {key!r}")
+
+
+def run_validation(
+    key: str,
+    source: StrPath,
+    model_path: StrPath,
+    measured_path: StrPath,
+    out_json: StrPath,
+    section: dict,
+    diagnosis_section: dict,
+    *,
+    runout: dict | None,
+    dem: dict | None,
+    cost: dict | None = None,
+    name: str = "",
+) -> dict:
+    """Validate one route's optimum of one measured column (workflow rule calibrated_validate):
+    DEM runs at it on section["validation_packings"] packings no calibration used -> the
+    Validation as JSON, with the route's key and the model it calibrates. cost: {"files":
+    [benchmark TSV of the route's jobs], "dem_runs": n} where the route's own file does not say."""
+    column = load_column(measured_path)
+    model, _ = read_model(model_path, diagnosis_section["channel_width"])
+    label, route_model, theta, runs, seconds, extra = route_optimum(key, source, model)
+    if cost and cost.get("files"):
+        seconds = benchmark_seconds(cost["files"])[0]
+    runs = (cost or {}).get("dem_runs") or runs
+    settings = SimulationSettings(size_scale=diagnosis_section["size_scale"])
+    validation = validate(
+        label,
+        route_model,
+        column,
+        theta,
+        settings,
+        RunoutMethod.from_config(runout),
+        dem,
+        section["validation_packings"],
+        runs,
+        seconds,
+    )
+    validation.extra = extra
+    result = dict(validation.to_dict(), key=key, model=route_model.name)
+    write_json(out_json, result)
+    log.info("%s: %s at %s validated, MSE %.4g", name, label, np.round(theta, 4).tolist(), validation.mse)
+    return result
+
+
 def run_calibrated(
     measured_path: StrPath,
+    model_path: StrPath,
+    validation_paths: Sequence[StrPath],
     diagnosis_path: StrPath | None,
     out_json: StrPath,
     out_figure: StrPath,
@@ -57,73 +234,43 @@ def run_calibrated(
     runout: dict | None,
     dem: dict | None,
     name: str = "",
-    base_routes: dict[str, StrPath] | None = None,
 ) -> dict:
-    """Calibrate and validate the model of one measured column (workflow rule calibrated).
+    """The answer for one measured column (workflow rule calibrated): of the validated routes
+    (validation_paths, written by run_validation) those of the model (model.json) compete, the
+    one with the lowest validated MSE is the answer; it is validated again one size_scale finer
+    and predicts other aspect ratios.
 
-    section: the config's `calibration` section (model, budget, n_initial, validation_packings, seed,
-    finer_size_scale, predict_aspect_ratios); out_figure: the validation figure; out_prediction: the
-    prediction across aspect ratios; diagnosis_section: the config's `diagnosis` section (its
-    size_scale and channel width are the calibrated model's: parameters fitted at one scale are
-    effective values of that scale);
-    runout, dem: the config's runout and dem sections. base_routes: the paper's base-model routes of
-    this column, {"inverse": inverse.json, "bayesopt": bayesopt.json, "doe": analysis.json} (any of
-    them), whose optima are validated on the same packings, side by side (`base_route_optima`).
+    section: the config's `calibration` section (validation_packings, finer_size_scale,
+    predict_aspect_ratios); diagnosis_section: the config's `diagnosis` section (its size_scale and
+    channel width are the calibrated model's: parameters fitted at one scale are effective values of
+    that scale); runout, dem: the config's runout and dem sections. diagnosis_path: diagnosis.json
+    (its Laplace posterior of the model gives intervals) or None.
     """
     started = time.perf_counter()
     column = load_column(measured_path)
     diagnosis = read_diagnosis(diagnosis_path) if diagnosis_path else None
-    model, why = resolve_model(section["model"], diagnosis, diagnosis_section["channel_width"])
+    model, why = read_model(model_path, diagnosis_section["channel_width"])
     settings = SimulationSettings(size_scale=diagnosis_section["size_scale"])
     runout = RunoutMethod.from_config(runout)
     n_packings = section["validation_packings"]
-    log.info("%s: calibrating %s (%s)", name, model.name, why)
-    routes, answers = [], []  # every route validated; those that calibrate `model`
-    if diagnosis is not None:
-        # the diagnosis' own fits: the paper's model (mu, e) beside the calibrated one, when it is another
-        runs = sum(diagnosis.simulator.design_runs.values()) + diagnosis.simulator.refinement_runs
-        for route_model in [Model()] + ([model] if model.mechanism is not None else []):
-            theta = diagnosis_parameters(diagnosis, route_model)
-            route = f"{route_model.name}, diagnosis fit"
-            routes.append(
-                validate(route, route_model, column, theta, settings, runout, dem, n_packings, runs, diagnosis.seconds)
-            )
-            answers += [routes[-1]] if route_model == model else []
-            log.info("%s: %s validated, MSE %.4g", name, route, routes[-1].mse)
-    for route, theta, runs in base_route_optima(base_routes or {}):
-        routes.append(validate(route, Model(), column, theta, settings, runout, dem, n_packings, runs))
-        log.info("%s: %s validated, MSE %.4g", name, route, routes[-1].mse)
-    bo_started = time.perf_counter()
-    history = bayesopt_model(
-        model,
-        column,
-        settings,
-        runout,
-        dem,
-        budget=section["budget"],
-        n_initial=section["n_initial"],
-        seed=section["seed"],
-        progress=progress_logger(f"BO of {model.name} on DEM runs of {name}", log),
-    )
-    theta, _ = history.best
-    bo_seconds = time.perf_counter() - bo_started
-    route = f"{model.name}, BO on DEM"
-    routes.append(
-        validate(route, model, column, theta, settings, runout, dem, n_packings, section["budget"], bo_seconds)
-    )
-    routes[-1].extra = {"history": history.to_dict()}
-    answers.append(routes[-1])
-    log.info("%s: BO optimum validated, MSE %.4g", name, routes[-1].mse)
-    best = min(answers, key=lambda r: r.mse if math.isfinite(r.mse) else math.inf)
-    theta = [best.parameters[parameter] for parameter in model.parameter_names]
+    routes = [json.loads(Path(path).read_text()) for path in validation_paths]
+    answers = [r for r in routes if r["model"] == model.name]
+    if not answers:
+        raise CalibrationError(
+            f"{name}: no route calibrated the {model.name} model (routes: {[r['key'] for r in routes]})"
+        )
+    best = min(answers, key=lambda r: r["mse"] if math.isfinite(r["mse"]) else math.inf)
+    theta = [best["parameters"][parameter] for parameter in model.parameter_names]
+    log.info("%s: %s model, answer %s at %s (MSE %.4g)", name, model.name, best["route"], theta, best["mse"])
     transfer = None
     if section["finer_size_scale"]:  # how far the answer transfers: the same validation with finer grains
         finer = SimulationSettings(size_scale=section["finer_size_scale"])
         transfer = validate(
-            f"{best.route}, at size_scale {finer.size_scale:g}", model, column, theta, finer, runout, dem, n_packings
+            f"{best['route']}, at size_scale {finer.size_scale:g}", model, column, theta, finer, runout, dem, n_packings
         )
         log.info("%s: at size_scale %g, MSE %.4g", name, finer.size_scale, transfer.mse)
     prediction = predict(model, column, theta, settings, section["predict_aspect_ratios"], runout, dem)
+    gns = next((r for r in routes if r["key"] == "model-inverse"), None)
     result = {
         "name": name,
         "measured": str(measured_path),
@@ -132,10 +279,12 @@ def run_calibrated(
         "parameters": list(model.parameter_names),
         "bounds": model.bounds.tolist(),
         "why": why,
-        "answer": best.route,
-        "routes": [r.to_dict() for r in routes],
+        "answer": best["route"],
+        "routes": routes,
         # 95% intervals of the model's parameters: the diagnosis' Laplace posterior (about its own fit)
         "intervals": None if diagnosis is None else model_intervals(diagnosis, model),
+        # ... and the GNS inverse design's (about its optimum, through the GNS, with its error as noise)
+        "gns_intervals": None if gns is None else gns["extra"]["intervals"],
         "transfer": None if transfer is None else transfer.to_dict(),
         "prediction": prediction.to_dict(),
         "measured_final_runout": float(column.runout[-1]),
@@ -158,25 +307,6 @@ def model_intervals(diagnosis: Diagnosis, model: Model) -> list[dict]:
     Laplace posterior of its emulator fit (calibration/uncertainty.py)."""
     evidence = diagnosis.base if model.mechanism is None else diagnosis.candidates[model.name]
     return [asdict(p) for p in evidence.emulator.posterior.parameters]
-
-
-def base_route_optima(files: dict[str, StrPath]) -> list[tuple[str, list[float], int]]:
-    """(route, (mu, e), DEM runs it spent) of each base-model route's optimum in `files`
-    ({"inverse": inverse.json, "bayesopt": bayesopt.json, "doe": analysis.json}; DEM runs 0 where
-    the route spent a GNS dataset's instead: the comparison section counts those)."""
-    out = []
-    if files.get("inverse"):
-        data = read_result(files["inverse"])
-        out.append(("base, GNS inverse design", [dict(zip(data["names"], data["best_params"]))[k] for k in BASE], 0))
-    if files.get("doe"):
-        data = json.loads(Path(files["doe"]).read_text())
-        for model, fit in data["models"].items():
-            out.append((f"base, DoE ({model})", [fit["optimum"]["natural"][k] for k in BASE], data["n_runs"]))
-    if files.get("bayesopt"):
-        data = json.loads(Path(files["bayesopt"]).read_text())
-        best = dict(zip(data["names"], data["best_params"]))
-        out.append(("base, BO on DEM", [best[k] for k in BASE], len(data["values"])))
-    return out
 
 
 # -- figure and report section -----------------------------------------------------------------------
@@ -279,6 +409,17 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
                 f"95% intervals (the diagnosis' Laplace posterior of this model, about its own fit): {spans}.",
                 "",
             ]
+        if result.get("gns_intervals"):
+            spans = ", ".join(
+                f"{p['name']} {p['value']:.3g} [{p['low']:.3g}, {p['high']:.3g}]"
+                + ("" if p["identifiable"] else " (not identifiable)")
+                for p in result["gns_intervals"]
+            )
+            lines += [
+                f"95% intervals of the GNS inverse design (its Laplace posterior about the GNS optimum; noise: the "
+                f"measured scatter and the GNS's own runout error on its test split): {spans}.",
+                "",
+            ]
         lines += [
             "| route | parameters | DEM runs to calibrate | time to calibrate | validated MSE (packing mean) | "
             "MSE per packing | failed runs | validation time |",
@@ -292,8 +433,24 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
                 f"| {route['route']} | {values} | {runs} | {route['calibration_seconds']:.0f} s | "
                 f"{route['mse']:.4g} | {_span(route['mse_each'])} | {failed} | {route['seconds']:.0f} s |"
             )
+        lines += [""]
+        for route in result["routes"]:
+            extra = route.get("extra") or {}
+            if "r_squared" in extra:
+                lines += [
+                    f"{route['route']}: {route['dem_runs']} DEM runs ({extra['failures']}); quadratic response "
+                    f"surface R^2 {extra['r_squared']:.3f}, lack of fit p = {extra['lack_of_fit_p']:.3g}; terms with "
+                    f"p < 0.05 (type-III ANOVA): {', '.join(extra['significant']) or 'none'}; the surface predicts "
+                    f"MSE {extra['predicted_mse']:.3g} at its optimum.",
+                    "",
+                ]
+            if "gns_objective" in extra:
+                lines += [
+                    f"{route['route']}: the GNS's own objective at its optimum {extra['gns_objective']:.3g} (its "
+                    "error against the DEM shows in the gap to the validated MSE).",
+                    "",
+                ]
         lines += [
-            "",
             f"DEM: {result['engine']} engine, size_scale {result['size_scale']:g} (parameters fitted at one scale are "
             f"effective values of that scale), runout read by {result['runout']['method']}; the Bayesian "
             f"optimisation ran on packing seed {result['calibration_packing']}, the validation on "
@@ -304,6 +461,12 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
             f"![calibrated model of {result['name']}]({figure})",
             "",
         ]
+        for extra_figure, what in (
+            ("doe_surface.png", "DoE response surface"),
+            ("inverse_paths.png", "GNS inverse design"),
+        ):
+            if (Path(result["figure"]).parent / extra_figure).exists():
+                lines += [f"![{what} of {result['name']}]({Path(figure).with_name(extra_figure).as_posix()})", ""]
         transfer = result["transfer"]
         if transfer is not None:
             verdict = (

@@ -307,6 +307,12 @@ def check_calibration(config: dict) -> None:
     section = config["calibration"]
     if not section["enabled"] or not config["measured"]:
         return
+    for name in config["measured"]:
+        if f"calibrated_{name}" in config.get("datasets", {}):
+            raise ConfigError(
+                f"config key datasets.calibrated_{name}: the name is taken by the GNS dataset of the calibrated "
+                f"model of measured {name!r}"
+            )
     model = section["model"]
     if model == "auto" and not config["diagnosis"]["enabled"]:
         raise ConfigError(
@@ -363,5 +369,14 @@ def inverse_datasets(config: dict, cases: dict[str, dict]) -> dict[str, str]:
             raise ConfigError(
                 f"config key inverse.measured: {name!r} cannot be calibrated with the GNS of dataset {dataset!r}: {exc}"
             ) from exc
+        for key in ("friction", "restitution"):  # the GNS knows the range its dataset's cases span
+            bounds = inverse.get(key)
+            values = [float(row[key]) for row in rows if row["dataset"] == dataset]
+            if bounds is not None and (bounds[0] < min(values) - 1e-9 or bounds[1] > max(values) + 1e-9):
+                raise ConfigError(
+                    f"config key inverse.{key}: bounds [{bounds[0]:g}, {bounds[1]:g}] leave the range the GNS of "
+                    f"dataset {dataset!r} is trained on, [{min(values):.4g}, {max(values):.4g}] (its cases' {key}): "
+                    "the GNS would extrapolate; narrow the bounds or widen the dataset's range"
+                )
         resolved[name] = dataset
     return resolved

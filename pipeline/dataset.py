@@ -14,19 +14,22 @@ from pathlib import Path
 from dem.atomic import StrPath, write_text
 from dem.grid import write_case_table
 from dem.runout import RunoutMethod
-from gns.dataset import SPLITS, build_dataset, load_dataset_metadata, plot_dataset
+from gns.dataset import DEM_PARAMETERS, SPLITS, build_dataset, load_dataset_metadata, plot_dataset
 
 log = logging.getLogger(__name__)
 # where the DEM stage writes a case's trajectory; the same path as in dataset.smk
 TRAJECTORY = "results/dem/{dataset}/trajectories/{case_id}.h5"
 
 
-def build(splits: Mapping[str, Sequence[str]], out_path: StrPath, name: str) -> dict:
+def build(
+    splits: Mapping[str, Sequence[str]], out_path: StrPath, name: str, parameters: Sequence[str] = DEM_PARAMETERS
+) -> dict:
     """Build dataset `name`'s metadata JSON at `out_path` (gns.dataset.build_dataset) from its
-    trajectories, {"train"|"valid"|"test": [HDF5 paths]}. Returns the metadata dict."""
+    trajectories, {"train"|"valid"|"test": [HDF5 paths]}; parameters: the DEM parameters the GNS
+    takes (the paper's (mu, e) or an extended model's). Returns the metadata dict."""
     splits = {k: list(v) for k, v in splits.items()}
     log.info("dataset %s: %s cases", name, {k: len(v) for k, v in splits.items()})
-    metadata = build_dataset(splits, out_path, name)
+    metadata = build_dataset(splits, out_path, name, tuple(parameters))
     log.info(
         "dt_frame %.4g s, %d-%d grains, velocity std %s m/frame, acceleration std %s m/frame^2",
         metadata["dt_frame"],

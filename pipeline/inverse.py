@@ -165,6 +165,8 @@ def run_inverse_design(
     evaluation_path: StrPath | None = None,
     doe_responses_path: StrPath | None = None,
     threads: int | None = None,
+    design_names: Sequence[str] = START_NAMES,
+    start_values: dict | None = None,
 ) -> InverseResult:
     """The inverse-design stage of one measured column: inverse.json and the two figures.
 
@@ -173,6 +175,10 @@ def run_inverse_design(
     is read by it). evaluation_path: the GNS's test-split summary
     (its runout error joins the noise model); doe_responses_path: the DoE's DEM objective values,
     drawn under the paths. threads: torch's CPU threads (the job's; None: torch's default).
+    design_names: the parameters designed (the GNS's inputs; bounds from settings[name], else the
+    range the GNS was trained on); start_values: {name: value} of the start run that its file does
+    not record (the start run of the base model has a mechanism at its off value), also the first
+    start of a parameter beyond inverse.start.
     """
     if threads:
         torch.set_num_threads(threads)
@@ -180,23 +186,26 @@ def run_inverse_design(
     simulator = load_simulator(model_path, metadata)
     measured = load_column(measured_path)
     start = read_trajectory(start_path)
+    start.attrs = {**(start_values or {}), **start.attrs}
     runout = RunoutMethod.from_config(runout)
     model_error = model_error_from_evaluation(evaluation_path, runout)
+    first_start = dict(zip(START_NAMES, settings["start"]))
     result = inverse_design(
         simulator,
         start,
         measured,
         metadata,
         read_training_attrs(metadata),
-        bounds=[settings["friction"], settings["restitution"]],
+        bounds=[settings.get(name) for name in design_names],
         n_starts=settings["starts"],
-        first_start=settings["start"],
+        first_start=[first_start.get(name, (start_values or {}).get(name)) for name in design_names],
         gradient=settings["gradient"],
         fd_step=settings["fd_step"],
         max_iterations=settings["max_iterations"],
         model_error_std=model_error,
-        landscape_levels=settings["landscape_levels"],
+        landscape_levels=settings["landscape_levels"] if len(design_names) == 2 else 0,
         seed=settings["seed"],
+        design_names=design_names,
         runout=runout,
     )
     write_result(result, out_json)

@@ -6,14 +6,25 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from calibration.calibrated import CalibrationError, model_runout, resolve_model, validate
+from calibration.calibrated import (
+    CalibrationError,
+    calibration_box,
+    model_dataset_cases,
+    model_record,
+    model_runout,
+    read_model,
+    resolve_model,
+    validate,
+)
 from calibration.design_runs import Model, SimulationSettings
 from calibration.measured import MeasuredColumn
-from calibration.mechanisms import get_mechanisms
+from calibration.mechanisms import bond_from_cohesion_energy, get_mechanisms
 from calibration.objective import runout_mse
+from dem.atomic import write_json
 from dem.engines.liggghts import LiggghtsEngine
 from dem.runout import RunoutMethod
-from pipeline.calibrated import run_calibrated, run_section
+from pipeline.calibrated import choose_model, run_calibrated, run_model_bayesopt, run_section, run_validation
+from pipeline.calibrated_doe import run_model_doe
 from pipeline.config import ConfigError, check_calibration
 
 RUNOUT = RunoutMethod()
@@ -83,13 +94,42 @@ def test_the_stage_writes_its_answer_figure_and_report_section(tmp_path):
     section = {"model": "base", "budget": 4, "n_initial": 2, "validation_packings": 2, "seed": 0}
     section.update(finer_size_scale=3.5, predict_aspect_ratios=[1.0, 2.0])
     out = tmp_path / "calibrated"
-    result = run_calibrated(
-        csv, None, out / "calibrated.json", out / "calibrated.png", out / "prediction.png", section,
-        {"size_scale": 4.0, "channel_width": 0.01}, runout=RUNOUT.to_config(), dem=None, name="tiny",
+    record = choose_model(None, out / "model.json", "base", 0.01, name="tiny")
+    assert record["model"] == "base" and record["parameters"] == ["friction", "restitution"]
+    diagnosis_section = {"size_scale": 4.0, "channel_width": 0.01}
+    bo = run_model_bayesopt(
+        csv, out / "model.json", out / "bayesopt.json", section, diagnosis_section, runout=RUNOUT.to_config(),
+        dem=None, name="tiny",
     )  # fmt: skip
-    assert result["model"] == "base" and result["answer"] == "base, BO on DEM"
-    (route,) = result["routes"]
-    assert route["dem_runs"] == 4 and len(route["extra"]["history"]["values"]) == 4
+    assert bo["dem_runs"] == 4 and bo["value"] == min(bo["history"]["values"])
+    validation = run_validation(
+        "model-bayesopt", out / "bayesopt.json", out / "model.json", csv, out / "validation.json", section,
+        diagnosis_section, runout=RUNOUT.to_config(), dem=None, name="tiny",
+    )  # fmt: skip
+    assert (
+        validation["key"] == "model-bayesopt" and validation["model"] == "base" and validation["seeds"] == [5001, 5002]
+    )
+    # the DoE route (a 3 x 3 face-centred design + 1 centre replicate) beside it
+    run_model_doe(
+        csv, out / "model.json", out / "doe.json", out / "doe_responses.csv", out / "doe_surface.png",
+        {"doe_centre_replicates": 1}, diagnosis_section, runout=RUNOUT.to_config(), dem=None, name="tiny",
+    )  # fmt: skip
+    doe = run_validation(
+        "model-doe", out / "doe.json", out / "model.json", csv, out / "validation_doe.json", section,
+        diagnosis_section, runout=RUNOUT.to_config(), dem=None, name="tiny",
+    )  # fmt: skip
+    assert doe["dem_runs"] == 10 and 0 <= doe["extra"]["r_squared"] <= 1
+    result = run_calibrated(
+        csv, out / "model.json", [out / "validation.json", out / "validation_doe.json"], None,
+        out / "calibrated.json", out / "calibrated.png", out / "prediction.png", section, diagnosis_section,
+        runout=RUNOUT.to_config(), dem=None, name="tiny",
+    )  # fmt: skip
+    assert result["model"] == "base" and [r["key"] for r in result["routes"]] == ["model-bayesopt", "model-doe"]
+    assert result["answer"] == min(result["routes"], key=lambda r: r["mse"])["route"]
+    route = next(r for r in result["routes"] if r["route"] == result["answer"])
+    bo_route = result["routes"][0]
+    assert bo_route["parameters"] == bo["optimum"]
+    assert bo_route["dem_runs"] == 4 and len(bo_route["extra"]["history"]["values"]) == 4
     assert route["mse"] == pytest.approx(runout_mse(np.array(route["mean"]), COLUMN.runout))
     assert (out / "calibrated.png").stat().st_size > 10_000 and (out / "prediction.png").stat().st_size > 10_000
     transfer = result["transfer"]  # the answer again, grains 4 / 3.5 times finer: more grains, other curves
@@ -103,6 +143,10 @@ def test_the_stage_writes_its_answer_figure_and_report_section(tmp_path):
     assert "### tiny: base model" in text and "](../calibrated/calibrated.png)" in text
     assert f"validated runout MSE **{route['mse']:.3g}**" in text and "**Scale transfer.**" in text
     assert "| final L* | " in text and "](../calibrated/prediction.png)" in text
+    assert (
+        "base, DoE (face-centred CCD, quadratic): 10 DEM runs (every DEM run ran); quadratic response surface" in text
+    )
+    assert "](../calibrated/doe_surface.png)" in text
 
 
 def config_with(model, engine="builtin", diagnosis_enabled=True):
@@ -129,28 +173,119 @@ def test_a_model_the_engine_cannot_run_is_refused_before_any_job():
         check_calibration(config_with("auto", diagnosis_enabled=False))
 
 
-def test_the_papers_base_routes_are_read_for_validation_beside_the_model(tmp_path):
-    """The optima of the GNS inverse design, the DoE fits and the base BO, as their stages write them."""
+def test_every_routes_optimum_is_read_as_its_stage_writes_it(tmp_path):
+    """The optima of the paper's GNS inverse design, DoE fits and base BO, and of the model's own
+    GNS inverse design, in each model's parameter order whatever the file's."""
     import json
 
-    from pipeline.calibrated import base_route_optima
+    from pipeline.calibrated import route_optimum
 
-    (tmp_path / "inverse.json").write_text(
-        json.dumps({"names": ["restitution", "friction"], "best_params": [0.4, 0.7]})
-    )
-    optimum = {"natural": {"friction": 0.9, "restitution": 0.3}}
-    doe = {"n_runs": 50, "models": {"eq9": {"optimum": optimum}, "quadratic": {"optimum": optimum}}}
-    (tmp_path / "analysis.json").write_text(json.dumps(doe))
-    bo = {"names": ["friction", "restitution"], "best_params": [0.8, 0.5], "values": [1.0] * 20}
-    (tmp_path / "bayesopt.json").write_text(json.dumps(bo))
+    model = Model(get_mechanisms(["cohesion"])[0])
+    posterior = {"parameters": [{"name": "bond_number", "low": 40.0, "high": 48.0}]}
     files = {
-        k: tmp_path / f
-        for k, f in (("inverse", "inverse.json"), ("doe", "analysis.json"), ("bayesopt", "bayesopt.json"))
-    }
-    assert base_route_optima(files) == [
-        ("base, GNS inverse design", [0.7, 0.4], 0),  # in (mu, e) order whatever the file's order
-        ("base, DoE (eq9)", [0.9, 0.3], 50),
-        ("base, DoE (quadratic)", [0.9, 0.3], 50),
-        ("base, BO on DEM", [0.8, 0.5], 20),
-    ]
-    assert base_route_optima({}) == []
+        "inverse.json": {"names": ["restitution", "friction"], "best_params": [0.4, 0.7]},
+        "analysis.json": {"n_runs": 50, "models": {"eq9": {"optimum": {"natural": {"friction": 0.9, "restitution": 0.3}}}}},  # noqa: E501
+        "bayesopt.json": {"names": ["friction", "restitution"], "best_params": [0.8, 0.5], "values": [1.0] * 20},
+        "model_inverse.json": {
+            "names": ["bond_number", "friction", "restitution"], "best_params": [44.0, 0.5, 0.6],
+            "best_value": 0.05, "posterior": posterior,
+        },
+    }  # fmt: skip
+    for name, data in files.items():
+        (tmp_path / name).write_text(json.dumps(data))
+    read = lambda key, name: route_optimum(key, tmp_path / name, model)  # noqa: E731
+    assert read("base-inverse", "inverse.json") == ("base, GNS inverse design", Model(), [0.7, 0.4], 0, 0.0, {})
+    assert read("base-doe-eq9", "analysis.json") == ("base, DoE (eq9)", Model(), [0.9, 0.3], 50, 0.0, {})
+    assert read("base-bayesopt", "bayesopt.json") == ("base, BO on DEM", Model(), [0.8, 0.5], 20, 0.0, {})
+    label, route_model, theta, _, _, extra = read("model-inverse", "model_inverse.json")
+    assert (label, route_model, theta) == ("cohesion, GNS inverse design", model, [0.5, 0.6, 44.0])
+    assert extra["intervals"] == posterior["parameters"] and extra["gns_objective"] == 0.05
+    with pytest.raises(CalibrationError, match="unknown calibration route 'base-magic'"):
+        read("base-magic", "inverse.json")
+
+
+def test_the_model_file_names_the_model_and_refuses_what_is_not_one(tmp_path):
+    """model.json is what every job of the stage reads: auto resolved once, by the diagnosis."""
+    model, why = resolve_model("auto", diagnosis("cohesion"))
+    write_json(tmp_path / "model.json", model_record(model, why, "quartz"))
+    assert read_model(tmp_path / "model.json") == (model, why)
+    (tmp_path / "junk.json").write_text("{}")
+    with pytest.raises(CalibrationError, match="junk.json: not a calibrated-model file"):
+        read_model(tmp_path / "junk.json")
+    write_json(tmp_path / "other.json", dict(model_record(model, why), parameters=["friction", "restitution"]))
+    with pytest.raises(CalibrationError, match="differ from model cohesion's"):
+        read_model(tmp_path / "other.json")
+
+
+def test_the_models_gns_dataset_varies_every_parameter_on_its_own_packings():
+    """A Latin hypercube over the model's box on the template's column: every parameter spread over
+    its range, the mechanism switched on through its own case fields, one packing per case."""
+    model = Model(get_mechanisms(["cohesion"])[0])
+    template = COLUMN.collapse_case(0.5, 0.5, size_scale=4.0, seed=1, output_interval=0.005, name="tiny/case_000")
+    cases = model_dataset_cases(model, template, 10, 0, {"train": 0.8, "valid": 0.1, "test": 0.1})
+    assert [c.split for c in cases].count("test") == 1 and [c.split for c in cases].count("valid") == 1
+    assert [c.case_id for c in cases] == [f"case_{k:03d}" for k in range(10)]
+    theta = np.array([[c.parameters[n] for n in model.parameter_names] for c in cases])
+    for j, (low, high) in enumerate(model.bounds):  # one point per tenth of every range (a Latin hypercube)
+        assert sorted(np.floor((theta[:, j] - low) / (high - low) * 10).astype(int)) == list(range(10))
+    for c in cases:
+        assert (c.case.friction, c.case.restitution) == (c.parameters["friction"], c.parameters["restitution"])
+        assert bond_from_cohesion_energy(c.case.cohesion_energy, c.case) == pytest.approx(c.parameters["bond_number"])
+        assert (c.case.L_i, c.case.output_interval, c.case.size_scale) == (0.01, 0.005, 4.0)
+    assert len({c.case.seed for c in cases}) == 10 and template.seed not in {c.case.seed for c in cases}
+    with pytest.raises(CalibrationError, match="cannot fill train, valid and test"):
+        model_dataset_cases(model, template, 2, 0, {"train": 0.8, "valid": 0.1, "test": 0.1})
+
+
+def boxed_diagnosis(estimate, low, high, identifiable=True):
+    """A diagnosis whose cohesion fit put the Bond number at `estimate`, 95% in [low, high]."""
+    interval = SimpleNamespace(name="bond_number", low=low, high=high, identifiable=identifiable)
+    evidence = SimpleNamespace(
+        dem=SimpleNamespace(parameters={"friction": 0.5, "restitution": 0.5, "bond_number": estimate}),
+        emulator=SimpleNamespace(posterior=SimpleNamespace(parameters=[interval])),
+    )
+    return SimpleNamespace(candidates={"cohesion": evidence})
+
+
+def test_the_calibration_box_follows_the_diagnosis_and_stays_in_the_candidates_range(tmp_path):
+    """Known answers: 2x the 95% interval around the estimate, at least a quarter of [0, 60], slid
+    inside [0, 60]; the whole range when the diagnosis could not pin the parameter down."""
+    model = Model(get_mechanisms(["cohesion"])[0])
+    box = lambda d, kind="diagnosis": tuple(calibration_box(model, d, kind).mechanism.bounds)  # noqa: E731
+    assert box(boxed_diagnosis(44.0, 40.0, 48.0)) == pytest.approx((36.0, 52.0))  # 2 x 8 wide
+    assert box(boxed_diagnosis(44.0, 43.0, 45.0)) == pytest.approx((36.5, 51.5))  # at least 15 = 60 / 4
+    assert box(boxed_diagnosis(58.0, 55.0, 60.0)) == pytest.approx((45.0, 60.0))  # slid inside
+    assert box(boxed_diagnosis(44.0, 20.0, 60.0)) == (0.0, 60.0)  # 80 wide: the whole range
+    assert box(boxed_diagnosis(44.0, 40.0, 48.0, identifiable=False)) == (0.0, 60.0)
+    assert box(boxed_diagnosis(44.0, 40.0, 48.0), "full") == (0.0, 60.0)
+    with pytest.raises(CalibrationError, match="unknown box 'narrow'"):
+        box(boxed_diagnosis(44.0, 40.0, 48.0), "narrow")
+    # the box travels in model.json; a range outside the candidate's is refused
+    boxed = calibration_box(model, boxed_diagnosis(44.0, 40.0, 48.0))
+    write_json(tmp_path / "model.json", model_record(boxed, "why"))
+    assert read_model(tmp_path / "model.json")[0] == boxed
+    write_json(tmp_path / "wide.json", dict(model_record(boxed, "why"), bounds=[[0.3, 0.9], [0.3, 0.9], [30, 70]]))
+    with pytest.raises(CalibrationError, match=r"bond_number range \[30, 70\] is not inside its whole range \[0, 60\]"):
+        read_model(tmp_path / "wide.json")
+
+
+def test_the_models_gns_is_a_fine_tuning_of_the_base_gns():
+    """The base GNS's settings, fewer steps from its weights, a lower start and the same schedule compressed."""
+    from pipeline.calibrated_gns import case_splits, warm_start_settings
+
+    base = {"latent_size": 32, "steps": 12000, "learning_rate_decay_steps": 10000, "pushforward_fraction": 0.5}
+    settings = warm_start_settings(base, 6000, "results/gns/q/train/model_best.pt", 3e-4)
+    assert settings == dict(
+        base,
+        steps=6000,
+        learning_rate=3e-4,
+        learning_rate_decay_steps=5000,
+        init_from="results/gns/q/train/model_best.pt",
+    )
+    # the dataset's case ids and splits are known before the model is (the DAG's shape)
+    rows = case_splits({"gns_cases": 10, "gns_splits": {"train": 0.8, "valid": 0.1, "test": 0.1}})
+    assert [r["case_id"] for r in rows] == [f"case_{k:03d}" for k in range(10)]
+    model = Model(get_mechanisms(["cohesion"])[0])
+    template = COLUMN.collapse_case(0.5, 0.5, size_scale=4.0, seed=1, output_interval=0.005, name="tiny/case_000")
+    designed = model_dataset_cases(model, template, 10, 0, {"train": 0.8, "valid": 0.1, "test": 0.1})
+    assert [r["split"] for r in rows] == [c.split for c in designed]

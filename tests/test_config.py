@@ -97,6 +97,25 @@ def test_inverse_dataset_without_a_gns():
     )
 
 
+def test_inverse_bounds_outside_the_range_the_gns_is_trained_on():
+    """The GNS's trained range is its dataset's cases' span, known from the case table before any job."""
+    config = validated(edit=lambda c: c["inverse"].update(friction=[0.2, 0.9]))
+    message = "config key inverse.friction: bounds [0.2, 0.9] leave the range the GNS of dataset 'quartz_multiple'"
+    assert message in cross_key_error(config) and "the GNS would extrapolate" in cross_key_error(config)
+    inside = validated(edit=lambda c: c["inverse"].update(restitution=[0.4, 0.8]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        assert check_cross_keys(inside, case_table(inside))["quartz"] == "quartz_multiple"
+
+
+def test_dataset_named_like_a_calibrated_models_gns_dataset():
+    def edit(config):
+        config["datasets"]["calibrated_copper"] = config["datasets"]["quartz_multiple"]
+
+    message = "config key datasets.calibrated_copper: the name is taken by the GNS dataset of the calibrated model"
+    assert message in cross_key_error(validated(edit=edit))
+
+
 def test_inverse_column_outside_the_geometry_of_its_gns():
     def edit(config):
         config["gns"]["datasets"] = ["quartz_friction", "quartz_multiple"]
@@ -202,8 +221,8 @@ def test_dataset_too_few_grains_across_names_the_dataset_the_cases_and_the_large
 
 
 def test_dataset_range_names_only_the_cases_under_the_minimum():
-    """The paper's L_i range [0.01, 0.02] m at config.yaml's size_scale 3: only the shortest case is under 8."""
-    config = validated(edit=lambda c: c["datasets"]["quartz_friction"].update(L_i={"range": [0.01, 0.02]}))
+    """The paper's L_i range [0.01, 0.02] m over 20 cases at size_scale 3: only the shortest case is under 8."""
+    config = validated(edit=lambda c: c["datasets"]["quartz_friction"].update(L_i={"range": [0.01, 0.02]}, n_cases=20))
     short = [row for row in case_table(config).values() if row["dataset"] == "quartz_friction" and row["L_i"] < 0.0102]
     assert [row["case_id"] for row in short] == ["case_000"]
     message = cross_key_error(config)

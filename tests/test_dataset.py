@@ -152,3 +152,24 @@ def test_dataset_stage_summary_table_and_report_section(tmp_path, monkeypatch):
     assert (tmp_path / "results/report/dataset.md").read_text() == text
     assert "| syn | 2/1/1 | 5-5 | 12-12 | 2 | 0.3-0.6 | 0.65 | 10 | 2 |" in text
     assert "](../datasets/syn/summary.png)" in text
+
+
+def test_an_extended_models_dataset_takes_its_parameter_and_names_a_file_without_it(tmp_path, three_splits):
+    """The GNS of an extended model takes its mechanism's parameter (a trajectory attribute) after
+    (mu, e); a trajectory that does not record it is refused, by name."""
+    splits, _ = three_splits
+    meta = build_dataset(
+        splits, tmp_path / "metadata.json", "extended", ("friction", "restitution", "rolling_friction")
+    )
+    assert list(meta["parameter_ranges"]) == [
+        "friction",
+        "restitution",
+        "rolling_friction",
+        "L_i",
+        "H_i",
+        "aspect_ratio",
+    ]
+    assert meta["parameter_ranges"]["rolling_friction"] == [0.0, 0.0]
+    with pytest.raises(DatasetError, match=r"train_0\.h5: no attribute\(s\) \['bond_number'\]"):
+        build_dataset(splits, tmp_path / "bond.json", "extended", ("friction", "restitution", "bond_number"))
+    assert not (tmp_path / "bond.json").exists()

@@ -14,7 +14,7 @@ from gns.graph import NeighbourCapWarning, radius_graph
 from gns.network import EncodeProcessDecode
 from gns.rollout import RolloutError, context_from_trajectory, rollout
 from gns.settings import TrainSettings, simulator_config
-from gns.simulator import CheckpointError, Context, LearnedSimulator, load_simulator, model_payload
+from gns.simulator import CheckpointError, Context, LearnedSimulator, load_simulator, model_payload, warm_start
 from gns.train import one_step_loss, pushforward_loss, random_walk_noise
 from tests.gns_synthetic import synthetic_dataset
 
@@ -296,3 +296,42 @@ def test_checkpoint_round_trip_and_bad_checkpoints(metadata, tmp_path):
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(CheckpointError, match="junk.pt: not a readable checkpoint"):
         load_simulator(tmp_path / "junk.pt")
+
+
+def test_warm_start_begins_as_the_base_gns_blind_to_the_new_parameter(metadata, dataset, tmp_path):
+    """A GNS of an extended model (one more DEM parameter) warm-started from the base model's GNS
+    predicts exactly what the base GNS does, whatever the new parameter's value; then training
+    can move it (the new input's weights are zero, their gradient is not)."""
+    base = tiny_simulator(metadata, seed=1)
+    torch.save(model_payload(base), tmp_path / "base.pt")
+    extended_ranges = {**metadata["parameter_ranges"], "bond_number": [0.0, 60.0]}
+    extended = tiny_simulator(dict(metadata, parameter_ranges=extended_ranges), seed=2)
+    assert extended.config.parameter_names == ["friction", "restitution", "bond_number"]
+    info = warm_start(extended, tmp_path / "base.pt")
+    assert info["new_parameters"] == ["bond_number"] and info["copied"] == len(list(extended.parameters()))
+    _, ctx, initial = rollout_inputs(base, dataset, dtype=torch.float32)
+    expected = base.predict_positions(initial.transpose(0, 1), ctx)
+    outputs = []
+    for bond in (0.0, 30.0, 60.0):
+        bond_column = torch.full((ctx.parameters.shape[0], 1), bond)
+        extended_ctx = Context(
+            ctx.particle_type, ctx.radius, torch.cat([ctx.parameters, bond_column], 1), ctx.layout, ctx.graph_index
+        )
+        outputs.append(extended.predict_positions(initial.transpose(0, 1), extended_ctx))
+        torch.testing.assert_close(outputs[-1], expected, rtol=0, atol=0)
+    first = extended.network.node_encoder[0].weight
+    column = [name for name, _ in extended.config.node_layout].index("parameters")
+    offset = sum(width for _, width in extended.config.node_layout[:column]) + 2
+    assert torch.all(first[:, offset] == 0)
+    loss = extended.predict_positions(initial.transpose(0, 1), extended_ctx).square().sum()
+    (gradient,) = torch.autograd.grad(loss, [first])
+    assert gradient[:, offset].abs().max() > 0
+
+    # a GNS whose parameters the source lacks cannot start a GNS without them
+    torch.save(model_payload(extended), tmp_path / "extended.pt")
+    with pytest.raises(CheckpointError, match=r"takes parameters \['bond_number'\] this model lacks"):
+        warm_start(tiny_simulator(metadata), tmp_path / "extended.pt")
+    with pytest.raises(CheckpointError, match="same latent size"):
+        warm_start(
+            tiny_simulator(dict(metadata, parameter_ranges=extended_ranges), latent_size=8), tmp_path / "base.pt"
+        )

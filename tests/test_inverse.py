@@ -278,6 +278,30 @@ def test_lockstep_multistart_batches_points_and_follows_the_paths_of_lone_runs()
         assert run.value == pytest.approx(_bowl(lone.x))
 
 
+def test_scaled_steps_let_lbfgsb_solve_parameters_of_very_different_ranges():
+    """Friction in [0.3, 0.9] beside a Bond number in [0, 60]: L-BFGS-B stepping in x / scale (scale
+    = range / 0.6) reaches the minimum of a bowl that is round in those units; every point it
+    reports is in natural units, inside the bounds."""
+    bounds, names, target = [(0.3, 0.9), (0.0, 60.0)], ["friction", "bond_number"], np.array([0.45, 42.0])
+    scale = np.array([1.0, 100.0])
+
+    def batch(points):
+        z = (np.asarray(points) - target) / scale
+        return (z**2).sum(axis=1), 2 * z / scale
+
+    starts = np.array([[0.55, 0.0], [0.85, 55.0]])
+    scaled = multistart_lbfgsb(batch, bounds, names, LBFGSBSettings(starts, scale=scale))
+    assert np.allclose(scaled.params, target, atol=1e-6) and scaled.value < 1e-10
+    for run, start in zip(scaled.starts, starts):
+        points = np.array([p for p, _ in run.iterates])
+        assert np.all(points >= [0.3, 0.0]) and np.all(points <= [0.9, 60.0])
+        assert run.start == pytest.approx(start.tolist()) and points[0] == pytest.approx(start)
+    # scale 1 is the unscaled optimiser, point for point
+    plain = multistart_lbfgsb(batch, bounds, names, LBFGSBSettings(starts))
+    ones = multistart_lbfgsb(batch, bounds, names, LBFGSBSettings(starts, scale=np.ones(2)))
+    assert plain.params == ones.params and plain.history.values == ones.history.values
+
+
 def test_finite_difference_stencils_run_as_one_batch_and_follow_scipys_own_differences():
     """Each start's forward-difference stencil (x, x + h e_j; backwards at an upper bound) is one
     batch of P + 1 points, and the path is the one scipy takes with eps = h."""

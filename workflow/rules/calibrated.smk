@@ -5,20 +5,221 @@
 # section, results/report/calibrated.md. Outputs under results/calibrated/<name>/.
 CALIBRATION = config["calibration"]
 CALIBRATED_NAMES = sorted(config["measured"]) if CALIBRATION["enabled"] else []
+CHANNEL_WIDTH = config["diagnosis"]["channel_width"]
+# The GNS route of the model, for every column with a base-model GNS (inverse.measured): a GNS
+# dataset "calibrated_<name>" whose case ids and splits are known now and whose parameters come
+# from model.json when its jobs run (dataset_cases, gns_settings, gns_init: common.smk).
+MODEL_GNS_NAMES = (
+    [n for n in CALIBRATED_NAMES if n in INVERSE_NAMES] if CALIBRATION["gns"] and CALIBRATION["model"] != "base" else []
+)
+MODEL_DATASETS.update(
+    {
+        f"calibrated_{n}": {
+            "name": n,
+            "rows": [dict(row, dataset=f"calibrated_{n}") for row in pipeline.calibrated_gns.case_splits(CALIBRATION)],
+        }
+        for n in MODEL_GNS_NAMES
+    }
+)
 
 
+# Which model each column is calibrated as: the config's, or (auto) the diagnosis' answer, written
+# once per column; every job of the stage reads it, so a new measured curve needs no hand edit.
+rule calibrated_model:
+    input:
+        diagnosis=lambda w: (f"results/diagnosis/{w.name}/diagnosis.json" if config["diagnosis"]["enabled"] else []),
+    output:
+        "results/calibrated/{name}/model.json",
+    log:
+        "results/logs/calibrated/calibrated_model/{name}.log",
+    benchmark:
+        "results/benchmarks/calibrated/calibrated_model/{name}.tsv"
+    localrule: True
+    conda:
+        "../envs/pipeline.yaml"
+    params:
+        model=CALIBRATION["model"],
+        channel_width=CHANNEL_WIDTH,
+        box=CALIBRATION["box"],
+    script:
+        "../scripts/calibrated_model.py"
+
+
+# The DoE route: a face-centred central composite design over the model's parameters in DEM, the
+# quadratic response surface and its ANOVA (doe/).
+rule calibrated_doe:
+    input:
+        measured=lambda w: config["measured"][w.name],
+        model="results/calibrated/{name}/model.json",
+    output:
+        result="results/calibrated/{name}/doe.json",
+        responses="results/calibrated/{name}/doe_responses.csv",
+        figure="results/calibrated/{name}/doe_surface.png",
+    log:
+        "results/logs/calibrated/calibrated_doe/{name}.log",
+    benchmark:
+        "results/benchmarks/calibrated/calibrated_doe/{name}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
+    resources:
+        runtime=240,
+        mem_mb=2000,
+    params:
+        settings=CALIBRATION,
+        diagnosis=config["diagnosis"],
+        runout=RUNOUT,
+        dem=DEM_ENGINE,
+    script:
+        "../scripts/calibrated_doe.py"
+
+
+# The Bayesian optimisation route: DEM runs over all the model's parameters (calibration.budget).
+rule calibrated_bayesopt:
+    input:
+        measured=lambda w: config["measured"][w.name],
+        model="results/calibrated/{name}/model.json",
+    output:
+        "results/calibrated/{name}/bayesopt.json",
+    log:
+        "results/logs/calibrated/calibrated_bayesopt/{name}.log",
+    benchmark:
+        "results/benchmarks/calibrated/calibrated_bayesopt/{name}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
+    resources:
+        runtime=240,
+        mem_mb=2000,
+    params:
+        settings=CALIBRATION,
+        diagnosis=config["diagnosis"],
+        runout=RUNOUT,
+        dem=DEM_ENGINE,
+    script:
+        "../scripts/calibrated_bayesopt.py"
+
+
+# The GNS route: one DEM case of the model's GNS dataset on the column of the base GNS's dataset.
+rule calibrated_case:
+    input:
+        model="results/calibrated/{name}/model.json",
+    output:
+        "results/dem/calibrated_{name}/trajectories/{case_id}.h5",
+    log:
+        "results/logs/calibrated/calibrated_case/{name}/{case_id}.log",
+    benchmark:
+        "results/benchmarks/calibrated/calibrated_case/{name}/{case_id}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
+    threads: config["dem"]["threads"]
+    resources:
+        runtime=240,
+        mem_mb=2000,
+    params:
+        template=lambda w: dataset_cases(INVERSE_DATASET[w.name])[0],
+        settings=CALIBRATION,
+        channel_width=CHANNEL_WIDTH,
+        dem=DEM_ENGINE,
+    script:
+        "../scripts/calibrated_case.py"
+
+
+ruleorder: calibrated_case > dem_run
+
+
+rule calibrated_dataset:
+    input:
+        model="results/calibrated/{name}/model.json",
+        trajectories=lambda w: [p for paths in dataset_trajectories(f"calibrated_{w.name}").values() for p in paths],
+    output:
+        "results/datasets/calibrated_{name}/metadata.json",
+    log:
+        "results/logs/calibrated/calibrated_dataset/{name}.log",
+    benchmark:
+        "results/benchmarks/calibrated/calibrated_dataset/{name}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
+    resources:
+        runtime=60,
+        mem_mb=2000,
+    params:
+        splits=lambda w: dataset_trajectories(f"calibrated_{w.name}"),
+        channel_width=CHANNEL_WIDTH,
+    script:
+        "../scripts/calibrated_dataset.py"
+
+
+ruleorder: calibrated_dataset > dataset
+
+
+# The model's GNS is trained, rolled out and scored by the GNS stage's own rules (gns.smk) on the
+# dataset calibrated_<name>; the inverse design then runs over all of the model's parameters.
+rule calibrated_inverse:
+    input:
+        model="results/calibrated/{name}/model.json",
+        gns="results/gns/calibrated_{name}/train/model_best.pt",
+        metadata="results/datasets/calibrated_{name}/metadata.json",
+        evaluation="results/gns/calibrated_{name}/evaluation/summary.json",
+        start="results/inverse/{name}/start.h5",
+        measured=lambda w: config["measured"][w.name],
+    output:
+        result="results/calibrated/{name}/inverse.json",
+        paths="results/calibrated/{name}/inverse_paths.png",
+        deposits="results/calibrated/{name}/inverse_deposits.png",
+    log:
+        "results/logs/calibrated/calibrated_inverse/{name}.log",
+    benchmark:
+        "results/benchmarks/calibrated/calibrated_inverse/{name}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
+    threads: INVERSE["threads"]
+    resources:
+        runtime=120,
+        mem_mb=4000,
+    params:
+        settings=INVERSE,
+        channel_width=CHANNEL_WIDTH,
+        runout=RUNOUT,
+    script:
+        "../scripts/calibrated_inverse.py"
+
+
+# Every route's optimum validated on calibration.validation_packings packings, one job per route
+# (route keys: calibrated_routes in common.smk), as soon as that route has its answer.
+rule calibrated_validate:
+    input:
+        measured=lambda w: config["measured"][w.name],
+        model="results/calibrated/{name}/model.json",
+        source=lambda w: calibrated_routes(w.name)[w.route],
+    output:
+        "results/calibrated/{name}/validation/{route}.json",
+    log:
+        "results/logs/calibrated/calibrated_validate/{name}/{route}.log",
+    benchmark:
+        "results/benchmarks/calibrated/calibrated_validate/{name}/{route}.tsv"
+    conda:
+        "../envs/pipeline.yaml"
+    resources:
+        runtime=120,
+        mem_mb=2000,
+    params:
+        settings=CALIBRATION,
+        diagnosis=config["diagnosis"],
+        runout=RUNOUT,
+        dem=DEM_ENGINE,
+        cost=lambda w: calibrated_cost(w.name, w.route),
+    script:
+        "../scripts/calibrated_validate.py"
+
+
+# The answer: the model's best validated route, validated again one size_scale finer, and its predictions.
 rule calibrated:
     input:
         measured=lambda w: config["measured"][w.name],
-        diagnosis=lambda w: (f"results/diagnosis/{w.name}/diagnosis.json" if config["diagnosis"]["enabled"] else []),
-        # the paper's base-model routes, validated on the same packings beside the calibrated model
-        inverse=lambda w: [f"results/inverse/{w.name}/inverse.json"] if w.name in INVERSE_NAMES else [],
-        bayesopt=lambda w: (
-            [f"results/inverse/{w.name}/bayesopt.json"]
-            if w.name in INVERSE_NAMES and INVERSE["bayesopt_budget"]
-            else []
+        model="results/calibrated/{name}/model.json",
+        validations=lambda w: expand(
+            "results/calibrated/{name}/validation/{route}.json", name=w.name, route=list(calibrated_routes(w.name))
         ),
-        doe=lambda w: [f"results/doe/{w.name}/analysis.json"] if w.name in DOE_NAMES else [],
+        diagnosis=lambda w: (f"results/diagnosis/{w.name}/diagnosis.json" if config["diagnosis"]["enabled"] else []),
     output:
         result="results/calibrated/{name}/calibrated.json",
         figure="results/calibrated/{name}/calibrated.png",
@@ -46,6 +247,8 @@ rule calibrated_section:
         results=expand("results/calibrated/{name}/calibrated.json", name=CALIBRATED_NAMES),
         figures=expand("results/calibrated/{name}/calibrated.png", name=CALIBRATED_NAMES),
         predictions=expand("results/calibrated/{name}/prediction.png", name=CALIBRATED_NAMES),
+        doe=expand("results/calibrated/{name}/doe_surface.png", name=CALIBRATED_NAMES),
+        inverse=expand("results/calibrated/{name}/inverse_paths.png", name=MODEL_GNS_NAMES),
     output:
         "results/report/calibrated.md",
     log:

@@ -5,6 +5,7 @@ from pathlib import Path
 
 import dem.grid
 import dem.runout
+import pipeline.calibrated_gns
 import pipeline.config
 from snakemake.utils import min_version
 
@@ -30,6 +31,9 @@ RUNOUT = dem.runout.RunoutMethod.from_config(config["runout"]).to_config()
 # recovery targets): the same engine and solver paths as the case table's runs.
 DEM_ENGINE = {"engine": config["dem"]["engine"], "solvers": config["dem"]["solvers"]}
 
+# The GNS datasets of calibrated models, {dataset: {"name": measured column, "rows": [{case_id,
+# split, dataset}]}}: filled by calibrated.smk (their parameters come from model.json at run time).
+MODEL_DATASETS = {}
 # Every stage appends the files `rule all` must build ...
 FINAL_TARGETS = []
 # ... and its report fragment: (title, "results/report/<stage>.md"), in report order.
@@ -39,6 +43,7 @@ REPORT_SECTIONS = []
 wildcard_constraints:
     dataset=r"[A-Za-z0-9_\-]+",
     case_id=r"[A-Za-z0-9_\-]+",
+    route=r"[a-z0-9\-]+",
 
 
 # Conventions for every stage (pipeline/report.py and pipeline/benchmarks.py read them):
@@ -53,7 +58,10 @@ def case_row(wildcards):
 
 
 def dataset_cases(dataset):
-    """Rows of one dataset, in case_id order."""
+    """Rows of one dataset, in case_id order. A calibrated model's GNS dataset (MODEL_DATASETS,
+    calibrated.smk) has case ids and splits only: its parameters come from its model.json."""
+    if dataset in MODEL_DATASETS:
+        return MODEL_DATASETS[dataset]["rows"]
     return [row for key, row in CASES.items() if row["dataset"] == dataset]
 
 
@@ -72,8 +80,23 @@ def dataset_trajectories(dataset):
 
 
 def gns_settings(dataset):
-    """Training settings of one dataset: the gns section with gns.per_dataset[dataset] laid over it (gns.smk)."""
+    """Training settings of one dataset: the gns section with gns.per_dataset[dataset] laid over it
+    (gns.smk); a calibrated model's GNS dataset takes the settings of the base GNS of its column,
+    warm-started from it (gns_init) for calibration.gns_steps, the learning rate decaying in proportion."""
+    if dataset in MODEL_DATASETS:
+        base = gns_settings(INVERSE_DATASET[MODEL_DATASETS[dataset]["name"]])
+        return pipeline.calibrated_gns.warm_start_settings(
+            base, CALIBRATION["gns_steps"], gns_init(dataset)[0], CALIBRATION["gns_learning_rate"]
+        )
     return {**GNS_SETTINGS, **GNS.get("per_dataset", {}).get(dataset, {})}
+
+
+def gns_init(dataset):
+    """[the GNS a dataset's training starts from]: the base GNS of the column of a calibrated
+    model's GNS dataset; [] for every other dataset (gns.smk)."""
+    if dataset not in MODEL_DATASETS:
+        return []
+    return [inverse_gns(MODEL_DATASETS[dataset]["name"], "model")]
 
 
 def gns_test_cases(dataset):
@@ -111,3 +134,60 @@ def inverse_benchmarks(name):
         ]
         files["doe_validation"] = {m: [f"results/benchmarks/doe/doe_validate/{name}/{m}.tsv"] for m in DOE["validate"]}
     return files
+
+
+def calibrated_routes(name):
+    """{route key: the file holding its optimum} of every route the calibrated stage validates for
+    measured column `name` (pipeline.calibrated.ROUTE_SOURCES; calibrated.smk)."""
+    routes = {}
+    if config["diagnosis"]["enabled"]:
+        routes["diagnosis-base"] = f"results/diagnosis/{name}/diagnosis.json"
+        if CALIBRATION["model"] != "base":
+            routes["diagnosis-model"] = routes["diagnosis-base"]
+    if name in INVERSE_NAMES:
+        routes["base-inverse"] = f"results/inverse/{name}/inverse.json"
+        if INVERSE["bayesopt_budget"]:
+            routes["base-bayesopt"] = f"results/inverse/{name}/bayesopt.json"
+    if name in DOE_NAMES:
+        routes.update({f"base-doe-{m}": f"results/doe/{name}/analysis.json" for m in DOE["models"]})
+    if name in MODEL_GNS_NAMES:
+        routes["model-inverse"] = f"results/calibrated/{name}/inverse.json"
+    routes["model-doe"] = f"results/calibrated/{name}/doe.json"
+    routes["model-bayesopt"] = f"results/calibrated/{name}/bayesopt.json"
+    return routes
+
+
+def calibrated_cost(name, route):
+    """{"files": benchmark files of the jobs route `route` of measured column `name` ran, "dem_runs":
+    the DEM runs it spent (None: its own file says)}: the cost the report shows beside each route."""
+    dem_jobs = lambda ds, ids: [
+        f"results/benchmarks/dem/{rule}/{ds}/{c}.tsv" for rule in ("dem_packing", "dem_run") for c in ids
+    ]
+    if route in ("model-doe", "model-bayesopt"):
+        return {"files": [f"results/benchmarks/calibrated/calibrated_{route[6:]}/{name}.tsv"], "dem_runs": None}
+    if route in ("base-inverse", "model-inverse"):
+        base = INVERSE_DATASET[name]
+        base_cases = [row["case_id"] for row in dataset_cases(base)]
+        files = dem_jobs(base, base_cases) + [
+            f"results/benchmarks/dataset/dataset/{base}.tsv",
+            f"results/benchmarks/gns/gns_train/{base}.tsv",
+            f"results/benchmarks/inverse/inverse_start/{name}.tsv",
+        ]
+        runs = len(base_cases)
+        if route == "base-inverse":
+            return {"files": files + [f"results/benchmarks/inverse/inverse_design/{name}.tsv"], "dem_runs": runs}
+        # the model's GNS starts from the base GNS: that GNS's dataset and training are part of its cost
+        dataset = f"calibrated_{name}"
+        cases = [row["case_id"] for row in dataset_cases(dataset)]
+        files += [f"results/benchmarks/calibrated/calibrated_case/{name}/{c}.tsv" for c in cases] + [
+            f"results/benchmarks/calibrated/calibrated_dataset/{name}.tsv",
+            f"results/benchmarks/gns/gns_train/{dataset}.tsv",
+            f"results/benchmarks/calibrated/calibrated_inverse/{name}.tsv",
+        ]
+        return {"files": files, "dem_runs": runs + len(cases)}
+    if route.startswith("base-doe-"):
+        doe = inverse_benchmarks(name)["doe"] if name in INVERSE_NAMES else []
+        return {"files": doe, "dem_runs": None}
+    if route == "base-bayesopt":
+        return {"files": [f"results/benchmarks/inverse/inverse_bayesopt/{name}.tsv"], "dem_runs": None}
+    return {"files": [], "dem_runs": None}  # the diagnosis' fits: the diagnosis job's time, its file's runs

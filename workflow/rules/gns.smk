@@ -15,6 +15,7 @@ GNS_DATASETS = pipeline.config.gns_datasets(config)  # gns.datasets, checked in 
 rule gns_train:
     input:
         metadata="results/datasets/{dataset}/metadata.json",
+        init=lambda w: gns_init(w.dataset),  # warm start (a calibrated model's GNS)
     output:
         model="results/gns/{dataset}/train/model_best.pt",
         metrics="results/gns/{dataset}/train/metrics.csv",

@@ -1,4 +1,4 @@
-"""The calibrated model of one measured column: calibrated.json and calibrated.png."""
+"""The calibrated model of one measured column: calibrated.json, calibrated.png and prediction.png."""
 
 import logging
 
@@ -7,6 +7,8 @@ from pipeline.calibrated import run_calibrated
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
 result = run_calibrated(
     snakemake.input.measured,
+    snakemake.input.model,
+    snakemake.input.validations,
     snakemake.input.diagnosis or None,
     snakemake.output.result,
     snakemake.output.figure,
@@ -16,6 +18,5 @@ result = run_calibrated(
     runout=snakemake.params.runout,
     dem=snakemake.params.dem,
     name=snakemake.wildcards.name,
-    base_routes={key: files[0] for key in ("inverse", "bayesopt", "doe") if (files := getattr(snakemake.input, key))},
 )
 logging.info("%s: %s model, answer %s", result["name"], result["model"], result["answer"])

@@ -1,0 +1,127 @@
+"""The DoE route for the calibrated model (calibration/calibrated.py): a face-centred central
+composite design over the model's parameter box (mu, e and the mechanism parameter, when it has
+one), one DEM run of the measured column per design point, and the quadratic response surface of
+the runout MSE with its ANOVA, lack-of-fit test and bounded optimum.
+
+Packings: every non-replicate run starts from one packing (CALIBRATION_SEED + seed, the packing the
+other calibration routes run on), so differences between design points are due to the parameters
+alone (common random numbers); the centre replicates use other packings and measure the pure error.
+
+A run that fails (calibration.calibrated.FAILURES) is kept in the responses table with its reason
+and left out of the fit; the summary lists it.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from collections.abc import Callable
+
+import numpy as np
+import pandas as pd
+
+from calibration.calibrated import CALIBRATION_SEED, FAILURES, model_runout
+from calibration.design_runs import Model, SimulationSettings
+from calibration.measured import MeasuredColumn
+from calibration.objective import runout_mse
+from dem.runout import RunoutMethod
+from doe.design import Factor, face_centred_ccd
+from doe.regression import RegressionError, analyse, prediction_expression
+from doe.study import RUNOUT_METHOD_COLUMN, RUNOUT_PREFIX
+
+log = logging.getLogger(__name__)
+
+DESIGN = "face-centred CCD"
+SURFACE = "quadratic"
+FAILURE_COLUMN = "failure"  # "ExceptionName: message" of a run that failed, "" where it ran
+
+
+def model_factors(model: Model) -> tuple[Factor, ...]:
+    """One design factor per parameter of `model`, over its bounds (natural units)."""
+    return tuple(
+        Factor(name, float(low), float(high)) for name, (low, high) in zip(model.parameter_names, model.bounds)
+    )
+
+
+def fitted_runs(responses: pd.DataFrame) -> pd.DataFrame:
+    """The runs of a responses table that ran (finite mse): those the surface is fitted to."""
+    return responses[np.isfinite(responses["mse"].to_numpy(float))]
+
+
+def model_doe(
+    model: Model,
+    column: MeasuredColumn,
+    settings: SimulationSettings,
+    runout: RunoutMethod | dict | None,
+    dem_config: dict | None,
+    centre_replicates: int = 3,
+    seed: int = 0,
+    progress: Callable[[float], None] | None = None,
+) -> tuple[pd.DataFrame, dict]:
+    """DoE calibration of `model` on one measured column: (responses, summary).
+
+    responses: the design table (doe.design columns; seed = the packing seed of the run) with mse
+    (runout MSE against column.runout, NaN where the run failed), L_star_t<t> (simulated L* at the
+    measured t/t*), dem_wall_time_s, runout_method (JSON) and failure (reason, "" where it ran).
+    summary (JSON-ready): design, model, n_runs (DEM runs made), n_fitted, failed {run_id: reason},
+    failures (a sentence), centre_replicates, packing_seeds, and doe.regression.analyse's summary
+    of the quadratic surface (pure_error, best_run, models.quadratic: coefficients, effects (type-III
+    ANOVA), lack_of_fit, optimum in coded and natural units, expression), analysis_time_s.
+    progress: callable(fraction of the runs done) or None.
+    """
+    runout = RunoutMethod.from_config(runout)
+    factors = model_factors(model)
+    design = face_centred_ccd(factors, centre_replicates, CALIBRATION_SEED + seed)
+    method = json.dumps(runout.to_config(), sort_keys=True)
+    records = []
+    for done, row in enumerate(design.itertuples(index=False), start=1):
+        theta = [float(getattr(row, f.name)) for f in factors]
+        started = time.perf_counter()
+        try:
+            curve = model_runout(model, column, theta, settings, int(row.seed), runout, dem_config)
+            failure = ""
+        except FAILURES as exc:  # recorded with its reason, left out of the fit
+            curve = np.full(len(column.runout), math.nan)
+            failure = f"{type(exc).__name__}: {exc}"
+            log.warning("DoE run %s at %s failed: %s", row.run_id, np.round(theta, 4).tolist(), failure)
+        record = {
+            "run_id": row.run_id,
+            "mse": float(runout_mse(curve, column.runout)),
+            "dem_wall_time_s": time.perf_counter() - started,
+            RUNOUT_METHOD_COLUMN: method,
+            FAILURE_COLUMN: failure,
+        }
+        record.update({f"{RUNOUT_PREFIX}{t:g}": float(v) for t, v in zip(column.t_over_tstar, curve)})
+        records.append(record)
+        if progress is not None:
+            progress(done / len(design))
+    responses = design.merge(pd.DataFrame(records), on="run_id")
+    failed = {r.run_id: r.failure for r in responses.itertuples(index=False) if r.failure}
+    failures = (
+        f"{len(failed)} of {len(design)} DEM runs failed and are left out of the fit: "
+        + "; ".join(f"{run_id}: {why}" for run_id, why in failed.items())
+        if failed
+        else "every DEM run ran"
+    )
+    started = time.perf_counter()
+    try:
+        fits, analysis = analyse(fitted_runs(responses), factors, "mse", models=(SURFACE,))
+    except RegressionError as exc:
+        raise RegressionError(f"{model.name} DoE on {column.name}: {exc} ({failures})") from exc
+    analysis["models"][SURFACE]["expression"] = prediction_expression(fits[SURFACE])
+    analysis.pop("n_runs")  # the runs fitted: n_fitted below, beside the runs made
+    summary = {
+        "design": DESIGN,
+        "model": model.name,
+        "n_runs": int(len(design)),
+        "n_fitted": int(len(responses) - len(failed)),
+        "failed": failed,
+        "failures": failures,
+        "centre_replicates": centre_replicates,
+        "packing_seeds": sorted({int(s) for s in design["seed"]}),
+        **analysis,
+        "analysis_time_s": time.perf_counter() - started,
+    }
+    return responses, summary

@@ -1,0 +1,145 @@
+"""The GNS route of the calibrated model (workflow/rules/calibrated.smk): a GNS dataset of the
+measured column that varies every parameter of the model the DAG chose (model.json), the GNS
+trained on it (warm-started from the base model's GNS of the same column: rule gns_train), and the
+inverse design over all of the model's parameters with its Laplace posterior.
+
+  - `run_model_case` (rule calibrated_case): one DEM case of the dataset -> trajectory HDF5 that
+    records every parameter of the model (a mechanism's as its own attribute, e.g. bond_number);
+  - `build_model_dataset` (rule calibrated_dataset): the dataset's metadata JSON;
+  - `run_model_inverse` (rule calibrated_inverse): inverse.json and its figures.
+
+The methods are calibration/calibrated.py's (the design) and calibration/inverse.py's.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+
+from calibration.calibrated import DatasetCase, model_dataset_cases, read_model
+from calibration.design_runs import Model
+from calibration.inverse import InverseResult
+from dem.atomic import StrPath
+from dem.engines import simulate_case
+from dem.grid import assign_splits, case_from_row, case_id_of
+from dem.trajectory import Trajectory, write_trajectory
+from pipeline.dataset import build
+from pipeline.inverse import run_inverse_design
+
+log = logging.getLogger(__name__)
+
+
+def warm_start_settings(base: dict, steps: int, init_from: str, learning_rate: float) -> dict:
+    """The `gns` settings of a calibrated model's GNS: those of the base GNS it starts from
+    (`base`, the config's gns section for that dataset), `steps` steps from the weights at
+    `init_from`, starting at `learning_rate` (below the base's: a fine-tuning, which a start at the
+    base's 1e-3 undid: the validation runout MSE went 2.7 -> 0.40 in 6000 steps, against 0.39
+    after 1000 at 3e-4) and falling in proportion (the same schedule, compressed)."""
+    from gns.settings import TrainSettings
+
+    filled = TrainSettings.from_config(base)
+    decay = max(1, round(filled.learning_rate_decay_steps * steps / filled.steps))
+    return {
+        **base,
+        "steps": steps,
+        "learning_rate": learning_rate,
+        "learning_rate_decay_steps": decay,
+        "init_from": str(init_from),
+    }
+
+
+def case_splits(section: dict) -> list[dict]:
+    """[{case_id, split}] of a calibrated model's GNS dataset (section: the config's `calibration`):
+    known before the model is, so the DAG's shape does not wait for the diagnosis."""
+    n_cases = section["gns_cases"]
+    return [
+        {"case_id": case_id_of(k, n_cases), "split": split}
+        for k, split in enumerate(assign_splits(n_cases, section["gns_splits"]))
+    ]
+
+
+def dataset_design(model: Model, template_row: dict, section: dict) -> list[DatasetCase]:
+    """The model's GNS dataset design: section is the config's `calibration` section (gns_cases,
+    seed, gns_splits); template_row: a case-table row of the base model's GNS dataset of the column."""
+    return model_dataset_cases(
+        model, case_from_row(template_row), section["gns_cases"], section["seed"], section["gns_splits"]
+    )
+
+
+def run_model_case(
+    model_json: StrPath,
+    template_row: dict,
+    case_id: str,
+    out_path: StrPath,
+    section: dict,
+    channel_width: float,
+    *,
+    dem: dict | None,
+) -> Trajectory:
+    """One DEM case of the model's GNS dataset, written to out_path with every model parameter as
+    a trajectory attribute (the GNS takes them as node features)."""
+    model, _ = read_model(model_json, channel_width)
+    cases = {c.case_id: c for c in dataset_design(model, template_row, section)}
+    if case_id not in cases:
+        raise KeyError(f"{model_json}: the {model.name} dataset has no case {case_id} (it has {len(cases)})")
+    case = cases[case_id]
+    log.info("%s: %s", case_id, case.parameters)
+    trajectory = simulate_case(case.case, dem)
+    trajectory.attrs.update(case.parameters)
+    write_trajectory(out_path, trajectory)
+    return trajectory
+
+
+def build_model_dataset(
+    model_json: StrPath,
+    splits: dict[str, Sequence[str]],
+    out_path: StrPath,
+    name: str,
+    channel_width: float,
+) -> dict:
+    """The metadata JSON of the model's GNS dataset; the GNS takes every parameter of the model."""
+    model, why = read_model(model_json, channel_width)
+    log.info("dataset %s of the %s model (%s)", name, model.name, why)
+    return build(splits, out_path, name, model.parameter_names)
+
+
+def run_model_inverse(
+    model_json: StrPath,
+    gns_model_path: StrPath,
+    metadata_path: StrPath,
+    start_path: StrPath,
+    measured_path: StrPath,
+    out_json: StrPath,
+    out_paths: StrPath,
+    out_deposits: StrPath,
+    settings: dict,
+    channel_width: float,
+    *,
+    runout: dict | None,
+    evaluation_path: StrPath | None = None,
+    threads: int | None = None,
+) -> InverseResult:
+    """The GNS inverse design over every parameter of the model (settings: the config's `inverse`
+    section). The start run is the base model's (the inverse stage's start.h5): its mechanism is
+    off, and so it is at the first start (the paper's (mu, e), inverse.start); the other starts
+    are a Latin hypercube over all the parameters."""
+    model, _ = read_model(model_json, channel_width)
+    start_values = {}
+    if model.mechanism is not None:
+        start_values[model.mechanism.parameter] = model.mechanism.off_value(*settings["start"])
+    result = run_inverse_design(
+        gns_model_path,
+        metadata_path,
+        start_path,
+        measured_path,
+        out_json,
+        out_paths,
+        out_deposits,
+        settings,
+        runout=runout,
+        evaluation_path=evaluation_path,
+        threads=threads,
+        design_names=model.parameter_names,
+        start_values=start_values,
+    )
+    return result

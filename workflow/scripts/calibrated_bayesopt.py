@@ -1,0 +1,20 @@
+"""The Bayesian-optimisation route of the calibrated model of one measured column: bayesopt.json."""
+
+import logging
+
+from pipeline.calibrated import run_model_bayesopt
+
+logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
+result = run_model_bayesopt(
+    snakemake.input.measured,
+    snakemake.input.model,
+    snakemake.output[0],
+    snakemake.params.settings,
+    snakemake.params.diagnosis,
+    runout=snakemake.params.runout,
+    dem=snakemake.params.dem,
+    name=snakemake.wildcards.name,
+)
+logging.info(
+    "%s: %s, optimum %s (MSE %.4g on one packing)", result["name"], result["route"], result["optimum"], result["value"]
+)
