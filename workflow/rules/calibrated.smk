@@ -34,6 +34,7 @@ rule calibrated_model:
         "results/logs/calibrated/calibrated_model/{name}.log",
     benchmark:
         "results/benchmarks/calibrated/calibrated_model/{name}.tsv"
+    priority: 5
     localrule: True
     conda:
         "../envs/pipeline.yaml"
@@ -108,6 +109,7 @@ rule calibrated_case:
         "results/logs/calibrated/calibrated_case/{name}/{case_id}.log",
     benchmark:
         "results/benchmarks/calibrated/calibrated_case/{name}/{case_id}.tsv"
+    priority: 5
     conda:
         "../envs/pipeline.yaml"
     threads: config["dem"]["threads"]
@@ -136,6 +138,7 @@ rule calibrated_dataset:
         "results/logs/calibrated/calibrated_dataset/{name}.log",
     benchmark:
         "results/benchmarks/calibrated/calibrated_dataset/{name}.tsv"
+    priority: 10
     conda:
         "../envs/pipeline.yaml"
     resources:
@@ -169,6 +172,7 @@ rule calibrated_inverse:
         "results/logs/calibrated/calibrated_inverse/{name}.log",
     benchmark:
         "results/benchmarks/calibrated/calibrated_inverse/{name}.tsv"
+    priority: 10
     conda:
         "../envs/pipeline.yaml"
     threads: INVERSE["threads"]
@@ -196,6 +200,7 @@ rule calibrated_validate:
         "results/logs/calibrated/calibrated_validate/{name}/{route}.log",
     benchmark:
         "results/benchmarks/calibrated/calibrated_validate/{name}/{route}.tsv"
+    priority: lambda w: 10 if w.route == "model-inverse" else 0
     conda:
         "../envs/pipeline.yaml"
     resources:
@@ -228,6 +233,7 @@ rule calibrated:
         "results/logs/calibrated/calibrated/{name}.log",
     benchmark:
         "results/benchmarks/calibrated/calibrated/{name}.tsv"
+    priority: 10
     conda:
         "../envs/pipeline.yaml"
     resources:

@@ -99,6 +99,14 @@ def gns_init(dataset):
     return [inverse_gns(MODEL_DATASETS[dataset]["name"], "model")]
 
 
+def critical_priority(dataset):
+    """Scheduling priority of a dataset's jobs. The DAG's longest path runs through the GNS of an
+    inverse-design column and the calibrated model's GNS that starts from it (DEM runs -> GNS
+    training -> warm-started GNS -> inverse design -> validation): first in the queue, so that the
+    many shorter jobs fill the other core around it (dem.smk, dataset.smk, gns.smk)."""
+    return 10 if dataset in INVERSE_DATASET.values() or dataset in MODEL_DATASETS else 0
+
+
 def gns_test_cases(dataset):
     """case_ids of a dataset's test split, in case_id order (gns.smk, runout.smk)."""
     return [row["case_id"] for row in dataset_cases(dataset) if row["split"] == "test"]

@@ -11,6 +11,7 @@ rule dataset:
         "results/logs/dataset/dataset/{dataset}.log",
     benchmark:
         "results/benchmarks/dataset/dataset/{dataset}.tsv"
+    priority: lambda w: critical_priority(w.dataset)
     conda:
         "../envs/pipeline.yaml"
     resources:

@@ -12,6 +12,7 @@ rule dem_deck:
         "results/logs/dem/dem_deck/{dataset}/{case_id}.log",
     benchmark:
         "results/benchmarks/dem/dem_deck/{dataset}/{case_id}.tsv"
+    priority: lambda w: critical_priority(w.dataset)
     localrule: True
     conda:
         "../envs/pipeline.yaml"
@@ -30,6 +31,7 @@ rule dem_packing:
         "results/logs/dem/dem_packing/{dataset}/{case_id}.log",
     benchmark:
         "results/benchmarks/dem/dem_packing/{dataset}/{case_id}.tsv"
+    priority: lambda w: critical_priority(w.dataset)
     conda:
         "../envs/pipeline.yaml"
     threads: config["dem"]["threads"]
@@ -50,6 +52,7 @@ rule dem_run:
         "results/logs/dem/dem_run/{dataset}/{case_id}.log",
     benchmark:
         "results/benchmarks/dem/dem_run/{dataset}/{case_id}.tsv"
+    priority: lambda w: critical_priority(w.dataset)
     conda:
         "../envs/pipeline.yaml"
     threads: config["dem"]["threads"]

@@ -20,6 +20,7 @@ rule diagnosis_library:
         "results/logs/diagnosis/diagnosis_library/{name}.log",
     benchmark:
         "results/benchmarks/diagnosis/diagnosis_library/{name}.tsv"
+    priority: lambda w: 5 if w.name in MODEL_GNS_NAMES else 0
     conda:
         "../envs/pipeline.yaml"
     resources:
@@ -44,6 +45,7 @@ rule diagnosis:
         "results/logs/diagnosis/diagnosis/{name}.log",
     benchmark:
         "results/benchmarks/diagnosis/diagnosis/{name}.tsv"
+    priority: lambda w: 5 if w.name in MODEL_GNS_NAMES else 0
     conda:
         "../envs/pipeline.yaml"
     resources:

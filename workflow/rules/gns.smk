@@ -24,6 +24,7 @@ rule gns_train:
         "results/logs/gns/gns_train/{dataset}.log",
     benchmark:
         "results/benchmarks/gns/gns_train/{dataset}.tsv"
+    priority: lambda w: critical_priority(w.dataset)
     conda:
         "../envs/pipeline.yaml"
     threads: GNS_THREADS
@@ -48,6 +49,7 @@ rule gns_rollout:
         "results/logs/gns/gns_rollout/{dataset}/{case_id}.log",
     benchmark:
         "results/benchmarks/gns/gns_rollout/{dataset}/{case_id}.tsv"
+    priority: lambda w: critical_priority(w.dataset)
     conda:
         "../envs/pipeline.yaml"
     threads: GNS_THREADS
@@ -74,6 +76,7 @@ rule gns_evaluate:
         "results/logs/gns/gns_evaluate/{dataset}.log",
     benchmark:
         "results/benchmarks/gns/gns_evaluate/{dataset}.tsv"
+    priority: lambda w: critical_priority(w.dataset)
     conda:
         "../envs/pipeline.yaml"
     resources:
