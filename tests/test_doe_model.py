@@ -8,12 +8,10 @@ import numpy as np
 import pytest
 
 from calibration.calibrated import CALIBRATION_SEED, model_record
-from calibration.design_runs import Model, SimulationSettings
-from calibration.measured import MeasuredColumn
+from calibration.design_runs import Model
 from calibration.mechanisms import get_mechanisms
 from calibration.objective import runout_mse
 from dem.integrate import SimulationError
-from dem.runout import RunoutMethod
 from doe.design import FACTORS, DesignError, Factor, centre_run_id, face_centred_ccd, full_factorial
 from doe.plots import plot_surface_pairs
 from doe.regression import (
@@ -25,20 +23,10 @@ from doe.regression import (
     prediction_expression,
     pure_error,
 )
+from tests.test_calibrated import COLUMN, RUNOUT, SETTINGS  # the tiny measured column of the calibrated stage
 
 THREE = (Factor("friction", 0.3, 0.9), Factor("restitution", 0.3, 0.9), Factor("bond_number", 0.0, 60.0))
 X = [f"x_{f.name}" for f in THREE]
-RUNOUT = RunoutMethod()
-SETTINGS = SimulationSettings(size_scale=4.0)
-COLUMN = MeasuredColumn(
-    name="tiny",
-    material="quartz",
-    aspect_ratio=2.0,
-    L_i=0.01,
-    t_over_tstar=np.array([0.5, 1.0, 1.5, 2.0]),
-    runout=np.array([0.2, 0.8, 1.5, 1.9]),
-    source="test",
-)
 
 
 def quadratic_bowl(design, centre, curvature, floor=0.5):
