@@ -42,7 +42,7 @@ from calibration.objective import runout_mse, simulated_runout_at
 from calibration.optimise import OptimisationHistory, one_at_a_time
 from dem.case import CaseError, CollapseCase
 from dem.engines import EngineError, simulate_case
-from dem.grid import assign_splits, case_id_of
+from dem.grid import case_id_of
 from dem.integrate import SimulationError
 from dem.runout import RunoutError, RunoutMethod, final_height
 from dem.trajectory import TrajectoryError
@@ -141,13 +141,12 @@ def read_model(path: str | os.PathLike, channel_width: float = 0.01) -> tuple[Mo
         raise CalibrationError(
             f"{path}: parameters {record.get('parameters')} differ from model {choice}'s {list(model.parameter_names)}"
         )
-    whole = [tuple(b) for b in model.bounds.tolist()]
     if model.mechanism is not None:  # the calibration box of the mechanism, inside its whole range
-        low, high = bounds[-1]
-        if not whole[-1][0] <= low < high <= whole[-1][1]:
+        (low, high), (whole_low, whole_high) = bounds[-1], model.mechanism.bounds
+        if not whole_low <= low < high <= whole_high:
             raise CalibrationError(
                 f"{path}: {model.mechanism.parameter} range [{low:g}, {high:g}] is not inside its whole range "
-                f"[{whole[-1][0]:g}, {whole[-1][1]:g}]"
+                f"[{whole_low:g}, {whole_high:g}]"
             )
         model = Model(replace(model.mechanism, bounds=(low, high)))
     if bounds[: len(BASE_BOUNDS)] != list(BASE_BOUNDS):
@@ -169,22 +168,19 @@ DATASET_SEED0 = 3001  # packings of the model's GNS dataset: never a validation'
 
 @dataclass(frozen=True)
 class DatasetCase:
-    """One DEM case of the model's GNS dataset: parameters {name: value} of the model, its split."""
+    """One DEM case of the model's GNS dataset: parameters {name: value} of the model."""
 
     case_id: str
-    split: str
     parameters: dict
     case: CollapseCase
 
 
-def model_dataset_cases(
-    model: Model, template: CollapseCase, n_cases: int, seed: int, splits: dict
-) -> list[DatasetCase]:
+def model_dataset_cases(model: Model, template: CollapseCase, n_cases: int, seed: int) -> list[DatasetCase]:
     """The GNS dataset of `model` on the column of `template` (a case of the base model's GNS dataset
     of the measured column: its geometry, grain scale, frame interval and duration): n_cases seeded
-    Latin-hypercube points over model.box, each on its own packing (DATASET_SEED0 + k), split by
-    `splits` ({train, valid, test: fraction}) spread along the design like every dataset's, the
-    cases in the order of the model's last parameter (the mechanism's)."""
+    Latin-hypercube points over model.box, each on its own packing (DATASET_SEED0 + k), in the order
+    of the model's last parameter (the mechanism's). The splits are the case order's
+    (dem.grid.assign_splits; pipeline.calibrated_gns.case_splits): known before the model is."""
     if n_cases < 3:
         raise CalibrationError(f"calibration.gns_cases: {n_cases} cases cannot fill train, valid and test")
     theta = latin_hypercube(model.box, n_cases, seed)
@@ -192,17 +188,11 @@ def model_dataset_cases(
     # then span its range (a random order once put every valid case at weak cohesion)
     theta = theta[np.argsort(theta[:, -1], kind="stable")]
     cases = []
-    for k, (point, split) in enumerate(zip(theta, assign_splits(n_cases, splits))):
+    for k, point in enumerate(theta):
         case_id = case_id_of(k, n_cases)
-        case = template.replace(
-            friction=float(point[0]),
-            restitution=float(point[1]),
-            seed=DATASET_SEED0 + k,
-            name=f"{template.name.split('/')[0]}:{model.name}/{case_id}",
-        )
-        if model.mechanism is not None:
-            case = case.replace(**model.mechanism.case_fields(float(point[2]), case))
-        cases.append(DatasetCase(case_id, split, dict(zip(model.parameter_names, map(float, point))), case))
+        name = f"{template.name.split('/')[0]}:{model.name}/{case_id}"
+        case = model.at(template.replace(seed=DATASET_SEED0 + k, name=name), point)
+        cases.append(DatasetCase(case_id, dict(zip(model.parameter_names, map(float, point))), case))
     return cases
 
 

@@ -82,16 +82,21 @@ class Model:
     ) -> CollapseCase:
         """The CollapseCase of `column` at parameters theta [p] (mu, e[, mechanism parameter]),
         coarse-grained per settings."""
-        friction, restitution = float(theta[0]), float(theta[1])
         case = column.collapse_case(
-            friction,
-            restitution,
+            float(theta[0]),
+            float(theta[1]),
             size_scale=settings.size_scale,
             seed=seed,
             duration_over_tstar=settings.duration_for(column),
             output_interval=None,
             name=f"{column.name}:{self.name}",
         )
+        return self.at(case, theta)
+
+    def at(self, case: CollapseCase, theta: Sequence[float] | np.ndarray) -> CollapseCase:
+        """`case` with this model's parameters theta [p]: friction, restitution and the fields that
+        switch the mechanism on at theta[2]."""
+        case = case.replace(friction=float(theta[0]), restitution=float(theta[1]))
         if self.mechanism is not None:
             case = case.replace(**self.mechanism.case_fields(float(theta[2]), case))
         return case

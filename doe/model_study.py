@@ -28,7 +28,7 @@ from calibration.measured import MeasuredColumn
 from calibration.objective import runout_mse
 from dem.runout import RunoutMethod
 from doe.design import Factor, face_centred_ccd
-from doe.regression import RegressionError, analyse, prediction_expression
+from doe.regression import RegressionError, SurfaceFit, analyse, prediction_expression
 from doe.study import RUNOUT_METHOD_COLUMN, RUNOUT_PREFIX
 
 log = logging.getLogger(__name__)
@@ -59,8 +59,9 @@ def model_doe(
     centre_replicates: int = 3,
     seed: int = 0,
     progress: Callable[[float], None] | None = None,
-) -> tuple[pd.DataFrame, dict]:
-    """DoE calibration of `model` on one measured column: (responses, summary).
+) -> tuple[pd.DataFrame, dict, SurfaceFit]:
+    """DoE calibration of `model` on one measured column: (responses, summary, the fitted quadratic
+    surface).
 
     responses: the design table (doe.design columns; seed = the packing seed of the run) with mse
     (runout MSE against column.runout, NaN where the run failed), L_star_t<t> (simulated L* at the
@@ -124,4 +125,4 @@ def model_doe(
         **analysis,
         "analysis_time_s": time.perf_counter() - started,
     }
-    return responses, summary
+    return responses, summary, fits[SURFACE]

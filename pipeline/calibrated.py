@@ -37,6 +37,7 @@ from calibration.calibrated import (
 )
 from calibration.design_runs import Model, SimulationSettings
 from calibration.diagnosis_result import Diagnosis
+from calibration.inverse import read_result
 from calibration.measured import MeasuredColumn, expected_final_runout, load_column
 from dem.atomic import StrPath, write_json, write_text
 from dem.plots import save_figure
@@ -117,34 +118,22 @@ def choose_model(
     return record
 
 
-# Every route whose optimum is validated, by key (workflow rule calibrated_validate, one job each):
-#   diagnosis-base, diagnosis-model  the diagnosis' own fits (diagnosis.json) of the paper's model and of the model
-#   base-inverse, base-bayesopt      the paper's base-model routes (inverse/<name>/inverse.json, bayesopt.json)
-#   base-doe-<eq9|quadratic>         the paper's DoE (doe/<name>/analysis.json)
-#   model-inverse, model-doe, model-bayesopt  the model's own routes (calibrated/<name>/*.json)
-ROUTE_SOURCES = {
-    "diagnosis-base": "diagnosis",
-    "diagnosis-model": "diagnosis",
-    "base-inverse": "inverse",
-    "base-bayesopt": "bayesopt",
-    "model-inverse": "inverse",
-    "model-doe": "doe",
-    "model-bayesopt": "bayesopt",
-}
-
-
 def route_optimum(key: str, source: StrPath, model: Model) -> tuple[str, Model, list[float], int, float, dict]:
     """(route label, the model it calibrates, theta [p], DEM runs it spent, seconds it took, extra)
-    of route `key` (ROUTE_SOURCES, or base-doe-<surface>) from its file `source`; extra: what the
-    report shows beside the validation. DEM runs and seconds are 0 where the file does not hold
-    them (the stage passes the route's benchmark files instead)."""
-    data = json.loads(Path(source).read_text())
+    of route `key` from its file `source`; extra: what the report shows beside the validation. DEM
+    runs and seconds are 0 where the file does not hold them (the stage passes the route's
+    benchmark files instead). The keys (workflow rule calibrated_validate, one job each):
+      diagnosis-base, diagnosis-model  the diagnosis' own fits (diagnosis.json) of the paper's model and of the model
+      base-inverse, base-bayesopt      the paper's base-model routes (inverse/<name>/inverse.json, bayesopt.json)
+      base-doe-<eq9|quadratic>         the paper's DoE (doe/<name>/analysis.json)
+      model-inverse, model-doe, model-bayesopt  the model's own routes (calibrated/<name>/*.json)"""
     if key.startswith("diagnosis-"):
         diagnosis = read_diagnosis(source)
         route_model = Model() if key == "diagnosis-base" else model
         runs = sum(diagnosis.simulator.design_runs.values()) + diagnosis.simulator.refinement_runs
         theta = diagnosis_parameters(diagnosis, route_model).tolist()
         return f"{route_model.name}, diagnosis fit", route_model, theta, runs, diagnosis.seconds, {}
+    data = read_result(source) if key.endswith("-inverse") else json.loads(Path(source).read_text())
     if key.startswith("base-doe-"):
         surface = key.removeprefix("base-doe-")
         optimum = data["models"][surface]["optimum"]["natural"]

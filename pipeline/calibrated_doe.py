@@ -15,9 +15,8 @@ from calibration.measured import load_column
 from dem.atomic import StrPath, write_json
 from dem.progress import progress_logger
 from dem.runout import RunoutMethod
-from doe.model_study import DESIGN, SURFACE, fitted_runs, model_doe, model_factors
+from doe.model_study import DESIGN, SURFACE, model_doe
 from doe.plots import plot_surface_pairs
-from doe.regression import fit_surface
 from doe.study import write_responses
 
 log = logging.getLogger(__name__)
@@ -50,7 +49,7 @@ def run_model_doe(
     settings = SimulationSettings(size_scale=diagnosis_section["size_scale"])
     runout = RunoutMethod.from_config(runout)
     log.info("%s: DoE (%s) of the %s model %s", name, DESIGN, model.name, list(model.parameter_names))
-    responses, summary = model_doe(
+    responses, summary, fit = model_doe(
         model,
         column,
         settings,
@@ -78,7 +77,6 @@ def run_model_doe(
     }
     write_json(out_json, result)
     write_responses(out_responses, responses)
-    fit = fit_surface(fitted_runs(responses), SURFACE, model_factors(model))
     plot_surface_pairs(fit, responses, out_figure, title=f"{name}: {model.name} model, DoE ({DESIGN})")
     log.info("%s: DoE optimum %s (%s)", name, optimum, summary["failures"])
     return result

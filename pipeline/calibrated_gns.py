@@ -60,10 +60,8 @@ def case_splits(section: dict) -> list[dict]:
 
 def dataset_design(model: Model, template_row: dict, section: dict) -> list[DatasetCase]:
     """The model's GNS dataset design: section is the config's `calibration` section (gns_cases,
-    seed, gns_splits); template_row: a case-table row of the base model's GNS dataset of the column."""
-    return model_dataset_cases(
-        model, case_from_row(template_row), section["gns_cases"], section["seed"], section["gns_splits"]
-    )
+    seed); template_row: a case-table row of the base model's GNS dataset of the column."""
+    return model_dataset_cases(model, case_from_row(template_row), section["gns_cases"], section["seed"])
 
 
 def run_model_case(

@@ -222,10 +222,10 @@ def test_the_models_gns_dataset_varies_every_parameter_on_its_own_packings():
     its range, the mechanism switched on through its own case fields, one packing per case."""
     model = Model(get_mechanisms(["cohesion"])[0])
     template = COLUMN.collapse_case(0.5, 0.5, size_scale=4.0, seed=1, output_interval=0.005, name="tiny/case_000")
-    cases = model_dataset_cases(model, template, 10, 0, {"train": 0.8, "valid": 0.1, "test": 0.1})
-    assert [c.split for c in cases].count("test") == 1 and [c.split for c in cases].count("valid") == 1
+    cases = model_dataset_cases(model, template, 10, 0)
     assert [c.case_id for c in cases] == [f"case_{k:03d}" for k in range(10)]
     theta = np.array([[c.parameters[n] for n in model.parameter_names] for c in cases])
+    assert list(theta[:, 2]) == sorted(theta[:, 2])  # in the mechanism's order: the splits spread along it
     for j, (low, high) in enumerate(model.bounds):  # one point per tenth of every range (a Latin hypercube)
         assert sorted(np.floor((theta[:, j] - low) / (high - low) * 10).astype(int)) == list(range(10))
     for c in cases:
@@ -234,7 +234,7 @@ def test_the_models_gns_dataset_varies_every_parameter_on_its_own_packings():
         assert (c.case.L_i, c.case.output_interval, c.case.size_scale) == (0.01, 0.005, 4.0)
     assert len({c.case.seed for c in cases}) == 10 and template.seed not in {c.case.seed for c in cases}
     with pytest.raises(CalibrationError, match="cannot fill train, valid and test"):
-        model_dataset_cases(model, template, 2, 0, {"train": 0.8, "valid": 0.1, "test": 0.1})
+        model_dataset_cases(model, template, 2, 0)
 
 
 def boxed_diagnosis(estimate, low, high, identifiable=True):
@@ -285,7 +285,9 @@ def test_the_models_gns_is_a_fine_tuning_of_the_base_gns():
     # the dataset's case ids and splits are known before the model is (the DAG's shape)
     rows = case_splits({"gns_cases": 10, "gns_splits": {"train": 0.8, "valid": 0.1, "test": 0.1}})
     assert [r["case_id"] for r in rows] == [f"case_{k:03d}" for k in range(10)]
+    splits = [r["split"] for r in rows]
+    assert splits.count("test") == 1 and splits.count("valid") == 1 and splits.count("train") == 8
     model = Model(get_mechanisms(["cohesion"])[0])
     template = COLUMN.collapse_case(0.5, 0.5, size_scale=4.0, seed=1, output_interval=0.005, name="tiny/case_000")
-    designed = model_dataset_cases(model, template, 10, 0, {"train": 0.8, "valid": 0.1, "test": 0.1})
-    assert [r["split"] for r in rows] == [c.split for c in designed]
+    designed = model_dataset_cases(model, template, 10, 0)
+    assert [r["case_id"] for r in rows] == [c.case_id for c in designed]

@@ -148,7 +148,10 @@ def test_model_doe_on_dem_runs_records_a_failed_run_and_fits_without_it(monkeypa
     monkeypatch.setattr(doe.model_study, "model_runout", sometimes_blows_up)
     model = Model(get_mechanisms(["cohesion"])[0])
     done = []
-    responses, summary = model_doe(model, COLUMN, SETTINGS, RUNOUT, None, centre_replicates=1, progress=done.append)
+    responses, summary, fit = model_doe(
+        model, COLUMN, SETTINGS, RUNOUT, None, centre_replicates=1, progress=done.append
+    )
+    assert fit.optimum() == summary["models"]["quadratic"]["optimum"]  # the surface the summary reports
     assert len(responses) == 16 and done[-1] == 1.0 and len(done) == 16
     assert seeds == [CALIBRATION_SEED] * 15 + [CALIBRATION_SEED + 1]  # common packing, the replicate another
     failed = responses[responses.failure != ""]

@@ -146,7 +146,7 @@ def inverse_benchmarks(name):
 
 def calibrated_routes(name):
     """{route key: the file holding its optimum} of every route the calibrated stage validates for
-    measured column `name` (pipeline.calibrated.ROUTE_SOURCES; calibrated.smk)."""
+    measured column `name` (route keys: pipeline.calibrated.route_optimum; calibrated.smk)."""
     routes = {}
     if config["diagnosis"]["enabled"]:
         routes["diagnosis-base"] = f"results/diagnosis/{name}/diagnosis.json"
@@ -168,20 +168,12 @@ def calibrated_routes(name):
 def calibrated_cost(name, route):
     """{"files": benchmark files of the jobs route `route` of measured column `name` ran, "dem_runs":
     the DEM runs it spent (None: its own file says)}: the cost the report shows beside each route."""
-    dem_jobs = lambda ds, ids: [
-        f"results/benchmarks/dem/{rule}/{ds}/{c}.tsv" for rule in ("dem_packing", "dem_run") for c in ids
-    ]
     if route in ("model-doe", "model-bayesopt"):
         return {"files": [f"results/benchmarks/calibrated/calibrated_{route[6:]}/{name}.tsv"], "dem_runs": None}
     if route in ("base-inverse", "model-inverse"):
-        base = INVERSE_DATASET[name]
-        base_cases = [row["case_id"] for row in dataset_cases(base)]
-        files = dem_jobs(base, base_cases) + [
-            f"results/benchmarks/dataset/dataset/{base}.tsv",
-            f"results/benchmarks/gns/gns_train/{base}.tsv",
-            f"results/benchmarks/inverse/inverse_start/{name}.tsv",
-        ]
-        runs = len(base_cases)
+        base = inverse_benchmarks(name)  # the paper's GNS route: its dataset, training and start run
+        files = base["gns_dataset"] + base["gns_training"] + base["start"]
+        runs = len(dataset_cases(INVERSE_DATASET[name]))
         if route == "base-inverse":
             return {"files": files + [f"results/benchmarks/inverse/inverse_design/{name}.tsv"], "dem_runs": runs}
         # the model's GNS starts from the base GNS: that GNS's dataset and training are part of its cost
@@ -197,5 +189,5 @@ def calibrated_cost(name, route):
         doe = inverse_benchmarks(name)["doe"] if name in INVERSE_NAMES else []
         return {"files": doe, "dem_runs": None}
     if route == "base-bayesopt":
-        return {"files": [f"results/benchmarks/inverse/inverse_bayesopt/{name}.tsv"], "dem_runs": None}
+        return {"files": inverse_benchmarks(name)["bayesopt"], "dem_runs": None}
     return {"files": [], "dem_runs": None}  # the diagnosis' fits: the diagnosis job's time, its file's runs
