@@ -198,8 +198,8 @@ def plot_bayesopt(history: dict, path: str | os.PathLike, title: str = "") -> No
     dots = ax_p.scatter(params[:, 0], params[:, 1], c=values, cmap="viridis", s=40, edgecolors="k")
     for k, (x, y) in enumerate(params):
         ax_p.annotate(str(k + 1), (x, y), fontsize=6, xytext=(3, 3), textcoords="offset points")
-    best = np.array(history["best_params"])
-    ax_p.plot(*best, "r*", ms=15, mec="w", label=f"best ({best[0]:.3f}, {best[1]:.3f})")
+    best = np.array(history["best_params"])  # drawn in the plane of the first two parameters (mu, e)
+    ax_p.plot(best[0], best[1], "r*", ms=15, mec="w", label=f"best ({', '.join(f'{v:.3f}' for v in best)})")
     fig.colorbar(dots, ax=ax_p, label="objective (runout MSE), DEM")
     ax_p.set(xlabel=history["names"][0], ylabel=history["names"][1], title="DEM runs chosen by BO")
     ax_p.legend(fontsize=7)

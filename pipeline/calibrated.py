@@ -35,6 +35,7 @@ from calibration.calibrated import (
     resolve_model,
     validate,
 )
+from calibration.compare import plot_bayesopt
 from calibration.design_runs import Model, SimulationSettings
 from calibration.diagnosis_result import Diagnosis
 from calibration.inverse import read_result
@@ -54,6 +55,7 @@ def run_model_bayesopt(
     measured_path: StrPath,
     model_path: StrPath,
     out_json: StrPath,
+    out_figure: StrPath,
     section: dict,
     diagnosis_section: dict,
     *,
@@ -63,7 +65,8 @@ def run_model_bayesopt(
 ) -> dict:
     """The Bayesian-optimisation route of the model of one measured column (workflow rule
     calibrated_bayesopt): section["budget"] DEM runs on packing CALIBRATION_SEED -> bayesopt.json
-    (route, the optimum, the history of every run, dem_runs, seconds)."""
+    (route, the optimum, the history of every run, dem_runs, seconds) and its figure (the runs in
+    the (mu, e) plane, the best so far against the runs)."""
     started = time.perf_counter()
     column = load_column(measured_path)
     model, _ = read_model(model_path, diagnosis_section["channel_width"])
@@ -90,6 +93,7 @@ def run_model_bayesopt(
         "seconds": time.perf_counter() - started,
     }
     write_json(out_json, result)
+    plot_bayesopt(result["history"], out_figure, title=f"{name}: {result['route']}")
     return result
 
 
@@ -451,11 +455,18 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
             "",
         ]
         for extra_figure, what in (
+            ("bayesopt.png", "Bayesian optimisation"),
             ("doe_surface.png", "DoE response surface"),
             ("inverse_paths.png", "GNS inverse design"),
         ):
             if (Path(result["figure"]).parent / extra_figure).exists():
                 lines += [f"![{what} of {result['name']}]({Path(figure).with_name(extra_figure).as_posix()})", ""]
+        # the model's own GNS (the GNS stage's rules on dataset calibrated_<name>): training and test split
+        gns = Path(result["figure"]).parents[2] / "gns" / f"calibrated_{result['name']}"
+        for gns_figure, what in (("train/loss_curve.png", "training"), ("evaluation/runout_curves.png", "test split")):
+            if (gns / gns_figure).exists():
+                link = Path(os.path.relpath(gns / gns_figure, Path(section_path).parent)).as_posix()
+                lines += [f"![the {result['model']} model's GNS of {result['name']}, {what}]({link})", ""]
         transfer = result["transfer"]
         if transfer is not None:
             verdict = (

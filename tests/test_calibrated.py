@@ -98,9 +98,10 @@ def test_the_stage_writes_its_answer_figure_and_report_section(tmp_path):
     assert record["model"] == "base" and record["parameters"] == ["friction", "restitution"]
     diagnosis_section = {"size_scale": 4.0, "channel_width": 0.01}
     bo = run_model_bayesopt(
-        csv, out / "model.json", out / "bayesopt.json", section, diagnosis_section, runout=RUNOUT.to_config(),
-        dem=None, name="tiny",
+        csv, out / "model.json", out / "bayesopt.json", out / "bayesopt.png", section, diagnosis_section,
+        runout=RUNOUT.to_config(), dem=None, name="tiny",
     )  # fmt: skip
+    assert (out / "bayesopt.png").stat().st_size > 10_000
     assert bo["dem_runs"] == 4 and bo["value"] == min(bo["history"]["values"])
     validation = run_validation(
         "model-bayesopt", out / "bayesopt.json", out / "model.json", csv, out / "validation.json", section,
@@ -146,7 +147,7 @@ def test_the_stage_writes_its_answer_figure_and_report_section(tmp_path):
     assert (
         "base, DoE (face-centred CCD, quadratic): 10 DEM runs (every DEM run ran); quadratic response surface" in text
     )
-    assert "](../calibrated/doe_surface.png)" in text
+    assert "](../calibrated/doe_surface.png)" in text and "](../calibrated/bayesopt.png)" in text
 
 
 def config_with(model, engine="builtin", diagnosis_enabled=True):

@@ -80,7 +80,8 @@ rule calibrated_bayesopt:
         measured=lambda w: config["measured"][w.name],
         model="results/calibrated/{name}/model.json",
     output:
-        "results/calibrated/{name}/bayesopt.json",
+        result="results/calibrated/{name}/bayesopt.json",
+        figure="results/calibrated/{name}/bayesopt.png",
     log:
         "results/logs/calibrated/calibrated_bayesopt/{name}.log",
     benchmark:
@@ -255,6 +256,12 @@ rule calibrated_section:
         predictions=expand("results/calibrated/{name}/prediction.png", name=CALIBRATED_NAMES),
         doe=expand("results/calibrated/{name}/doe_surface.png", name=CALIBRATED_NAMES),
         inverse=expand("results/calibrated/{name}/inverse_paths.png", name=MODEL_GNS_NAMES),
+        bayesopt=expand("results/calibrated/{name}/bayesopt.png", name=CALIBRATED_NAMES),
+        gns=expand(
+            "results/gns/calibrated_{name}/{figure}",
+            name=MODEL_GNS_NAMES,
+            figure=["train/loss_curve.png", "evaluation/runout_curves.png"],
+        ),
     output:
         "results/report/calibrated.md",
     log:

@@ -8,7 +8,8 @@ logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asc
 result = run_model_bayesopt(
     snakemake.input.measured,
     snakemake.input.model,
-    snakemake.output[0],
+    snakemake.output.result,
+    snakemake.output.figure,
     snakemake.params.settings,
     snakemake.params.diagnosis,
     runout=snakemake.params.runout,
