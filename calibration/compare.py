@@ -196,7 +196,7 @@ def plot_bayesopt(history: dict, path: str | os.PathLike, title: str = "") -> No
     values = np.array(history["values"])
     fig, (ax_p, ax_v) = plt.subplots(1, 2, figsize=(10, 4.2))
     dots = ax_p.scatter(params[:, 0], params[:, 1], c=values, cmap="viridis", s=40, edgecolors="k")
-    for k, (x, y) in enumerate(params):
+    for k, (x, y) in enumerate(params[:, :2]):
         ax_p.annotate(str(k + 1), (x, y), fontsize=6, xytext=(3, 3), textcoords="offset points")
     best = np.array(history["best_params"])  # drawn in the plane of the first two parameters (mu, e)
     ax_p.plot(best[0], best[1], "r*", ms=15, mec="w", label=f"best ({', '.join(f'{v:.3f}' for v in best)})")

@@ -292,3 +292,17 @@ def test_the_models_gns_is_a_fine_tuning_of_the_base_gns():
     template = COLUMN.collapse_case(0.5, 0.5, size_scale=4.0, seed=1, output_interval=0.005, name="tiny/case_000")
     designed = model_dataset_cases(model, template, 10, 0)
     assert [r["case_id"] for r in rows] == [c.case_id for c in designed]
+
+
+def test_the_bo_figure_draws_a_model_of_three_parameters(tmp_path):
+    """The BO runs of the extended model (mu, e, Bond) drawn in the (mu, e) plane, best labelled in full."""
+    from calibration.compare import plot_bayesopt
+
+    history = {
+        "names": ["friction", "restitution", "bond_number"],
+        "params": [[0.5, 0.6, 40.0], [0.7, 0.4, 45.0], [0.8, 0.5, 42.0]],
+        "values": [0.5, 0.1, 0.2],
+        "best_params": [0.7, 0.4, 45.0],
+    }
+    plot_bayesopt(history, tmp_path / "bo.png", title="three parameters")
+    assert (tmp_path / "bo.png").stat().st_size > 10_000
