@@ -17,6 +17,7 @@ include: "workflow/rules/diagnosis.smk"
 include: "workflow/rules/runout.smk"
 include: "workflow/rules/calibrated.smk"
 # later stages go here, before report.smk (the report collects what they registered)
+include: "workflow/rules/export.smk"
 include: "workflow/rules/report.smk"
 
 
