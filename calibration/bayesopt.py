@@ -4,6 +4,11 @@ A Gaussian process (calibration.gp: Matern 5/2 + white noise) models the objecti
 bounded parameter box; each new run goes where the expected improvement is largest. The budget
 counts every objective call (the initial Latin-hypercube design included). The call and its result
 are those of every optimiser here (calibration.optimise).
+
+A point whose objective raises PointFailed (its DEM run failed) is recorded with its reason in the
+history's `failed` list and counts against the budget; the GP never sees it, and no later point is
+placed on it. Until two points have values, the next point is drawn at random instead of by
+expected improvement. No point evaluated at all: OptimisationError with every reason.
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ from scipy.optimize import minimize
 from scipy.stats import norm, qmc
 
 from calibration.gp import fit_gp
-from calibration.optimise import BatchObjective, OptimisationHistory, OptimisationResult, Progress
+from calibration.optimise import BatchObjective, OptimisationHistory, OptimisationResult, PointFailed, Progress
 
 log = logging.getLogger(__name__)
 
@@ -64,25 +69,34 @@ def bayesian_optimisation(
 
     def call(params, iteration):
         t0 = time.perf_counter()
-        value = float(np.asarray(objective(np.atleast_2d(params)), float)[0])
+        try:
+            value = float(np.asarray(objective(np.atleast_2d(params)), float)[0])
+        except PointFailed as exc:  # recorded with its reason; the GP never sees it
+            seconds = time.perf_counter() - t0
+            history.record_failure(params, str(exc), seconds, start=0, iteration=iteration)
+            log.warning("run %d/%d at %s failed, left out: %s", history.n_calls, budget, point_text(params), exc)
+            if progress is not None:
+                progress(history.n_calls, seconds, np.array([np.nan]))
+            return
         seconds = time.perf_counter() - t0
         if not np.isfinite(value):
             raise ValueError(f"objective is not finite at {dict(zip(names, params))}")
         history.record(params, value, seconds, start=0, iteration=iteration)
-        log.info(
-            "run %d/%d: %s -> %.4g",
-            len(history.values),
-            budget,
-            ", ".join(f"{n}={p:.3f}" for n, p in zip(names, params)),
-            value,
-        )
+        log.info("run %d/%d: %s -> %.4g", history.n_calls, budget, point_text(params), value)
         if progress is not None:
-            progress(len(history.values), seconds, np.array([value]))
+            progress(history.n_calls, seconds, np.array([value]))
+
+    def point_text(params):
+        return ", ".join(f"{n}={p:.3f}" for n, p in zip(names, params))
 
     unit = qmc.LatinHypercube(d=len(low), seed=seed).random(n_initial)
     for point in low + unit * (high - low):
         call(point, 0)
-    while len(history.values) < budget:
+    while history.n_calls < budget:
+        iteration = history.n_calls - n_initial + 1
+        if len(history.values) < 2:  # too few values for a GP: explore at random
+            call(low + rng.uniform(size=len(low)) * (high - low), iteration)
+            continue
         x = (np.array(history.params) - low) / (high - low)
         y = np.array(history.values)
         y_scaled = (y - y.mean()) / (y.std() + 1e-12)
@@ -99,8 +113,9 @@ def bayesian_optimisation(
         starts = candidates[np.argsort(-expected_improvement(mean, std, best))[:4]]
         polished = [minimize(negative_ei, s, bounds=[(0, 1)] * len(low), method="L-BFGS-B") for s in starts]
         u = min(polished, key=lambda r: r.fun).x
-        if np.min(np.linalg.norm(x - u, axis=1)) < 1e-3:  # do not pay for a run already made
+        tried = np.vstack([x] + [(np.array(f["params"]) - low) / (high - low) for f in history.failed])
+        if np.min(np.linalg.norm(tried - u, axis=1)) < 1e-3:  # do not pay again for a run made or failed
             u = candidates[np.argmax(expected_improvement(mean, std, best))]
-        call(low + u * (high - low), len(history.values) - n_initial + 1)
-    params, value = history.best
-    return OptimisationResult(params=params.tolist(), value=value, history=history, n_batches=len(history.values))
+        call(low + u * (high - low), iteration)
+    params, value = history.best  # none evaluated: OptimisationError with every failure
+    return OptimisationResult(params=params.tolist(), value=value, history=history, n_batches=history.n_calls)

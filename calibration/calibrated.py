@@ -29,6 +29,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -39,20 +40,20 @@ from calibration.emulator import latin_hypercube
 from calibration.measured import MeasuredColumn
 from calibration.mechanisms import BASE_BOUNDS, candidate_mechanisms, get_mechanisms
 from calibration.objective import runout_mse, simulated_runout_at
-from calibration.optimise import OptimisationHistory, one_at_a_time
-from dem.case import CaseError, CollapseCase
-from dem.engines import EngineError, simulate_case
+from calibration.optimise import OptimisationHistory, PointFailed, one_at_a_time
+from dem.case import CollapseCase
+from dem.engines import FAILURES, failure_reason, simulate_case
 from dem.grid import case_id_of
-from dem.integrate import SimulationError
-from dem.runout import RunoutError, RunoutMethod, final_height
-from dem.trajectory import TrajectoryError
+from dem.runout import RunoutMethod, final_height
+
+if TYPE_CHECKING:
+    from numpy.typing import ArrayLike
 
 log = logging.getLogger(__name__)
 
 MODELS = ("auto", "base") + tuple(candidate_mechanisms())
 CALIBRATION_SEED = 0  # the packing the Bayesian optimisation runs on
 VALIDATION_SEED0 = 5001  # validation packings: never a calibration's, a diagnosis' or a hidden truth's
-FAILURES = (SimulationError, EngineError, TrajectoryError, RunoutError, CaseError)
 
 
 class CalibrationError(ValueError):
@@ -203,7 +204,9 @@ class Validation:
 
     t_over_tstar [K]: the measured times; curves [R][K]: L* of each packing that ran (None where it
     failed, `failed` says why); mean [K] and std [K] over the runs that ran; mse: the runout MSE of
-    the mean curve (NaN when none ran); mse_each [R]: each run's own MSE (NaN where it failed).
+    the mean curve (NaN when none ran); mse_each [R]: each run's own MSE (NaN where it failed);
+    mse_se: the jackknife standard error of mse over the packings (mse_jackknife): how much another
+    set of as many packings could move it.
     """
 
     route: str
@@ -220,6 +223,7 @@ class Validation:
     dem_runs: int = 0  # DEM runs the route spent before the validation (calibration cost)
     calibration_seconds: float = 0.0  # wall time the route spent before the validation
     extra: dict = field(default_factory=dict)
+    mse_se: float = math.nan
 
     @property
     def n_ran(self) -> int:
@@ -246,6 +250,35 @@ def model_runout(
     return simulated_runout_at(t, curve, column)
 
 
+def mse_jackknife(
+    curves: Sequence[Sequence[float] | None],
+    measured: ArrayLike,
+    baseline: Sequence[Sequence[float] | None] | None = None,
+) -> tuple[float, float]:
+    """(runout MSE of the mean curve, its jackknife standard error over the packings) for curves
+    [R][K] (L*; None where a run failed) against measured [K]; with `baseline` (another route's
+    curves on the same R packings, the validation seeds), of the difference MSE - baseline's MSE,
+    paired packing by packing (the shared packings' chaos cancels). Packings where either failed are
+    left out; the error is NaN with fewer than 3 left."""
+    keep = [k for k, c in enumerate(curves) if c is not None and (baseline is None or baseline[k] is not None)]
+    measured = np.asarray(measured, float)
+
+    def score(rows):
+        value = runout_mse(np.mean([curves[k] for k in rows], axis=0), measured)
+        if baseline is not None:
+            value -= runout_mse(np.mean([baseline[k] for k in rows], axis=0), measured)
+        return float(value)
+
+    if not keep:
+        return math.nan, math.nan
+    full = score(keep)
+    n = len(keep)
+    if n < 3:
+        return full, math.nan
+    leave_one_out = np.array([score([k for k in keep if k != j]) for j in keep])
+    return full, float(np.sqrt((n - 1) / n * np.sum((leave_one_out - leave_one_out.mean()) ** 2)))
+
+
 def validate(
     route: str,
     model: Model,
@@ -269,7 +302,7 @@ def validate(
         except FAILURES as exc:  # reported with its packing, never averaged in
             log.warning("%s: validation run on packing %d failed: %s", route, seed, exc)
             curves.append(None)
-            failed[seed] = f"{type(exc).__name__}: {exc}"
+            failed[seed] = failure_reason(exc)
     ran = np.array([c for c in curves if c is not None])
     mean = ran.mean(axis=0) if len(ran) else np.full(len(column.runout), math.nan)
     std = ran.std(axis=0, ddof=1) if len(ran) > 1 else np.full(len(column.runout), math.nan)
@@ -283,6 +316,7 @@ def validate(
         mean=mean.tolist(),
         std=std.tolist(),
         mse=float(runout_mse(mean, column.runout)) if len(ran) else math.nan,
+        mse_se=mse_jackknife(curves, column.runout)[1],
         mse_each=[float(runout_mse(np.array(c), column.runout)) if c is not None else math.nan for c in curves],
         seconds=time.perf_counter() - started,
         dem_runs=dem_runs,
@@ -302,18 +336,15 @@ def bayesopt_model(
     progress: Callable[[float], None] | None = None,
 ) -> OptimisationHistory:
     """GP expected-improvement BO of the runout MSE over `model`'s box, one DEM run per point on
-    packing CALIBRATION_SEED; a run that fails scores the worst value seen so far (never the best)."""
-    worst = {"value": 1.0}
+    packing CALIBRATION_SEED; a run that fails is recorded with its reason in the history's `failed`
+    list (it counts against the budget, the GP never sees it)."""
 
     def dem_objective(theta: np.ndarray) -> float:
         try:
             curve = model_runout(model, column, theta, settings, CALIBRATION_SEED, runout, dem_config)
-            value = float(runout_mse(curve, column.runout))
         except FAILURES as exc:
-            log.warning("BO run at %s failed (%s): scored as the worst so far", np.round(theta, 4).tolist(), exc)
-            return worst["value"]
-        worst["value"] = max(worst["value"], value)
-        return value
+            raise PointFailed(failure_reason(exc)) from exc
+        return float(runout_mse(curve, column.runout))
 
     def reported(batch: int, seconds: float, values: np.ndarray) -> None:
         if progress is not None:
@@ -383,7 +414,7 @@ def predict(
             heights.append(final_height(trajectory.positions[-1], trajectory.radius))
         except FAILURES as exc:
             log.warning("prediction at a = %g failed: %s", a, exc)
-            failed[f"{a:g}"] = f"{type(exc).__name__}: {exc}"
+            failed[f"{a:g}"] = failure_reason(exc)
             runouts.append(None)
             heights.append(None)
     return Prediction(

@@ -27,9 +27,10 @@ import numpy as np
 from calibration.bayesopt import BOSettings, bayesian_optimisation
 from calibration.measured import MeasuredColumn
 from calibration.objective import objective
-from calibration.optimise import OptimisationHistory, one_at_a_time
+from calibration.optimise import OptimisationHistory, PointFailed, one_at_a_time
 from dem.atomic import atomic_path, write_text
 from dem.case import CollapseCase
+from dem.engines import FAILURES, failure_reason
 from dem.runout import RunoutMethod, runout_at
 from dem.trajectory import Trajectory
 from gns.data import read_training_attrs
@@ -157,14 +158,21 @@ def bayesopt_on_dem(
 
     Returns (OptimisationHistory, best trajectory, seconds spent). The best run's objective is a
     validated value by construction: it is a DEM run with the same settings as the validation runs.
+    A DEM run that fails (dem.engines.FAILURES) is recorded in the history's `failed` list with its
+    reason and the optimisation goes on; none ran: calibration.optimise.OptimisationError.
     """
     if not 2 <= budget <= BO_MAX_RUNS:
         raise ComparisonError(f"bayesopt budget {budget}: must be between 2 and {BO_MAX_RUNS} DEM runs")
     best = {"value": math.inf, "trajectory": None}
 
     def dem_objective(params):
-        trajectory = dem_run(measured, dict(zip(names, params)), case_fields, name="bayesopt", dem_config=dem_config)
-        value = objective(trajectory, measured, runout)
+        try:
+            trajectory = dem_run(
+                measured, dict(zip(names, params)), case_fields, name="bayesopt", dem_config=dem_config
+            )
+            value = objective(trajectory, measured, runout)
+        except FAILURES as exc:
+            raise PointFailed(failure_reason(exc)) from exc
         if value < best["value"]:
             best.update(value=value, trajectory=trajectory)
         return value
@@ -176,11 +184,12 @@ def bayesopt_on_dem(
 
 
 def write_bayesopt(history: OptimisationHistory, seconds: float, path: str | os.PathLike, runout: RunoutMethod) -> None:
-    """bayesopt.json: the history's to_dict, the number of DEM runs, the seconds spent and the runout method."""
+    """bayesopt.json: the history's to_dict (the failed runs with their reasons under "failed"), the
+    number of DEM runs (failed ones included), the seconds spent and the runout method."""
     write_text(
         path,
         json.dumps(
-            {**history.to_dict(), "dem_runs": len(history.values), "seconds": seconds, "runout": runout.to_config()},
+            {**history.to_dict(), "dem_runs": history.n_calls, "seconds": seconds, "runout": runout.to_config()},
             indent=1,
         )
         + "\n",

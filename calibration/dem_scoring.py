@@ -4,6 +4,10 @@ The emulator (calibration/scoring.py) is cheap but not exact: its error near an 
 the noise. So the diagnosis runs the DEM at a model's calibrated parameters and at each held-out
 fold's, on a few packings (`dem_runs` -> `DEMRuns`), and scores the model by those runs
 (`dem_evaluate` -> `DEMScore`): chi^2, AIC, BIC, p-value, the runout objective, and held-out chi^2.
+
+A run that fails (dem.engines.FAILURES) is recorded with its packing and reason (`failed_runs`)
+and left out: the means are over the runs that ran, never over a failed one. When every packing
+of the fit or of a fold fails, the model cannot be scored: a DiagnosisError with the reasons.
 """
 
 from __future__ import annotations
@@ -11,7 +15,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -19,8 +23,9 @@ import numpy as np
 from calibration.design_runs import DEMRunner, Model
 from calibration.objective import runout_mse
 from calibration.observables import Observables
-from calibration.residuals import Fold, NoiseModel
+from calibration.residuals import DiagnosisError, Fold, NoiseModel
 from calibration.scoring import ModelScore, aic, bic, p_value
+from dem.engines import FAILURES, failure_reason
 from dem.runout import RunoutMethod
 from dem.trajectory import Trajectory
 
@@ -32,16 +37,19 @@ Curve = list[list[float]]
 
 @dataclass(frozen=True)
 class DEMRuns:
-    """DEM runs of a model at its emulator optima, R packings each."""
+    """DEM runs of a model at its emulator optima, R packings each; the arrays hold the runs that
+    ran (R' <= R rows), `failed` the others."""
 
     model: Model
     theta: np.ndarray  # [p] calibrated parameters
-    fit: np.ndarray  # [R, q] observables of the runs at theta
+    fit: np.ndarray  # [R', q] observables of the runs at theta that ran
     fold_theta: list[np.ndarray]  # [folds][p] parameters fitted without each fold
-    folds: list[np.ndarray]  # [folds][R, q] observables of the runs at each fold's parameters
-    packings: list[int]  # [R] indices into the simulation's packing seeds
-    curves: list[list[Curve]]  # [R][columns] runout curves of the fit runs (for the figure)
+    folds: list[np.ndarray]  # [folds][R', q] observables of the runs at each fold's parameters that ran
+    packings: list[int]  # [R'] indices into the simulation's packing seeds of the rows of fit
+    curves: list[list[Curve]]  # [R'][columns] runout curves of the fit runs (for the figure)
     seconds: float  # wall time of all these runs
+    fold_packings: list[list[int]]  # [folds][R'] packings of the rows of folds
+    failed: list[dict]  # the runs that failed: each {held_out ("" for the fit), parameters, packing, reason}
 
 
 @dataclass(frozen=True)
@@ -71,7 +79,7 @@ class DEMScore:
     """
 
     parameters: dict[str, float]  # the calibrated parameters run
-    packings: list[int]  # [R] indices into the simulation's packing seeds
+    packings: list[int]  # [R] indices into the simulation's packing seeds of the fit runs that ran
     chi2: float  # of the mean observables of the R runs, over all n_data values
     n_data: int  # measured values q
     n_parameters: int  # p
@@ -88,6 +96,9 @@ class DEMScore:
     sigma: np.ndarray  # [q] noise std the chi^2 values use (L* or m)
     curves: list[list[Curve]]  # [R][columns] runout curves of the runs (for the figure)
     seconds: float  # wall time of the runs
+    # runs that failed, left out of every number above: each {held_out ("" for the fit), parameters,
+    # packing, reason}
+    failed_runs: list[dict] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready, keys in field order."""
@@ -122,26 +133,62 @@ def dem_runs(
 ) -> DEMRuns:
     """DEM runs of `model` at the emulator's optima: at the calibrated parameters and at each
     fold's (every column, so that the runs can also refine the emulator), on `n_packings` packings
-    from `first_packing` on (cyclically through the runner's packing seeds)."""
+    from `first_packing` on (cyclically through the runner's packing seeds). A run that fails is
+    recorded and left out; DiagnosisError when no packing of the fit or of a fold ran."""
     n_pool = len(runner.settings.packing_seeds)
     packings = [(first_packing + r) % n_pool for r in range(n_packings)]
     started = time.perf_counter()
-    fit, curves = [], []
-    for k in packings:
-        trajectories = runner.trajectories(model, score.theta, k)
-        fit.append(runner.observables.from_trajectories(trajectories))
-        curves.append([_thin_curve(tr, runner.observables.runout) for tr in trajectories])
-    fold_runs = [np.array([runner.observe(model, theta_k, k) for k in packings]) for theta_k in score.fold_theta]
+    failed: list[dict] = []
+
+    def run_all(theta: np.ndarray, held_out: str) -> tuple[list[np.ndarray], list[int], list[list[Curve]]]:
+        observed, ran, curves = [], [], []
+        for k in packings:
+            try:
+                trajectories = runner.trajectories(model, theta, k)
+                one = runner.observables.from_trajectories(trajectories)
+                curve = [_thin_curve(tr, runner.observables.runout) for tr in trajectories] if not held_out else []
+            except FAILURES as exc:  # recorded with its packing, never averaged in
+                parameters = dict(zip(model.parameter_names, map(float, theta)))
+                reason = failure_reason(exc)
+                failed.append({"held_out": held_out, "parameters": parameters, "packing": k, "reason": reason})
+                log.warning("DEM run of %s at %s on packing %d failed, left out: %s", model.name, parameters, k, reason)
+                continue
+            observed.append(one)
+            ran.append(k)
+            if not held_out:
+                curves.append(curve)
+        if not ran:
+            where = f"without {held_out}" if held_out else "at its calibrated parameters"
+            raise DiagnosisError(
+                f"{model.name}: every DEM run {where} failed, so the model cannot be scored in DEM runs: "
+                + "; ".join(f"packing {f['packing']}: {f['reason']}" for f in failed if f["held_out"] == held_out)
+            )
+        return observed, ran, curves
+
+    fit, fit_packings, curves = run_all(score.theta, "")
+    fold_runs, fold_packings = [], []
+    for fold, theta_k in zip(folds, score.fold_theta):
+        observed, ran, _ = run_all(theta_k, fold.description)
+        fold_runs.append(np.array(observed))
+        fold_packings.append(ran)
     return DEMRuns(
         model=model,
         theta=score.theta,
         fit=np.array(fit),
         fold_theta=score.fold_theta,
         folds=fold_runs,
-        packings=packings,
+        packings=fit_packings,
         curves=curves,
         seconds=time.perf_counter() - started,
+        fold_packings=fold_packings,
+        failed=failed,
     )
+
+
+def noise_std(noise: NoiseModel, n_runs: int) -> np.ndarray:
+    """[q] noise std of the mean of n_runs DEM runs against the data: measurement + packing scatter
+    of the measured realisation + that of the mean of the runs."""
+    return np.sqrt(noise.measurement**2 + noise.packing**2 * (1 + 1 / n_runs)) * noise.correlation
 
 
 def dem_evaluate(runs: DEMRuns, observables: Observables, folds: list[Fold], noise: NoiseModel) -> DEMScore:
@@ -155,13 +202,14 @@ def dem_evaluate(runs: DEMRuns, observables: Observables, folds: list[Fold], noi
     model = runs.model
     target = observables.measured
     runout = observables.kind == "runout"
-    sigma = np.sqrt(noise.measurement**2 + noise.packing**2 * (1 + 1 / len(runs.packings))) * noise.correlation
+    sigma = noise_std(noise, len(runs.fit))  # the runs that ran: a failed one is in no mean
     mean = runs.fit.mean(axis=0)
     chi2 = float(np.sum(((mean - target) / sigma) ** 2))
     heldout_chi2, squared, folds_out = 0.0, [], []
     for fold, theta_k, fold_runs in zip(folds, runs.fold_theta, runs.folds):
         fold_mean = fold_runs.mean(axis=0)
-        fold_chi2 = float(np.sum(((fold_mean[fold.held] - target[fold.held]) / sigma[fold.held]) ** 2))
+        fold_sigma = noise_std(noise, len(fold_runs))
+        fold_chi2 = float(np.sum(((fold_mean[fold.held] - target[fold.held]) / fold_sigma[fold.held]) ** 2))
         heldout_chi2 += fold_chi2
         squared += list((fold_mean[fold.held & runout] - target[fold.held & runout]) ** 2)
         folds_out.append(
@@ -187,6 +235,7 @@ def dem_evaluate(runs: DEMRuns, observables: Observables, folds: list[Fold], noi
         sigma=sigma,
         curves=runs.curves,
         seconds=runs.seconds,
+        failed_runs=runs.failed,
     )
     log.info(
         "DEM score of %s: chi2 %.1f, BIC %.1f, held-out chi2 %.1f, objective %.4g",

@@ -12,6 +12,9 @@ packings (seeded, settled once per column at settings.reference), so the emulato
 response (its white-noise term takes the scatter); one run of the base model per packing at the box
 centre, and every repeat a diagnosis adds, measure the packing-to-packing scatter that any single
 realisation (such as the measured one) carries on top of it (`Library.packing_std`).
+
+A design run that fails (dem.engines.FAILURES) is recorded with its reason in `Library.failed` (saved
+with the library) and left out of the runs; a model none of whose runs ran is a LibraryError.
 """
 
 from __future__ import annotations
@@ -31,7 +34,7 @@ from calibration.measured import MeasuredColumn
 from calibration.mechanisms import BASE_BOUNDS, BASE_PARAMETERS, Mechanism
 from calibration.observables import LibraryError, Observables
 from dem.atomic import atomic_path
-from dem.engines import BUILTIN, simulate_case
+from dem.engines import BUILTIN, FAILURES, failure_reason, simulate_case
 from dem.packing import settle_column
 
 if TYPE_CHECKING:
@@ -225,6 +228,7 @@ class Library:
     settings: dict
     runs: dict  # model name -> DesignRuns
     _emulators: dict = field(default_factory=dict, repr=False)
+    failed: list = field(default_factory=list)  # design runs that failed: {model, parameters, packing, reason}
 
     def check(self, observables: Observables, models: Iterable[Model]) -> None:
         if json.loads(json.dumps(observables.signature())) != json.loads(json.dumps(self.signature)):
@@ -258,7 +262,7 @@ class Library:
             name: DesignRuns(r.model, r.theta.copy(), r.observed[:, index], r.packing.copy(), r.seconds.copy(), r.stage)
             for name, r in self.runs.items()
         }
-        return Library(wanted, dict(self.settings), runs)
+        return Library(wanted, dict(self.settings), runs, failed=list(self.failed))
 
     def copy(self) -> Library:
         """An independent copy (runs copied; fitted emulators shared until a model gets new runs)."""
@@ -268,7 +272,7 @@ class Library:
             )
             for name, r in self.runs.items()
         }
-        return Library(self.signature, dict(self.settings), runs, dict(self._emulators))
+        return Library(self.signature, dict(self.settings), runs, dict(self._emulators), list(self.failed))
 
     def training_set(self, model: Model) -> tuple[np.ndarray, np.ndarray]:
         """(theta [n, p], observed [n, q]) to emulate `model`: its own runs plus the base model's
@@ -347,7 +351,14 @@ class Library:
     def save(self, path: str | os.PathLike) -> None:
         arrays = {
             "meta": np.array(
-                json.dumps({"signature": self.signature, "settings": self.settings, "models": list(self.runs)})
+                json.dumps(
+                    {
+                        "signature": self.signature,
+                        "settings": self.settings,
+                        "models": list(self.runs),
+                        "failed": self.failed,
+                    }
+                )
             )
         }
         for name, runs in self.runs.items():
@@ -367,7 +378,7 @@ class Library:
                 )
                 for name in meta["models"]
             }
-        return cls(meta["signature"], meta["settings"], runs)
+        return cls(meta["signature"], meta["settings"], runs, failed=meta.get("failed", []))
 
 
 def build_library(
@@ -408,26 +419,40 @@ def build_library(
     total = sum(len(p[1]) for p in plans)
     started = time.perf_counter()
     runner = DEMRunner(observables, settings)
-    runs, done = {}, 0
+    runs, done, failed = {}, 0, []
     for model, theta, packing, stage in plans:
-        observed, seconds = [], []
+        observed, seconds, ran = [], [], []
         for point, index in zip(theta, packing):
             t0 = time.perf_counter()
-            observed.append(runner.observe(model, point, int(index)))
-            seconds.append(time.perf_counter() - t0)
             done += 1
-            log.info(
-                "library run %d/%d: %s %s (%.1f s)",
-                done,
-                total,
-                model.name,
-                ", ".join(f"{n}={v:.3g}" for n, v in zip(model.parameter_names, point)),
-                seconds[-1],
-            )
+            where = ", ".join(f"{n}={v:.3g}" for n, v in zip(model.parameter_names, point))
+            try:
+                observed.append(runner.observe(model, point, int(index)))
+                seconds.append(time.perf_counter() - t0)
+                ran.append(True)
+                log.info("library run %d/%d: %s %s (%.1f s)", done, total, model.name, where, seconds[-1])
+            except FAILURES as exc:  # recorded with its reason, left out of the library
+                parameters = dict(zip(model.parameter_names, map(float, point)))
+                reason = failure_reason(exc)
+                failed.append({"model": model.name, "parameters": parameters, "packing": int(index), "reason": reason})
+                ran.append(False)
+                log.warning("library run %d/%d: %s %s failed, left out: %s", done, total, model.name, where, reason)
             if progress is not None:
                 progress(done / total)
-        runs[model.name] = DesignRuns(model.name, theta, np.array(observed), packing, np.array(seconds), stage)
+        if not any(ran):
+            raise LibraryError(
+                f"every design run of {model.name} failed: "
+                + "; ".join(f"{f['parameters']}: {f['reason']}" for f in failed if f["model"] == model.name)
+            )
+        ran = np.array(ran)
+        runs[model.name] = DesignRuns(
+            model.name, theta[ran], np.array(observed), packing[ran], np.array(seconds), stage[ran]
+        )
     log.info(
-        "library: %d DEM runs x %d columns in %.0f s", total, len(observables.columns), time.perf_counter() - started
+        "library: %d DEM runs x %d columns in %.0f s (%d failed)",
+        total,
+        len(observables.columns),
+        time.perf_counter() - started,
+        len(failed),
     )
-    return Library(observables.signature(), settings.to_dict(), runs)
+    return Library(observables.signature(), settings.to_dict(), runs, failed=failed)

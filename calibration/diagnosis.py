@@ -175,6 +175,16 @@ def diagnose(
     library = library.copy()  # runs added while refining belong to these data, not to the shared library
     scores, final, runs, noise = _dem_rounds(settings, models, observables, folds, library, runner, noise)
     dem = {n: dem_evaluate(r, observables, folds, noise) for n, r in runs.items()}
+    notes += [  # recorded in the library (failed) and in each model's DEM score (failed_runs) too
+        f"design run of {f['model']} at {f['parameters']} on packing {f['packing']} failed and is left out: "
+        f"{f['reason']}"
+        for f in library.failed
+    ] + [
+        f"DEM run of {n} {'at its fit' if not f['held_out'] else 'without ' + f['held_out']} on packing "
+        f"{f['packing']} failed and is left out: {f['reason']}"
+        for n, r in runs.items()
+        for f in r.failed
+    ]
     emulator_best = min((final[m.name] for m in models[1:]), key=lambda s: s.bic).model
     cause, checks, verdict = decide(dem, settings.rule, data_warnings, emulator_best)
     base_dem = dem["base"]
@@ -279,8 +289,9 @@ def _dem_rounds(
         # the runs join their models' emulators (exact there from now on), and their repeats on
         # different packings join the estimate of the packing scatter
         for n, r in runs.items():
-            for theta, observed in [(r.theta, r.fit)] + list(zip(r.fold_theta, r.folds)):
-                for packing, one in zip(r.packings, observed):
+            sets = [(r.theta, r.fit, r.packings)] + list(zip(r.fold_theta, r.folds, r.fold_packings))
+            for theta, observed, packings in sets:  # the runs that ran (a failed one has no observables)
+                for packing, one in zip(packings, observed, strict=True):
                     library.add_runs(by_name[n], theta, one, packing, r.seconds / (len(r.folds) + 1) / len(observed))
         noise, _ = settings.noise(observables, library)
         # rescored on the emulators that now hold these runs: the next round's optima, and after

@@ -141,9 +141,12 @@ class GNSObjective:
     """THE objective of design parameters through a GNS rollout of the measured column.
 
     start: a DEM trajectory of the measured column (material, a, L_i; the GNS's grain size and
-    frame interval) whose first C frames start every rollout; the design parameters replace its
-    own. Parameters the model takes but that are not designed keep the start's values.
-    Call with theta [G, P] (P = len(design_names)): G rollouts run as one batch of graphs.
+    frame interval) whose first C frames start every rollout, or several (S packings of the same
+    column): then every point rolls out from each, and L* is their mean curve, the quantity a DEM
+    validation on S packings scores (a rollout is chaotic in its packing, as the DEM is: the mean
+    over packings is smoother in theta than any one). The design parameters replace the starts'
+    own; parameters the model takes but that are not designed keep the first start's values.
+    Call with theta [G, P] (P = len(design_names)): G S rollouts run as one batch of graphs.
     """
 
     def __init__(
@@ -170,78 +173,110 @@ class GNSObjective:
             raise InverseDesignError(
                 f"design parameter(s) {unknown} are not inputs of the GNS (it takes {config.parameter_names})"
             )
-        if not math.isclose(float(start.attrs["dt_frame"]), config.dt_frame, rel_tol=1e-9):
-            raise InverseDesignError(
-                f"start trajectory: dt_frame {start.attrs['dt_frame']} s differs from the "
-                f"GNS's {config.dt_frame} s (one GNS step is one frame)"
-            )
+        starts = [start] if isinstance(start, Trajectory) else list(start)
+        if not starts:
+            raise InverseDesignError("GNS objective: no start trajectory to roll out from")
+        for k, packing in enumerate(starts):
+            where = "start trajectory" if len(starts) == 1 else f"start trajectory {k}"
+            if not math.isclose(float(packing.attrs["dt_frame"]), config.dt_frame, rel_tol=1e-9):
+                raise InverseDesignError(
+                    f"{where}: dt_frame {packing.attrs['dt_frame']} s differs from the "
+                    f"GNS's {config.dt_frame} s (one GNS step is one frame)"
+                )
+            if packing.n_frames < config.n_input_frames:
+                raise InverseDesignError(
+                    f"{where} has {packing.n_frames} frames; the GNS needs C = {config.n_input_frames} to start from"
+                )
+            for key in ("L_i", "t_star"):
+                if not math.isclose(float(packing.attrs[key]), float(starts[0].attrs[key]), rel_tol=1e-9):
+                    raise InverseDesignError(
+                        f"{where}: {key} {packing.attrs[key]} differs from the first start's "
+                        f"{starts[0].attrs[key]} (the packings must be of one column)"
+                    )
+        start = starts[0]
+        self.n_packings = len(starts)
         self.t_star = float(start.attrs["t_star"])
         self.L_i = float(start.attrs["L_i"])
         self.dt_frame = config.dt_frame
-        if start.n_frames < config.n_input_frames:
-            raise InverseDesignError(
-                f"start trajectory has {start.n_frames} frames; the GNS needs C = {config.n_input_frames} to start from"
-            )
         self.n_frames = frames_needed(measured.t_over_tstar, self.t_star, self.dt_frame)  # frames the runout reads
         self.n_steps = max(self.n_frames - config.n_input_frames, 0)
         dtype = simulator.bounds.dtype
         device = simulator.bounds.device
-        self.initial = torch.as_tensor(start.positions[: config.n_input_frames], dtype=dtype, device=device)
-        self.radius = torch.as_tensor(start.radius, dtype=dtype, device=device)
-        self.particle_type = torch.as_tensor(start.particle_type, dtype=torch.long, device=device)
+        # the S packings side by side, as one graph each: first C frames [C, sum N_s, 2]
+        self.initial = torch.cat(
+            [torch.as_tensor(p.positions[: config.n_input_frames], dtype=dtype, device=device) for p in starts], dim=1
+        )
+        self.radius = torch.cat([torch.as_tensor(p.radius, dtype=dtype, device=device) for p in starts])
+        self.particle_type = torch.cat(
+            [torch.as_tensor(p.particle_type, dtype=torch.long, device=device) for p in starts]
+        )
+        self.packing_sizes = [p.n_particles for p in starts]  # N_s
         self.fixed = torch.tensor([float(start.attrs[n]) for n in config.parameter_names], dtype=dtype, device=device)
-        self.layout = torch.tensor([self.L_i, float(start.attrs["H_i"])], dtype=dtype, device=device)
+        self.layout = torch.tensor(
+            [[float(p.attrs["L_i"]), float(p.attrs["H_i"])] for p in starts], dtype=dtype, device=device
+        )
         self.design_index = [config.parameter_names.index(n) for n in self.design_names]
         self.target = torch.as_tensor(measured.runout, dtype=dtype, device=device)
-        self.n_particles = start.n_particles
+        self.n_particles = sum(self.packing_sizes)  # grains of one point's rollouts (all packings)
         # where the online time goes: rollouts (graphs rolled out), forward and backward seconds
         self.timing = {"rollouts": 0, "forward_s": 0.0, "backward_s": 0.0}
         self._runouts: dict[tuple, np.ndarray] = {}  # L* [K] of every point rolled out, by its bytes
 
     def _context(self, theta: torch.Tensor):
+        """The batch of G S graphs for theta [G, P]: point g's packing s is graph g S + s."""
         from gns.simulator import Context
 
-        g, n = theta.shape[0], self.n_particles
-        parameters = self.fixed.repeat(g, 1)
-        parameters = parameters.index_copy(1, torch.tensor(self.design_index, device=theta.device), theta)
+        g, s = theta.shape[0], self.n_packings
+        parameters = self.fixed.repeat(g * s, 1)
+        index = torch.tensor(self.design_index, device=theta.device)
+        parameters = parameters.index_copy(1, index, theta.repeat_interleave(s, dim=0))
+        sizes = torch.tensor(self.packing_sizes, device=theta.device).repeat(g)
         return Context(
             self.particle_type.repeat(g),
             self.radius.repeat(g),
             parameters,
             self.layout.repeat(g, 1),
-            torch.arange(g, device=theta.device).repeat_interleave(n),
+            torch.arange(g * s, device=theta.device).repeat_interleave(sizes),
         )
 
     def runout(self, theta: torch.Tensor) -> torch.Tensor:
-        """L* [G, K] at the measured t/t* for theta [G, P] (differentiable when theta requires grad)."""
+        """L* [G, K] at the measured t/t* for theta [G, P] (differentiable when theta requires grad):
+        the mean over the start packings of each one's L*."""
         from gns.rollout import RolloutError
 
-        g, n = theta.shape[0], self.n_particles
+        g = theta.shape[0]
         t0 = time.perf_counter()
         try:
             positions = self._rollout(theta)
         except (RolloutError, ValueError) as exc:
             raise InverseDesignError(f"GNS rollout at {self._describe(theta)} failed: {exc}") from None
-        positions = positions.reshape(positions.shape[0], g, n, 2)
+        positions = positions.reshape(positions.shape[0], g, self.n_particles, 2)
+        bounds = np.cumsum([0] + self.packing_sizes)
+        radii = [self.radius[bounds[s] : bounds[s + 1]] for s in range(self.n_packings)]
         try:  # a rollout spread too thin has no front by the configured rule
             runout = torch.stack(
                 [
-                    soft_runout_at(
-                        positions[:, j],
-                        self.radius,
-                        self.L_i,
-                        self.t_star,
-                        self.dt_frame,
-                        self.measured.t_over_tstar,
-                        self.runout_method,
-                        self.temperature,
-                    )
+                    torch.stack(
+                        [
+                            soft_runout_at(
+                                positions[:, j, bounds[s] : bounds[s + 1]],
+                                radii[s],
+                                self.L_i,
+                                self.t_star,
+                                self.dt_frame,
+                                self.measured.t_over_tstar,
+                                self.runout_method,
+                                self.temperature,
+                            )
+                            for s in range(self.n_packings)
+                        ]
+                    ).mean(dim=0)
                     for j in range(g)
                 ]
             )
         except RunoutError as exc:
             raise InverseDesignError(f"GNS rollout at {self._describe(theta)} has no runout: {exc}") from None
-        self.timing["rollouts"] += g
+        self.timing["rollouts"] += g * self.n_packings
         self.timing["forward_s"] += time.perf_counter() - t0
         return runout
 
@@ -261,7 +296,7 @@ class GNSObjective:
         segment at a time with autograd. Memory: one segment's activations (~40 MB per step per
         589-grain graph) instead of the whole rollout's. The gradient is the same as without
         checkpoints (tests/test_inverse.py)."""
-        initial = self.initial.repeat(1, theta.shape[0], 1)
+        initial = self.initial.repeat(1, theta.shape[0], 1)  # [C, G sum N_s, 2]
         if not (self.checkpoint and torch.is_grad_enabled() and theta.requires_grad):
             return torch.cat([initial, self._segment(initial, theta, self.n_steps)])
         from torch.utils.checkpoint import checkpoint

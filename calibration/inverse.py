@@ -220,7 +220,7 @@ def landscape(objective: GNSObjective, bounds: Sequence[Sequence[float]], levels
 
 def inverse_design(
     simulator: LearnedSimulator,
-    start: Trajectory,
+    start: Trajectory | Sequence[Trajectory],
     measured: MeasuredColumn,
     metadata: dict,
     training_attrs: list[dict],
@@ -242,7 +242,8 @@ def inverse_design(
 ) -> InverseResult:
     """Calibrate design_names against `measured` through the GNS `simulator`.
 
-    start: DEM trajectory of the measured column giving the first C frames (see GNSObjective);
+    start: DEM trajectory of the measured column giving the first C frames, or several packings of
+    it (the objective then scores their mean L*; see GNSObjective);
     metadata: the GNS dataset's metadata; training_attrs: attributes of its training trajectories
     (for the geometry check). bounds: [(low, high) or None] per design parameter (see design_bounds).
     model_error_std, start_packing_std: the posterior's model-side noise (see noise_level).
@@ -257,12 +258,13 @@ def inverse_design(
     objective = GNSObjective(simulator, start, measured, names, runout=runout)
     starts = starting_points(n_starts, bounds, first_start, seed)
     log.info(
-        "inverse design of %s: %d starts, %s gradients, %d rollout steps of %d grains",
+        "inverse design of %s: %d starts, %s gradients, %d rollout steps of %d grains (%d packings)",
         measured.name,
         len(starts),
         gradient,
         objective.n_steps,
         objective.n_particles,
+        objective.n_packings,
     )
 
     def evaluate(points):

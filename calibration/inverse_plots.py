@@ -163,7 +163,8 @@ def plot_traces(result: dict, path: str | os.PathLike, title: str = "") -> None:
 
 def plot_deposits(objective: GNSObjective, params: dict, path: str | os.PathLike, title: str = "") -> None:
     """GNS deposits at the last measured t/t* for each labelled parameter set (the paper's Fig. 9):
-    params {label: [P]}; the measured final runout is the dashed line."""
+    params {label: [P]}; the measured final runout is the dashed line. An objective of several
+    start packings draws its first."""
     from dem.plots import draw_grains, plt, save_figure
 
     labels = list(params)
@@ -182,11 +183,12 @@ def plot_deposits(objective: GNSObjective, params: dict, path: str | os.PathLike
     t_last = float(objective.measured.t_over_tstar[-1])
     k, w = frame_weights([t_last], objective.t_star, objective.dt_frame, result.positions.shape[0])[0]
     frame = int(k + round(w))
-    positions = result.positions[frame].reshape(len(labels), objective.n_particles, 2).cpu().numpy()
-    radius = objective.radius.cpu().numpy()
+    first = objective.packing_sizes[0]
+    positions = result.positions[frame].reshape(len(labels), objective.n_particles, 2)[:, :first].cpu().numpy()
+    radius = objective.radius[:first].cpu().numpy()
     measured_front = objective.L_i * (1 + float(objective.measured.runout[-1]))
     extent = max(float(positions[..., 0].max()), measured_front) * 1.1
-    height = float(objective.initial[0, :, 1].max()) * 0.6 + 4 * float(radius.max())
+    height = float(objective.initial[0, :first, 1].max()) * 0.6 + 4 * float(radius.max())
     fig, axes = plt.subplots(len(labels), 1, figsize=(8, 1.2 + 1.3 * len(labels)), squeeze=False)
     for ax, label, frame_positions in zip(axes[:, 0], labels, positions):
         draw_grains(ax, frame_positions, radius, color="tab:blue")

@@ -11,7 +11,9 @@ Layout (see ARCHITECTURE.md, "Trajectory HDF5"):
 
 from __future__ import annotations
 
+import contextlib
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -41,7 +43,11 @@ REQUIRED_ATTRS = (
     "friction",
     "restitution",
 )
+DATASETS = ("positions", "radius", "particle_type")
 GRAIN = 0
+# what h5py raises on a damaged file: truncated (OSError at open), a corrupt header or heap
+# (KeyError, RuntimeError when an object or attribute is read)
+UNREADABLE = (OSError, KeyError, RuntimeError)
 
 
 class TrajectoryError(ValueError):
@@ -86,9 +92,22 @@ class Trajectory:
         missing = [k for k in REQUIRED_ATTRS if k not in self.attrs]
         if missing:
             raise TrajectoryError(f"{where}: missing attribute(s) {missing}")
-        if not np.all(np.isfinite(pos)):
-            raise TrajectoryError(f"{where}: positions contain non-finite values")
+        check_finite(pos, where)
         return self
+
+
+def check_finite(positions: np.ndarray, where: str, first_frame: int = 0) -> None:
+    """TrajectoryError naming `where`, the dataset and the first frame and grain when positions
+    [T, N, 2] (frames first_frame.. of a file) hold a NaN or an infinity."""
+    bad = ~np.isfinite(positions)
+    if bad.any():
+        frame, grain, _ = np.argwhere(bad)[0]
+        frames = np.flatnonzero(bad.any(axis=(1, 2)))
+        raise TrajectoryError(
+            f"{where}: dataset 'positions' is not finite at frame {first_frame + frame}, grain {grain} "
+            f"({int(bad.sum())} value(s) in {len(frames)} frame(s), frames {first_frame + frames[0]}.."
+            f"{first_frame + frames[-1]})"
+        )
 
 
 def engine_attrs(case: CollapseCase, engine: str, engine_version: str) -> dict:
@@ -127,32 +146,41 @@ def write_trajectory(path: str | os.PathLike, trajectory: Trajectory) -> Path:
     return path
 
 
-def read_trajectory(path: str | os.PathLike, frames: slice | np.ndarray | None = None) -> Trajectory:
-    """Read a trajectory file; `frames` (a slice or index array) reads only those frames."""
+@contextlib.contextmanager
+def open_trajectory(path: str | os.PathLike) -> Iterator[h5py.File]:
+    """The trajectory file at `path` open for reading, its datasets present: the one way every
+    reader opens one. A missing, truncated or damaged file is a TrajectoryError naming it."""
     path = Path(path)
     if not path.exists():
         raise TrajectoryError(f"{path}: no such trajectory file")
     try:
         with h5py.File(path, "r") as f:
-            for key in ("positions", "radius", "particle_type"):
+            for key in DATASETS:
                 if key not in f:
                     raise TrajectoryError(f"{path}: missing dataset {key!r}")
-            positions = f["positions"][frames if frames is not None else slice(None)]
-            traj = Trajectory(
-                positions=np.asarray(positions, np.float32),
-                radius=f["radius"][()],
-                particle_type=f["particle_type"][()],
-                attrs=_plain_attrs(f.attrs),
-                source=str(path),
-            )
-    except OSError as exc:
-        raise TrajectoryError(f"{path}: not a readable HDF5 file ({exc})") from exc
+            yield f
+    except UNREADABLE as exc:
+        raise TrajectoryError(f"{path}: not a readable HDF5 file, truncated or damaged? ({exc})") from exc
+
+
+def read_trajectory(path: str | os.PathLike, frames: slice | np.ndarray | None = None) -> Trajectory:
+    """Read a trajectory file; `frames` (a slice or index array) reads only those frames."""
+    path = Path(path)
+    with open_trajectory(path) as f:
+        positions = f["positions"][frames if frames is not None else slice(None)]
+        traj = Trajectory(
+            positions=np.asarray(positions, np.float32),
+            radius=f["radius"][()],
+            particle_type=f["particle_type"][()],
+            attrs=_plain_attrs(f.attrs),
+            source=str(path),
+        )
     return traj.validate(str(path))
 
 
 def read_attrs(path: str | os.PathLike) -> dict:
     """The attributes of a trajectory file without loading its positions."""
-    with h5py.File(path, "r") as f:
+    with open_trajectory(path) as f:
         return _plain_attrs(f.attrs)
 
 

@@ -7,7 +7,7 @@ Packings: every non-replicate run starts from one packing (CALIBRATION_SEED + se
 other calibration routes run on), so differences between design points are due to the parameters
 alone (common random numbers); the centre replicates use other packings and measure the pure error.
 
-A run that fails (calibration.calibrated.FAILURES) is kept in the responses table with its reason
+A run that fails (dem.engines.FAILURES) is kept in the responses table with its reason
 and left out of the fit; the summary lists it.
 """
 
@@ -22,20 +22,20 @@ from collections.abc import Callable
 import numpy as np
 import pandas as pd
 
-from calibration.calibrated import CALIBRATION_SEED, FAILURES, model_runout
+from calibration.calibrated import CALIBRATION_SEED, model_runout
 from calibration.design_runs import Model, SimulationSettings
 from calibration.measured import MeasuredColumn
 from calibration.objective import runout_mse
+from dem.engines import FAILURES, failure_reason
 from dem.runout import RunoutMethod
 from doe.design import Factor, face_centred_ccd
 from doe.regression import RegressionError, SurfaceFit, analyse, prediction_expression
-from doe.study import RUNOUT_METHOD_COLUMN, RUNOUT_PREFIX
+from doe.study import FAILURE_COLUMN, RUNOUT_METHOD_COLUMN, RUNOUT_PREFIX, failures, fitted_runs
 
 log = logging.getLogger(__name__)
 
 DESIGN = "face-centred CCD"
 SURFACE = "quadratic"
-FAILURE_COLUMN = "failure"  # "ExceptionName: message" of a run that failed, "" where it ran
 
 
 def model_factors(model: Model) -> tuple[Factor, ...]:
@@ -43,11 +43,6 @@ def model_factors(model: Model) -> tuple[Factor, ...]:
     return tuple(
         Factor(name, float(low), float(high)) for name, (low, high) in zip(model.parameter_names, model.bounds)
     )
-
-
-def fitted_runs(responses: pd.DataFrame) -> pd.DataFrame:
-    """The runs of a responses table that ran (finite mse): those the surface is fitted to."""
-    return responses[np.isfinite(responses["mse"].to_numpy(float))]
 
 
 def model_doe(
@@ -85,7 +80,7 @@ def model_doe(
             failure = ""
         except FAILURES as exc:  # recorded with its reason, left out of the fit
             curve = np.full(len(column.runout), math.nan)
-            failure = f"{type(exc).__name__}: {exc}"
+            failure = failure_reason(exc)
             log.warning("DoE run %s at %s failed: %s", row.run_id, np.round(theta, 4).tolist(), failure)
         record = {
             "run_id": row.run_id,
@@ -99,18 +94,12 @@ def model_doe(
         if progress is not None:
             progress(done / len(design))
     responses = design.merge(pd.DataFrame(records), on="run_id")
-    failed = {r.run_id: r.failure for r in responses.itertuples(index=False) if r.failure}
-    failures = (
-        f"{len(failed)} of {len(design)} DEM runs failed and are left out of the fit: "
-        + "; ".join(f"{run_id}: {why}" for run_id, why in failed.items())
-        if failed
-        else "every DEM run ran"
-    )
+    failed, sentence = failures(responses)
     started = time.perf_counter()
     try:
         fits, analysis = analyse(fitted_runs(responses), factors, "mse", models=(SURFACE,))
     except RegressionError as exc:
-        raise RegressionError(f"{model.name} DoE on {column.name}: {exc} ({failures})") from exc
+        raise RegressionError(f"{model.name} DoE on {column.name}: {exc} ({sentence})") from exc
     analysis["models"][SURFACE]["expression"] = prediction_expression(fits[SURFACE])
     analysis.pop("n_runs")  # the runs fitted: n_fitted below, beside the runs made
     summary = {
@@ -119,7 +108,7 @@ def model_doe(
         "n_runs": int(len(design)),
         "n_fitted": int(len(responses) - len(failed)),
         "failed": failed,
-        "failures": failures,
+        "failures": sentence,
         "centre_replicates": centre_replicates,
         "packing_seeds": sorted({int(s) for s in design["seed"]}),
         **analysis,

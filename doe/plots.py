@@ -25,7 +25,8 @@ def plot_response_surfaces(
     fits: dict, responses: pd.DataFrame, path: str | os.PathLike, response: str = "mse", measured_name: str = ""
 ) -> None:
     """One panel per fitted model: predicted response over the two factors (natural units), the
-    design points coloured by their observed response, and the model's optimum (star).
+    design points coloured by their observed response (a run without a finite response, a failed
+    DEM run, as a red cross), and the model's optimum (star).
 
     fits: {model: doe.regression.SurfaceFit} over the same two factors; responses: DataFrame with
     the factor columns and `response`.
@@ -36,18 +37,20 @@ def plot_response_surfaces(
     axis = np.linspace(-1, 1, SURFACE_POINTS)
     gx, gy = np.meshgrid(axis, axis, indexing="xy")
     observed = responses[response].to_numpy(float)
+    ran = np.isfinite(observed)
     surfaces = {m: f.predict(np.column_stack([gx.ravel(), gy.ravel()])).reshape(gx.shape) for m, f in fits.items()}
-    low = min(observed.min(), *(s.min() for s in surfaces.values()))
-    high = max(observed.max(), *(s.max() for s in surfaces.values()))
+    low = min(observed[ran].min(initial=np.inf), *(s.min() for s in surfaces.values()))
+    high = max(observed[ran].max(initial=-np.inf), *(s.max() for s in surfaces.values()))
     levels = np.linspace(low, high, 21)
     fig, axes = plt.subplots(1, len(fits), figsize=(5.2 * len(fits), 4.4), squeeze=False)
     for ax, (model, fit) in zip(axes[0], fits.items()):
         shading = ax.contourf(fx.decode(gx), fy.decode(gy), surfaces[model], levels=levels, cmap="viridis")
         ax.contour(fx.decode(gx), fy.decode(gy), surfaces[model], levels=levels[::2], colors="w", linewidths=0.4)
+        x, y = responses[fx.name].to_numpy(float), responses[fy.name].to_numpy(float)
         ax.scatter(
-            responses[fx.name],
-            responses[fy.name],
-            c=observed,
+            x[ran],
+            y[ran],
+            c=observed[ran],
             cmap="viridis",
             vmin=low,
             vmax=high,
@@ -56,6 +59,8 @@ def plot_response_surfaces(
             zorder=3,
             label="DEM runs (observed)",
         )
+        if not ran.all():
+            ax.plot(x[~ran], y[~ran], "rx", ms=10, mew=2, zorder=4, label="failed DEM runs")
         best = fit.optimum()["natural"]
         ax.plot(
             best[fx.name],

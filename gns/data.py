@@ -12,11 +12,10 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
-import h5py
 import numpy as np
 import torch
 
-from dem.trajectory import TrajectoryError, read_attrs
+from dem.trajectory import check_finite, open_trajectory, read_attrs
 from gns.dataset import DatasetError, load_dataset_metadata
 from gns.simulator import LAYOUT_KEYS, Context
 
@@ -87,18 +86,21 @@ class TrajectoryWindows:
         for path in map(Path, paths):
             if not path.exists():
                 raise DatasetError(f"{path}: trajectory file listed in the dataset does not exist")
-            attrs = read_attrs(path)
+            attrs = read_attrs(path)  # a truncated or damaged file: TrajectoryError naming it
             missing = [k for k in self.parameter_names + list(LAYOUT_KEYS) + ["dt_frame"] if k not in attrs]
             if missing:
                 raise DatasetError(f"{path}: trajectory attributes lack {missing}")
             if dt_frame is not None and abs(float(attrs["dt_frame"]) - dt_frame) > 1e-9 * dt_frame:
                 raise DatasetError(f"{path}: dt_frame {attrs['dt_frame']} s differs from the dataset's {dt_frame} s")
-            with h5py.File(path, "r") as f:
+            with open_trajectory(path) as f:
                 n_frames = f["positions"].shape[0]
                 radius = f["radius"][()]
                 particle_type = f["particle_type"][()]
             if n_frames < n_input_frames + 1:
-                raise DatasetError(f"{path}: {n_frames} frames, fewer than C + 1 = {n_input_frames + 1}")
+                raise DatasetError(
+                    f"{path}: {n_frames} frames, too few for one GNS window of {n_input_frames + 1} frames "
+                    f"({n_input_frames} input frames + 1 target)"
+                )
             self.files.append(
                 {
                     "path": path,
@@ -125,12 +127,9 @@ class TrajectoryWindows:
         """positions [C + 1, N, 2] float32 (m) of window k, and its file's entry."""
         i, start = self.locate(k)
         entry = self.files[i]
-        with h5py.File(entry["path"], "r") as f:
+        with open_trajectory(entry["path"]) as f:
             positions = f["positions"][start : start + self.n_input_frames + 1]
-        if not np.all(np.isfinite(positions)):
-            raise TrajectoryError(
-                f"{entry['path']}: non-finite positions in frames {start}..{start + self.n_input_frames}"
-            )
+        check_finite(positions, str(entry["path"]), first_frame=start)
         return positions, entry
 
     def batch(self, indices: Iterable[int]) -> Batch:

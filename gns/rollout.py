@@ -166,6 +166,12 @@ def rollout_trajectory(
             f"trajectory dt_frame {trajectory.attrs['dt_frame']} s differs from the model's "
             f"{c.dt_frame} s (one GNS step is one frame)"
         )
+    needed = c.n_input_frames + (1 if n_steps is None else 0)  # run to its last frame: one to predict
+    if trajectory.n_frames < needed:
+        raise ValueError(
+            f"{trajectory.source or 'trajectory'}: {trajectory.n_frames} frames, too few for a GNS rollout "
+            f"from C = {c.n_input_frames} input frames (needs {needed})"
+        )
     n_steps = trajectory.n_frames - c.n_input_frames if n_steps is None else n_steps
     device = simulator.bounds.device
     context = context_from_trajectory(simulator, trajectory, parameters, device)

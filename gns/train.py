@@ -12,7 +12,8 @@ runout MSE at equal steps by several times (issue 5 note).
 Outputs in `out_dir`:
   checkpoint_last.pt  model, optimiser, sampler and noise RNG states, step, metrics history:
                       a killed training started again with the same settings resumes from it and
-                      continues exactly as if never stopped (same samples, same noise, same loss)
+                      continues exactly as if never stopped (same samples, same noise, same loss);
+                      one that cannot be read (truncated) is moved aside and training starts clean
   model_best.pt       the validated model (the exponential moving average of the weights,
                       ema_decay) with the lowest validation runout MSE so far (the paper keeps
                       the best validated model; it validated every 500 steps)
@@ -44,6 +45,12 @@ from gns.settings import TrainSettings, simulator_config
 from gns.simulator import CheckpointError, LearnedSimulator, SimulatorConfig, model_payload, warm_start
 
 log = logging.getLogger(__name__)
+
+
+class UnreadableCheckpoint(CheckpointError):
+    """checkpoint_last.pt cannot be read (truncated, damaged): refused, and training starts clean."""
+
+
 TRAIN_FORMAT = "gns-train-1"
 # settings that may change when a training resumes; every other one shapes the result
 RESUMABLE = ("steps", "log_every", "checkpoint_every", "device")
@@ -182,16 +189,15 @@ class Trainer:
             torch.save(payload, tmp)
 
     def resume(self) -> bool:
-        """Load checkpoint_last.pt when present; CheckpointError when it does not fit these settings."""
+        """Load checkpoint_last.pt when present; CheckpointError when it does not fit these settings,
+        UnreadableCheckpoint when it cannot be read (truncated)."""
         path = self.checkpoint_path
         if not path.exists():
             return False
         try:
             payload = torch.load(path, map_location="cpu", weights_only=False)
-        except Exception as exc:  # noqa: BLE001
-            raise CheckpointError(
-                f"{path}: not a readable training checkpoint ({exc}); delete it to start afresh"
-            ) from None
+        except Exception as exc:  # noqa: BLE001  (torch raises several kinds on a damaged file)
+            raise UnreadableCheckpoint(f"{path}: not a readable training checkpoint, truncated? ({exc})") from None
         if not isinstance(payload, dict) or payload.get("format") != TRAIN_FORMAT:
             raise CheckpointError(f"{path}: not a GNS training checkpoint; delete it to start afresh")
         saved_settings = payload["settings"]  # a key the checkpoint lacks counts as changed
@@ -230,6 +236,13 @@ class Trainer:
         self.resumed_from = self.step
         log.info("resumed %s at step %d", path, self.step)
         return True
+
+    def set_aside(self, reason: CheckpointError, suffix: str) -> None:
+        """Move a refused checkpoint_last.pt to checkpoint_last<suffix> (kept, not deleted) and say
+        that training starts clean; the trainer is still fresh (resume loads nothing it refuses)."""
+        aside = self.checkpoint_path.with_suffix(suffix)
+        self.checkpoint_path.replace(aside)
+        log.warning("%s; moved to %s, training starts clean from step 0", reason, aside)
 
     def saved_settings(self) -> dict:
         """What a checkpoint must match to be resumed: the settings and the validation's runout method."""
@@ -315,15 +328,15 @@ class Trainer:
     def run(self, resume: bool = True, restart_on_mismatch: bool = False) -> dict:
         s = self.settings
         self.out_dir.mkdir(parents=True, exist_ok=True)
-        if resume and restart_on_mismatch:
+        if resume:
             try:
                 self.resume()
-            except CheckpointError as exc:  # made for other data or settings: set it aside
-                stale = self.checkpoint_path.with_suffix(".stale.pt")
-                self.checkpoint_path.replace(stale)
-                log.warning("starting afresh; %s (moved to %s)", exc, stale)
-        elif resume:
-            self.resume()
+            except UnreadableCheckpoint as exc:  # truncated: nothing in it can be resumed
+                self.set_aside(exc, ".unreadable.pt")
+            except CheckpointError as exc:  # made for other data or settings
+                if not restart_on_mismatch:
+                    raise
+                self.set_aside(exc, ".stale.pt")
         elif self.checkpoint_path.exists():
             raise CheckpointError(f"{self.checkpoint_path} exists and resume=False; delete it to start afresh")
         log.info(
@@ -494,8 +507,10 @@ def train(
 
     resume: continue from out_dir/checkpoint_last.pt when present. A checkpoint made with other
     settings or data raises CheckpointError, or with restart_on_mismatch is moved aside and
-    training starts afresh (the workflow's choice: changed inputs mean a new model). runout: how the
-    validation runout MSE (which picks the saved model) reads L* (dem.runout; None: its default).
+    training starts afresh (the workflow's choice: changed inputs mean a new model). A checkpoint
+    that cannot be read (truncated) is always moved aside (checkpoint_last.unreadable.pt) with a
+    warning, and training starts clean. runout: how the validation runout MSE (which picks the
+    saved model) reads L* (dem.runout; None: its default).
     """
     if not isinstance(settings, TrainSettings):
         settings = TrainSettings.from_config(settings)

@@ -58,6 +58,22 @@ def case_splits(section: dict) -> list[dict]:
     ]
 
 
+def start_packing_cases(section: dict) -> list[str]:
+    """Case ids of the model's GNS dataset whose first frames start the inverse design's rollouts
+    besides the start run (section: the config's `calibration`): start_packings - 1 training cases,
+    spread over the case order (the mechanism's parameter), known at parse time."""
+    train = [row["case_id"] for row in case_splits(section) if row["split"] == "train"]
+    wanted = section["start_packings"] - 1
+    if wanted > len(train):
+        raise ValueError(
+            f"calibration.start_packings: {section['start_packings']} needs {wanted} training cases besides the "
+            f"start run; the model's dataset has {len(train)} (calibration.gns_cases, gns_splits)"
+        )
+    if wanted <= 0:
+        return []
+    return [train[round(k * (len(train) - 1) / max(wanted - 1, 1))] for k in range(wanted)]
+
+
 def dataset_design(model: Model, template_row: dict, section: dict) -> list[DatasetCase]:
     """The model's GNS dataset design: section is the config's `calibration` section (gns_cases,
     seed); template_row: a case-table row of the base model's GNS dataset of the column."""
@@ -116,11 +132,14 @@ def run_model_inverse(
     runout: dict | None,
     evaluation_path: StrPath | None = None,
     threads: int | None = None,
+    packing_paths: Sequence[StrPath] = (),
 ) -> InverseResult:
     """The GNS inverse design over every parameter of the model (settings: the config's `inverse`
     section). The start run is the base model's (the inverse stage's start.h5): its mechanism is
     off, and so it is at the first start (the paper's (mu, e), inverse.start); the other starts
-    are a Latin hypercube over all the parameters."""
+    are a Latin hypercube over all the parameters. packing_paths: trajectories of the model's
+    dataset (start_packing_cases) whose first frames start rollouts too: the objective is that of
+    the mean L* over the start run's packing and theirs."""
     model, _ = read_model(model_json, channel_width)
     start_values = {}
     if model.mechanism is not None:
@@ -128,7 +147,7 @@ def run_model_inverse(
     result = run_inverse_design(
         gns_model_path,
         metadata_path,
-        start_path,
+        [start_path, *packing_paths],
         measured_path,
         out_json,
         out_paths,

@@ -198,7 +198,7 @@ def section(
     pure = summary["pure_error"]
     best = summary["best_run"]
     columns = [f"{RUNOUT_PREFIX}{t:g}" for t in measured.t_over_tstar]
-    last = responses[columns[-1]].to_numpy(float)
+    last = responses[columns[-1]].to_numpy(float)  # NaN: a failed run (summary["failures"])
     lines = [
         f"### {name}: {measured.material}, a = {measured.aspect_ratio:g}, L_i = {measured.L_i:g} m",
         "",
@@ -208,10 +208,12 @@ def section(
         f"MSE = {best['mse']:.3f}. Pure error from the replicated centre (another packing seed): "
         f"SS = {pure['sum_sq']:.4g} on {pure['df']} df, std = {pure['std']:.3g} (with so few df a rough "
         "estimate of the run-to-run noise).",
-        f"Simulated L* at t/t* = {measured.t_over_tstar[-1]:g} over the design: {last.min():.2f} to "
-        f"{last.max():.2f} (measured {measured.runout[-1]:g}).",
+        f"Simulated L* at t/t* = {measured.t_over_tstar[-1]:g} over the design: {np.nanmin(last):.2f} to "
+        f"{np.nanmax(last):.2f} (measured {measured.runout[-1]:g}).",
         "",
     ]
+    if summary.get("failed"):  # analyses written before failures were recorded have no such key
+        lines[-1:-1] = [f"{summary['failures'][0].upper()}{summary['failures'][1:]}."]
     for model, fit in summary["models"].items():
         lof = fit["lack_of_fit"]
         opt = fit["optimum"]

@@ -154,7 +154,7 @@ def model_error_from_evaluation(path: StrPath | None, runout: RunoutMethod) -> f
 def run_inverse_design(
     model_path: StrPath,
     metadata_path: StrPath,
-    start_path: StrPath,
+    start_path: StrPath | Sequence[StrPath],
     measured_path: StrPath,
     out_json: StrPath,
     out_paths: StrPath,
@@ -169,6 +169,7 @@ def run_inverse_design(
     start_values: dict | None = None,
 ) -> InverseResult:
     """The inverse-design stage of one measured column: inverse.json and the two figures.
+    start_path: the start run, or several packings of the column (GNSObjective's starts).
 
     settings: the config's `inverse` section (friction, restitution bounds, start, starts, gradient,
     fd_step, max_iterations, landscape_levels, seed); runout: the config's `runout` section (every L*
@@ -185,14 +186,16 @@ def run_inverse_design(
     metadata = read_metadata(metadata_path)
     simulator = load_simulator(model_path, metadata)
     measured = load_column(measured_path)
-    start = read_trajectory(start_path)
-    start.attrs = {**(start_values or {}), **start.attrs}
+    paths = [start_path] if isinstance(start_path, (str, os.PathLike)) else list(start_path)
+    starts = [read_trajectory(path) for path in paths]
+    for packing in starts:  # a start run of the base model records no mechanism parameter
+        packing.attrs = {**(start_values or {}), **packing.attrs}
     runout = RunoutMethod.from_config(runout)
     model_error = model_error_from_evaluation(evaluation_path, runout)
     first_start = dict(zip(START_NAMES, settings["start"]))
     result = inverse_design(
         simulator,
-        start,
+        starts,
         measured,
         metadata,
         read_training_attrs(metadata),
@@ -219,7 +222,7 @@ def run_inverse_design(
     best = min(result.starts, key=lambda r: r.value)
     middle = best.iterates[len(best.iterates) // 2][0]
     plot_deposits(
-        GNSObjective(simulator, start, measured, result.names, runout=runout),
+        GNSObjective(simulator, starts[0], measured, result.names, runout=runout),
         {"start": best.start, f"iteration {len(best.iterates) // 2}": middle, "optimum": best.params},
         out_deposits,
     )

@@ -12,6 +12,7 @@ from calibration.calibrated import (
     model_dataset_cases,
     model_record,
     model_runout,
+    mse_jackknife,
     read_model,
     resolve_model,
     validate,
@@ -70,6 +71,25 @@ def test_validation_scores_the_mean_curve_of_its_packings():
     assert result.mse_each == pytest.approx([runout_mse(c, COLUMN.runout) for c in curves])
     assert not np.allclose(curves[0], curves[1])  # two packings, two collapses
     assert result.failed == {} and result.n_ran == 2
+
+
+def test_the_jackknife_error_of_a_validation_is_the_textbook_one_and_a_paired_difference_cancels_shared_chaos():
+    measured = np.zeros(2)
+    # MSE of the mean of curves (x, x): x^2; leave-one-out means of [0, 1, 2, 3] by hand
+    curves = [[0.0, 0.0], [1.0, 1.0], [2.0, 2.0], [3.0, 3.0]]
+    loo = np.array([2.0, 5 / 3, 4 / 3, 1.0]) ** 2
+    expected = np.sqrt(3 / 4 * np.sum((loo - loo.mean()) ** 2))
+    value, se = mse_jackknife(curves, measured)
+    assert value == pytest.approx(1.5**2) and se == pytest.approx(expected)
+    # a failed packing is left out, of both routes in a paired difference
+    assert mse_jackknife([*curves, None], measured) == pytest.approx((value, se))
+    # a route that differs from another by a constant on every packing: the shared scatter cancels
+    # in the paired difference, which is then known far better than either score
+    shifted = [[c[0] + 0.5, c[1] + 0.5] for c in curves]
+    difference, paired_se = mse_jackknife(shifted, measured, curves)
+    assert difference == pytest.approx(2.0**2 - 1.5**2)
+    assert paired_se < mse_jackknife(shifted, measured)[1]
+    assert np.isnan(mse_jackknife(curves[:2], measured)[1])  # two packings: no error estimate
 
 
 def test_a_run_that_fails_is_reported_with_its_packing_never_averaged():
@@ -186,7 +206,9 @@ def test_every_routes_optimum_is_read_as_its_stage_writes_it(tmp_path):
     files = {
         "inverse.json": {"names": ["restitution", "friction"], "best_params": [0.4, 0.7]},
         "analysis.json": {"n_runs": 50, "models": {"eq9": {"optimum": {"natural": {"friction": 0.9, "restitution": 0.3}}}}},  # noqa: E501
-        "bayesopt.json": {"names": ["friction", "restitution"], "best_params": [0.8, 0.5], "values": [1.0] * 20},
+        # 19 runs ran, one failed: the runs it cost are the file's dem_runs
+        "bayesopt.json": {"names": ["friction", "restitution"], "best_params": [0.8, 0.5], "values": [1.0] * 19}
+        | {"dem_runs": 20},
         "model_inverse.json": {
             "names": ["bond_number", "friction", "restitution"], "best_params": [44.0, 0.5, 0.6],
             "best_value": 0.05, "posterior": posterior,

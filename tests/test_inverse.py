@@ -4,6 +4,7 @@ recovery of a synthetic DEM target on a tiny column."""
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import numpy as np
@@ -208,6 +209,30 @@ def test_autograd_gradient_through_the_checkpointed_rollout_matches_finite_diffe
     assert lone.timing["rollouts"] == 10 and objective.values(points).tolist() == values.tolist()  # cached
     assert objective.timing["rollouts"] == 2 and objective.timing["backward_s"] > 0
     assert np.abs(gradients).max() > 1e-6
+
+
+def test_an_objective_of_several_packings_scores_their_mean_curve_and_differentiates_it(tiny_dataset):
+    metadata_path, trajectories = tiny_dataset
+    packings = trajectories[:3]  # three seeds: three packings of one column (their own mu, e are replaced)
+    measured = column_of(packings[0], T_POINTS, [0.1, 0.2, 0.3])
+    simulator = louder_parameters(untrained_simulator(read_metadata(metadata_path), torch.float64))
+    mean = GNSObjective(simulator, packings, measured, checkpoint=False)
+    lone = [GNSObjective(simulator, p, measured, checkpoint=False) for p in packings]
+    points = np.array([[0.55, 0.73], [0.4, 0.35]])
+    curves = mean.runout_values(points)  # 2 points x 3 packings: one batch of 6 graphs
+    expected = np.mean([o.runout_values(points) for o in lone], axis=0)
+    assert np.allclose(curves, expected, rtol=1e-10, atol=1e-12)
+    assert not np.allclose(lone[0].runout_values(points), lone[1].runout_values(points))  # packings differ
+    assert mean.timing["rollouts"] == 6 and mean.n_packings == 3
+    values, gradients = GNSObjective(simulator, packings, measured, segment_steps=2).values_and_gradients(points)
+    assert values.tolist() == pytest.approx(mean.values(points).tolist(), rel=1e-10)
+    h = 1e-6
+    for g, x in enumerate(points):
+        numeric = [(mean.values((x + h * e)[None])[0] - mean.values((x - h * e)[None])[0]) / (2 * h) for e in np.eye(2)]
+        assert np.allclose(gradients[g], numeric, rtol=1e-4, atol=1e-9), (gradients[g], numeric)
+    other = dataclasses.replace(packings[1], attrs={**packings[1].attrs, "L_i": 2 * packings[1].attrs["L_i"]})
+    with pytest.raises(InverseDesignError, match="start trajectory 1: L_i"):
+        GNSObjective(simulator, [packings[0], other], measured)
 
 
 def test_float32_model_resolves_the_sound_step_but_not_small_ones_while_autograd_stays_exact(tiny_dataset):

@@ -6,6 +6,11 @@
 `simulate_case(case, config)` runs one case with the configured engine in a scratch folder: every
 DEM run of the pipeline goes through here or through the DEM stage's own rules.
 
+A DEM run that fails raises one of FAILURES (a blow-up, a solver that crashed, output that cannot
+be read or holds no runout front, a case that cannot be built). A caller that can do without the
+run (an optimisation, a design, repeated runs on several packings) catches these, records the run
+with `failure_reason(exc)` and never averages it in; any other exception is a bug and propagates.
+
 `config` is the `dem` section of the workflow config; solver paths are configurable under
 `solvers`, e.g. {"solvers": {"liggghts": "/usr/bin/liggghts", "mfix": "/opt/mfix/mfixsolver"}};
 a solver not configured is looked up on PATH. `auto` picks MFIX where its solver is found, else
@@ -19,10 +24,14 @@ import tempfile
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
+from dem.case import CaseError
 from dem.engines.base import Engine, EngineError, EngineNotInstalled
 from dem.engines.builtin import BuiltinEngine
 from dem.engines.liggghts import LiggghtsEngine
 from dem.engines.mfix import MfixEngine
+from dem.integrate import SimulationError
+from dem.runout import RunoutError
+from dem.trajectory import TrajectoryError
 
 if TYPE_CHECKING:
     from dem.case import CollapseCase
@@ -33,17 +42,25 @@ log = logging.getLogger(__name__)
 ENGINES = {"builtin": BuiltinEngine, "liggghts": LiggghtsEngine, "mfix": MfixEngine}
 AUTO_ORDER = ("mfix", "liggghts", "builtin")
 BUILTIN = {"engine": "builtin"}  # simulate_case's config for runs that need the builtin engine's features
+FAILURES = (SimulationError, EngineError, TrajectoryError, RunoutError, CaseError)  # a DEM run that failed
 
 __all__ = [
     "BUILTIN",
     "ENGINES",
+    "FAILURES",
     "Engine",
     "EngineError",
     "EngineNotInstalled",
+    "failure_reason",
     "get_engine",
     "simulate_case",
     "solver_paths",
 ]
+
+
+def failure_reason(exc: BaseException) -> str:
+    """How a failed run is recorded: "ExceptionName: message" (the message names the file or step)."""
+    return f"{type(exc).__name__}: {exc}"
 
 
 def solver_paths(config: dict | None) -> dict:

@@ -164,6 +164,12 @@ rule calibrated_inverse:
         metadata="results/datasets/calibrated_{name}/metadata.json",
         evaluation="results/gns/calibrated_{name}/evaluation/summary.json",
         start="results/inverse/{name}/start.h5",
+        # further packings of the column: the objective is of their mean L* (calibration.start_packings)
+        packings=lambda w: expand(
+            "results/dem/calibrated_{name}/trajectories/{case_id}.h5",
+            name=w.name,
+            case_id=pipeline.calibrated_gns.start_packing_cases(CALIBRATION),
+        ),
         measured=lambda w: config["measured"][w.name],
     output:
         result="results/calibrated/{name}/inverse.json",

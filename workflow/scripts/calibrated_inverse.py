@@ -20,5 +20,6 @@ result = run_model_inverse(
     runout=snakemake.params.runout,
     evaluation_path=i.evaluation,
     threads=snakemake.threads,
+    packing_paths=i.packings,
 )
 logging.info("optimum %s, GNS objective %.4f", result.best_params, result.best_value)
