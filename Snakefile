@@ -7,6 +7,11 @@ if not workflow.overwrite_configfiles:
     configfile: "config/config.yaml"
 
 
+# Snakemake's HTML report (snakemake --report results/report.html): this description first, then
+# every figure and table registered with report() in the rules, grouped by stage.
+report: "workflow/report/workflow.rst"
+
+
 include: "workflow/rules/common.smk"
 include: "workflow/rules/dem.smk"
 include: "workflow/rules/dataset.smk"

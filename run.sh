@@ -27,13 +27,15 @@ ensure_venv() {
     fi
 }
 
-# Optional system packages: LIGGGHTS (the real-solver fallback), SLURM and munge (the cluster test).
-# Tests that need them skip, saying why, where they cannot be installed.
+# Optional system packages: LIGGGHTS (the real-solver fallback), SLURM and munge (the cluster test),
+# Chromium (the HTML report opened in a headless browser). Tests that need them skip, saying why,
+# where they cannot be installed.
 ensure_optional_apt() {
     local missing=()
     command -v liggghts >/dev/null || missing+=(liggghts)
     command -v slurmctld >/dev/null || missing+=(slurm-wlm)
     command -v munged >/dev/null || missing+=(munge)
+    command -v chromium >/dev/null || missing+=(chromium)
     [ ${#missing[@]} -eq 0 ] && return 0
     if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
         echo "run.sh: installing optional ${missing[*]} from Debian"
@@ -44,11 +46,32 @@ ensure_optional_apt() {
     fi
 }
 
+# The arguments that make `run.sh main` end by writing Snakemake's HTML report, results/report.html:
+# none when the arguments ask for something other than running the DAG (a dry run, an unlock, a
+# partial run with --until, a report of their own, a listing, ...).
+report_args() {
+    local arg
+    for arg in "$@"; do
+        case "$arg" in
+            -n* | -[!-]*n* | --dry-run | --dryrun | --unlock | --until | -U | --omit-from | -O | --touch | -t | \
+                --lint | --report | --report-after-run | --summary | -S | --detailed-summary | -D | --dag | \
+                --rulegraph | --filegraph | --list-rules | -l | --list-target-rules | --lt | --list-changes | \
+                --lc | --delete-all-output | --delete-temp-output | --cleanup-metadata | --cm | --help | -h | \
+                --version | -v | --containerize | --export-cwl | --conda-create-envs-only | --archive | \
+                --generate-unit-tests)
+                return 0
+                ;;
+        esac
+    done
+    echo "--report results/report.html --report-after-run"
+}
+
 case "${1:-}" in
     main)
         ensure_venv
         shift
-        exec "$VENV/bin/python" -m snakemake --profile workflow/profiles/default "$@"
+        # shellcheck disable=SC2046  # report_args prints separate words on purpose
+        exec "$VENV/bin/python" -m snakemake --profile workflow/profiles/default "$@" $(report_args "$@")
         ;;
     test)
         ensure_venv

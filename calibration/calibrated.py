@@ -223,7 +223,7 @@ class Validation:
     dem_runs: int = 0  # DEM runs the route spent before the validation (calibration cost)
     calibration_seconds: float = 0.0  # wall time the route spent before the validation
     extra: dict = field(default_factory=dict)
-    mse_se: float = math.nan
+    mse_se: float | None = None  # None: fewer than 3 packings ran
 
     @property
     def n_ran(self) -> int:
@@ -254,12 +254,12 @@ def mse_jackknife(
     curves: Sequence[Sequence[float] | None],
     measured: ArrayLike,
     baseline: Sequence[Sequence[float] | None] | None = None,
-) -> tuple[float, float]:
+) -> tuple[float, float | None]:
     """(runout MSE of the mean curve, its jackknife standard error over the packings) for curves
     [R][K] (L*; None where a run failed) against measured [K]; with `baseline` (another route's
     curves on the same R packings, the validation seeds), of the difference MSE - baseline's MSE,
     paired packing by packing (the shared packings' chaos cancels). Packings where either failed are
-    left out; the error is NaN with fewer than 3 left."""
+    left out; the error is None (JSON null) with fewer than 3 left, the value NaN with none."""
     keep = [k for k, c in enumerate(curves) if c is not None and (baseline is None or baseline[k] is not None)]
     measured = np.asarray(measured, float)
 
@@ -270,11 +270,11 @@ def mse_jackknife(
         return float(value)
 
     if not keep:
-        return math.nan, math.nan
+        return math.nan, None
     full = score(keep)
     n = len(keep)
     if n < 3:
-        return full, math.nan
+        return full, None
     leave_one_out = np.array([score([k for k in keep if k != j]) for j in keep])
     return full, float(np.sqrt((n - 1) / n * np.sum((leave_one_out - leave_one_out.mean()) ** 2)))
 

@@ -209,9 +209,11 @@ def _means(cases: dict, methods) -> dict:
         mean = {
             "scatter_mean": float(np.mean([r["scatter_mean"] for r in rows])),
             "flicker": float(np.max([r["flicker"] for r in rows])),
+            # phases no case's runs reach (short runs: no stopping phase) are left out, as in phase_means
             "scatter_by_phase": {
                 p: float(np.mean([r["scatter_by_phase"][p] for r in rows if p in r["scatter_by_phase"]]))
                 for p in PHASES
+                if any(p in r["scatter_by_phase"] for r in rows)
             },
         }
         floors = [r["floor"] for r in rows if "floor" in r]
@@ -232,7 +234,8 @@ def markdown_table(study: dict) -> str:
         "|---|---|---|---|---|",
     ]
     for name, m in study["mean"].items():
-        phases = " / ".join(f"{m['scatter_by_phase'][p]:.3f}" for p in PHASES)
+        by_phase = m["scatter_by_phase"]
+        phases = " / ".join(f"{by_phase[p]:.3f}" if p in by_phase else "-" for p in PHASES)
         floor = f"{m['rerun_mse']:.3f} / {m['ideal_mse']:.3f}" if "rerun_mse" in m else "-"
         gns = f"{m['gns_mse']:.3f} / {m['gns_mse_to_mean']:.3f} ({m['gns_cases']} cases)" if "gns_mse" in m else "-"
         lines.append(f"| {name} | {phases} | {m['flicker']:.3f} | {floor} | {gns} |")

@@ -456,16 +456,16 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
         ]
         versus = result.get("gns_vs_doe")
         if versus:
-            tied = abs(versus["mse_difference"]) <= 2 * versus["se"] if math.isfinite(versus["se"]) else False
+            if versus["se"] is None:
+                verdict = "too few packings ran to tell them apart."
+            elif abs(versus["mse_difference"]) <= 2 * versus["se"]:
+                verdict = "within the packing scatter of each other."
+            else:
+                verdict = "the GNS route is better." if versus["mse_difference"] < 0 else "the DoE route is better."
             lines += [
                 f"**GNS against DoE** (the paper's claim): validated MSE of the GNS route minus the DoE route's "
                 f"{versus['mse_difference']:+.3g} +- {_se(versus['se'])} (paired), with "
-                f"{versus['gns_dem_runs']} DEM runs against {versus['doe_dem_runs']}: "
-                + (
-                    "within the packing scatter of each other."
-                    if tied
-                    else ("the GNS route is better." if versus["mse_difference"] < 0 else "the DoE route is better.")
-                ),
+                f"{versus['gns_dem_runs']} DEM runs against {versus['doe_dem_runs']}: {verdict}",
                 "",
             ]
         for route in result["routes"]:

@@ -4,19 +4,25 @@ a figure of the time spent per stage (from Snakemake `benchmark:` files; cf. Tab
 Conventions (workflow/rules/common.smk repeats them for stage authors):
   - each stage writes results/report/<stage>.md; links inside it are relative to that file;
   - each job benchmarks to results/benchmarks/<stage>/<rule>[/<wildcards>].tsv.
-The report rebases the fragments' relative links onto the report's own folder.
+The report rebases the fragments' relative links onto the report's own folder, and puts under
+each figure (a Markdown image on a line of its own) the caption its rule registers with report()
+for Snakemake's HTML report (workflow/report/<stem>.rst), so a caption is written once. Captions
+are plain reStructuredText: no Jinja, which only the HTML report could fill in.
 """
 
 from __future__ import annotations
 
 import os
 import re
+from collections.abc import Mapping
 from pathlib import Path
 
 from dem.atomic import write_text
 from pipeline.benchmarks import StageTime, read_benchmarks
 
 LINK = re.compile(r"(!?\[[^\]]*\]\()([^)\s]+)(\))")
+IMAGE_LINE = re.compile(r"\s*!\[[^\]]*\]\(([^)\s]+)\)\s*")
+MARKDOWN_SPECIAL = re.compile(r"([\\`*_\[\]<>#|])")
 
 
 def time_table(times: list[StageTime]) -> str:
@@ -74,15 +80,59 @@ def rebase_links(markdown: str, from_dir: str | os.PathLike, to_dir: str | os.Pa
     return LINK.sub(fix, markdown)
 
 
+def caption_text(path: str | os.PathLike) -> str:
+    """The caption in reStructuredText file `path` as Markdown-safe plain text: its paragraphs,
+    each on one line, markup dropped and Markdown's special characters escaped."""
+    from docutils.core import publish_doctree
+
+    text = Path(path).read_text()
+    if "{{" in text or "{%" in text:
+        raise ValueError(f"caption {path}: Jinja ({{{{ }}}}, {{% %}}) only the HTML report can fill in; write it out")
+    doctree = publish_doctree(text, source_path=str(path), settings_overrides={"report_level": 5})
+    paragraphs = [" ".join(block.split()) for block in doctree.astext().split("\n\n")]
+    return "\n\n".join(MARKDOWN_SPECIAL.sub(r"\\\1", p) for p in paragraphs if p)
+
+
+def figure_caption(figure: str | os.PathLike, captions: Mapping[str, str]) -> str | None:
+    """The caption file of `figure` (a path relative to the working directory): the file of the
+    first output pattern in `captions` ({pattern with {wildcards}: caption file}) that it
+    matches, or None."""
+    figure = Path(os.path.relpath(figure)).as_posix()
+    for pattern, caption in captions.items():
+        regex = re.sub(r"\\\{\w+(,[^}]*)?\\\}", "[^/]+", re.escape(pattern))
+        if re.fullmatch(regex, figure):
+            return caption
+    return None
+
+
+def add_captions(markdown: str, fragment_dir: str | os.PathLike, captions: Mapping[str, str]) -> str:
+    """`markdown` (links relative to `fragment_dir`) with each figure's caption (figure_caption)
+    as a quote under it; figures without one are left as they are."""
+    lines = []
+    for line in markdown.splitlines():
+        lines.append(line)
+        image = IMAGE_LINE.fullmatch(line)
+        if image is None or re.match(r"^([a-z]+:|/|#)", image.group(1)):
+            continue
+        caption = figure_caption(Path(fragment_dir, image.group(1)), captions)
+        if caption is not None:
+            lines += ["", *(f"> {text}" if text else ">" for text in caption_text(caption).splitlines())]
+    return "\n".join(lines)
+
+
 def assemble_report(
     sections: list[tuple[str, str]],
     benchmark_dir: str | os.PathLike,
     out_path: str | os.PathLike,
     title: str,
     time_figure: str | os.PathLike,
+    captions: Mapping[str, str] | None = None,
 ) -> str:
     """Write the report at `out_path`: `title`, one `## <title>` per (title, fragment path) in
-    `sections` (links rebased), then the time-per-stage table and figure. Returns the text."""
+    `sections` (links rebased), then the time-per-stage table and figure. captions: {output
+    pattern: caption file} (workflow report_captions) for the captions under the figures.
+    Returns the text."""
+    captions = captions or {}
     out_dir = Path(out_path).parent
     parts = [f"# {title}", ""]
     parts += [f"- [{name}](#{_anchor(name)})" for name, _ in sections] + ["- [Time per stage](#time-per-stage)", ""]
@@ -90,7 +140,8 @@ def assemble_report(
         fragment = Path(fragment)
         if not fragment.exists():
             raise FileNotFoundError(f"report section {name!r}: fragment {fragment} does not exist")
-        text = rebase_links(fragment.read_text(), fragment.parent, out_dir)
+        text = add_captions(fragment.read_text(), fragment.parent, captions)
+        text = rebase_links(text, fragment.parent, out_dir)
         parts += [f"## {name}", "", text.strip(), ""]
     times = read_benchmarks(benchmark_dir)
     parts += [
@@ -104,7 +155,8 @@ def assemble_report(
     ]
     if times:
         plot_stage_times(times, time_figure)
-        parts += [time_table(times), "", f"![time per stage]({os.path.relpath(time_figure, out_dir)})", ""]
+        figure = f"![time per stage]({os.path.relpath(time_figure, out_dir)})"
+        parts += [time_table(times), "", add_captions(figure, out_dir, captions), ""]
     else:
         parts += ["No benchmark files yet.", ""]
     text = "\n".join(parts)

@@ -1,3 +1,6 @@
+import os
+import time
+
 import pytest
 import torch
 
@@ -26,3 +29,19 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+TINY_ALL = "config/tiny_all.yaml"  # every stage at its smallest (tests/test_pipeline_end_to_end.py)
+
+
+@pytest.fixture(scope="session")
+def tiny_all_run(tmp_path_factory):
+    """config/tiny_all.yaml's whole DAG, run once for the session in a copy of the workflow (shared
+    by the end-to-end checks and the HTML report's): (workflow folder, {rule: jobs} Snakemake
+    planned, wall seconds). E2E_CORES sets the cores (default 2)."""
+    from tests.test_workflow import copy_workflow, job_stats, snakemake
+
+    workdir = copy_workflow(tmp_path_factory.mktemp("tiny_all"))
+    started = time.perf_counter()
+    proc = snakemake(workdir, configfile=TINY_ALL, cores=int(os.environ.get("E2E_CORES", "2")), timeout=1200)
+    return workdir, job_stats(proc.stderr), time.perf_counter() - started

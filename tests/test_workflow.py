@@ -50,18 +50,18 @@ def env():
     return dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
 
 
-def snakemake(workdir, *args, timeout=300, check=True):
+def snakemake(workdir, *args, timeout=300, check=True, configfile="config/test.yaml", cores=2):
     # --configfile takes several values: it goes before the options, targets go last
     cmd = [
         sys.executable,
         "-m",
         "snakemake",
         "--configfile",
-        "config/test.yaml",
+        configfile,
         "--profile",
         "workflow/profiles/default",
         "--cores",
-        "2",
+        str(cores),
         *args,
     ]
     proc = subprocess.run(cmd, cwd=workdir, capture_output=True, text=True, timeout=timeout, env=env())

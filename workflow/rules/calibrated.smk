@@ -54,8 +54,20 @@ rule calibrated_doe:
         model="results/calibrated/{name}/model.json",
     output:
         result="results/calibrated/{name}/doe.json",
-        responses="results/calibrated/{name}/doe_responses.csv",
-        figure="results/calibrated/{name}/doe_surface.png",
+        responses=report(
+            "results/calibrated/{name}/doe_responses.csv",
+            caption="../report/doe_responses.rst",
+            category="7. Calibrated model",
+            subcategory="{name}",
+            labels={"result": "DoE responses"},
+        ),
+        figure=report(
+            "results/calibrated/{name}/doe_surface.png",
+            caption="../report/doe_surface.rst",
+            category="7. Calibrated model",
+            subcategory="{name}",
+            labels={"result": "DoE response surface"},
+        ),
     log:
         "results/logs/calibrated/calibrated_doe/{name}.log",
     benchmark:
@@ -81,7 +93,13 @@ rule calibrated_bayesopt:
         model="results/calibrated/{name}/model.json",
     output:
         result="results/calibrated/{name}/bayesopt.json",
-        figure="results/calibrated/{name}/bayesopt.png",
+        figure=report(
+            "results/calibrated/{name}/bayesopt.png",
+            caption="../report/bayesopt.rst",
+            category="7. Calibrated model",
+            subcategory="{name}",
+            labels={"result": "Bayesian optimisation on DEM"},
+        ),
     log:
         "results/logs/calibrated/calibrated_bayesopt/{name}.log",
     benchmark:
@@ -173,8 +191,20 @@ rule calibrated_inverse:
         measured=lambda w: config["measured"][w.name],
     output:
         result="results/calibrated/{name}/inverse.json",
-        paths="results/calibrated/{name}/inverse_paths.png",
-        deposits="results/calibrated/{name}/inverse_deposits.png",
+        paths=report(
+            "results/calibrated/{name}/inverse_paths.png",
+            caption="../report/inverse_paths.rst",
+            category="7. Calibrated model",
+            subcategory="{name}",
+            labels={"result": "GNS inverse design paths"},
+        ),
+        deposits=report(
+            "results/calibrated/{name}/inverse_deposits.png",
+            caption="../report/inverse_deposits.rst",
+            category="7. Calibrated model",
+            subcategory="{name}",
+            labels={"result": "GNS deposits"},
+        ),
     log:
         "results/logs/calibrated/calibrated_inverse/{name}.log",
     benchmark:
@@ -234,8 +264,20 @@ rule calibrated:
         diagnosis=lambda w: (f"results/diagnosis/{w.name}/diagnosis.json" if config["diagnosis"]["enabled"] else []),
     output:
         result="results/calibrated/{name}/calibrated.json",
-        figure="results/calibrated/{name}/calibrated.png",
-        prediction="results/calibrated/{name}/prediction.png",
+        figure=report(
+            "results/calibrated/{name}/calibrated.png",
+            caption="../report/calibrated.rst",
+            category="1. The answer",
+            subcategory="{name}",
+            labels={"result": "2. validated runout curves"},
+        ),
+        prediction=report(
+            "results/calibrated/{name}/prediction.png",
+            caption="../report/prediction.rst",
+            category="1. The answer",
+            subcategory="{name}",
+            labels={"result": "3. prediction across aspect ratios"},
+        ),
     log:
         "results/logs/calibrated/calibrated/{name}.log",
     benchmark:
@@ -269,7 +311,18 @@ rule calibrated_section:
             figure=["train/loss_curve.png", "evaluation/runout_curves.png"],
         ),
     output:
-        "results/report/calibrated.md",
+        section="results/report/calibrated.md",
+        # the answer in a few lines per column, the report's first page (workflow/report/workflow.rst)
+        answers=[
+            report(
+                f"results/report/answer_{name}.html",
+                caption="../report/answer.rst",
+                category="1. The answer",
+                subcategory=name,
+                labels={"result": "1. the answer"},
+            )
+            for name in CALIBRATED_NAMES
+        ],
     log:
         "results/logs/calibrated/calibrated_section.log",
     benchmark:
@@ -283,5 +336,6 @@ rule calibrated_section:
 
 if CALIBRATED_NAMES:
     FINAL_TARGETS += expand("results/calibrated/{name}/calibrated.json", name=CALIBRATED_NAMES)
+    FINAL_TARGETS += expand("results/report/answer_{name}.html", name=CALIBRATED_NAMES)
     # the answer to the user's question comes first
     REPORT_SECTIONS.insert(0, ("The calibrated model", "results/report/calibrated.md"))

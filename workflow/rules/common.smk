@@ -1,12 +1,14 @@
 # Shared by every stage: the validated config, the case table, and the two lists each stage
 # appends to. Logic lives in pipeline/config.py (validation) and dem/grid.py (the case table);
 # this file only calls them.
+import os
 from pathlib import Path
 
 import dem.grid
 import dem.runout
 import pipeline.calibrated_gns
 import pipeline.config
+from snakemake.io import get_flag_value, is_flagged
 from snakemake.utils import min_version
 
 min_version("9.0")
@@ -142,6 +144,19 @@ def inverse_benchmarks(name):
         ]
         files["doe_validation"] = {m: [f"results/benchmarks/doe/doe_validate/{name}/{m}.tsv"] for m in DOE["validate"]}
     return files
+
+
+def report_captions():
+    """{output pattern: its caption file (relative to the working directory)} of every output
+    registered with report(). The Markdown report (report.smk) puts the same caption under each
+    figure, so a caption is written once, in workflow/report/<stem>.rst."""
+    captions = {}
+    for step in workflow.rules:
+        for path in step.output:
+            if is_flagged(path, "report") and get_flag_value(path, "report").caption is not None:
+                caption = get_flag_value(path, "report").caption.get_path_or_uri(secret_free=True)
+                captions[str(path)] = os.path.relpath(caption)
+    return captions
 
 
 def calibrated_routes(name):

@@ -27,8 +27,20 @@ rule dataset_summary:
     input:
         "results/datasets/{dataset}/metadata.json",
     output:
-        figure="results/datasets/{dataset}/summary.png",
-        cases="results/datasets/{dataset}/cases.csv",
+        figure=report(
+            "results/datasets/{dataset}/summary.png",
+            caption="../report/summary.rst",
+            category="2. DEM datasets",
+            subcategory="{dataset}",
+            labels={"result": "cases and runout curves"},
+        ),
+        cases=report(
+            "results/datasets/{dataset}/cases.csv",
+            caption="../report/cases.rst",
+            category="2. DEM datasets",
+            subcategory="{dataset}",
+            labels={"result": "case table"},
+        ),
     log:
         "results/logs/dataset/dataset_summary/{dataset}.log",
     benchmark:

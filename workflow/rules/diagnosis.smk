@@ -39,8 +39,20 @@ rule diagnosis:
         library="results/diagnosis/{name}/library.npz",
     output:
         diagnosis="results/diagnosis/{name}/diagnosis.json",
-        residuals="results/diagnosis/{name}/residuals.png",
-        candidates="results/diagnosis/{name}/candidates.png",
+        residuals=report(
+            "results/diagnosis/{name}/residuals.png",
+            caption="../report/residuals.rst",
+            category="6. Diagnosis",
+            subcategory="{name}",
+            labels={"result": "residuals"},
+        ),
+        candidates=report(
+            "results/diagnosis/{name}/candidates.png",
+            caption="../report/candidates.rst",
+            category="6. Diagnosis",
+            subcategory="{name}",
+            labels={"result": "candidate mechanisms"},
+        ),
     log:
         "results/logs/diagnosis/diagnosis/{name}.log",
     benchmark:

@@ -30,7 +30,13 @@ rule doe_design:
     input:
         measured=lambda w: config["measured"][w.name],
     output:
-        "results/doe/{name}/design.csv",
+        report(
+            "results/doe/{name}/design.csv",
+            caption="../report/design.rst",
+            category="4. DoE",
+            subcategory="{name}",
+            labels={"result": "design"},
+        ),
     log:
         "results/logs/doe/doe_design/{name}.log",
     benchmark:
@@ -50,9 +56,21 @@ rule doe_analyse:
         measured=lambda w: config["measured"][w.name],
         trajectories=expand("results/dem/doe_{{name}}/trajectories/{run}.h5", run=DOE_RUNS),
     output:
-        responses="results/doe/{name}/responses.csv",
+        responses=report(
+            "results/doe/{name}/responses.csv",
+            caption="../report/responses.rst",
+            category="4. DoE",
+            subcategory="{name}",
+            labels={"result": "responses"},
+        ),
         analysis="results/doe/{name}/analysis.json",
-        surface="results/doe/{name}/response_surface.png",
+        surface=report(
+            "results/doe/{name}/response_surface.png",
+            caption="../report/response_surface.rst",
+            category="4. DoE",
+            subcategory="{name}",
+            labels={"result": "response surfaces"},
+        ),
     log:
         "results/logs/doe/doe_analyse/{name}.log",
     benchmark:
@@ -105,7 +123,17 @@ rule doe_section:
         validation=expand("results/doe/{name}/validation/{doe_model}.h5", name=DOE_NAMES, doe_model=DOE["validate"]),
     output:
         section="results/report/doe.md",
-        runout=expand("results/doe/{name}/runout.png", name=DOE_NAMES),
+        # one report() per column: its subcategory is the column's name (this rule has no wildcard)
+        runout=[
+            report(
+                f"results/doe/{name}/runout.png",
+                caption="../report/doe_runout.rst",
+                category="4. DoE",
+                subcategory=name,
+                labels={"result": "runout before and after"},
+            )
+            for name in DOE_NAMES
+        ],
     log:
         "results/logs/doe/doe_section.log",
     benchmark:

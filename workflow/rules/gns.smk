@@ -18,8 +18,20 @@ rule gns_train:
         init=lambda w: gns_init(w.dataset),  # warm start (a calibrated model's GNS)
     output:
         model="results/gns/{dataset}/train/model_best.pt",
-        metrics="results/gns/{dataset}/train/metrics.csv",
-        figure="results/gns/{dataset}/train/loss_curve.png",
+        metrics=report(
+            "results/gns/{dataset}/train/metrics.csv",
+            caption="../report/train_metrics.rst",
+            category="3. GNS",
+            subcategory="{dataset}",
+            labels={"result": "training log"},
+        ),
+        figure=report(
+            "results/gns/{dataset}/train/loss_curve.png",
+            caption="../report/loss_curve.rst",
+            category="3. GNS",
+            subcategory="{dataset}",
+            labels={"result": "loss curve"},
+        ),
     log:
         "results/logs/gns/gns_train/{dataset}.log",
     benchmark:
@@ -70,8 +82,20 @@ rule gns_evaluate:
         ),
     output:
         summary="results/gns/{dataset}/evaluation/summary.json",
-        metrics="results/gns/{dataset}/evaluation/metrics.csv",
-        figure="results/gns/{dataset}/evaluation/runout_curves.png",
+        metrics=report(
+            "results/gns/{dataset}/evaluation/metrics.csv",
+            caption="../report/evaluation_metrics.rst",
+            category="3. GNS",
+            subcategory="{dataset}",
+            labels={"result": "test split, per case"},
+        ),
+        figure=report(
+            "results/gns/{dataset}/evaluation/runout_curves.png",
+            caption="../report/runout_curves.rst",
+            category="3. GNS",
+            subcategory="{dataset}",
+            labels={"result": "test split, runout curves"},
+        ),
     log:
         "results/logs/gns/gns_evaluate/{dataset}.log",
     benchmark:

@@ -49,8 +49,20 @@ rule inverse_design:
         doe_responses=lambda w: [f"results/doe/{w.name}/responses.csv"] if w.name in DOE_NAMES else [],
     output:
         result="results/inverse/{name}/inverse.json",
-        paths="results/inverse/{name}/paths.png",
-        deposits="results/inverse/{name}/deposits.png",
+        paths=report(
+            "results/inverse/{name}/paths.png",
+            caption="../report/paths.rst",
+            category="5. Inverse design",
+            subcategory="{name}",
+            labels={"result": "GNS inverse design paths"},
+        ),
+        deposits=report(
+            "results/inverse/{name}/deposits.png",
+            caption="../report/deposits.rst",
+            category="5. Inverse design",
+            subcategory="{name}",
+            labels={"result": "GNS deposits"},
+        ),
     log:
         "results/logs/inverse/inverse_design/{name}.log",
     benchmark:
@@ -98,7 +110,13 @@ rule inverse_bayesopt:
         metadata=lambda w: inverse_gns(w.name, "metadata"),
     output:
         result="results/inverse/{name}/bayesopt.json",
-        figure="results/inverse/{name}/bayesopt.png",
+        figure=report(
+            "results/inverse/{name}/bayesopt.png",
+            caption="../report/bayesopt.rst",
+            category="5. Inverse design",
+            subcategory="{name}",
+            labels={"result": "Bayesian optimisation on DEM"},
+        ),
         best="results/inverse/{name}/bayesopt_best.h5",
     log:
         "results/logs/inverse/inverse_bayesopt/{name}.log",
@@ -133,9 +151,27 @@ rule inverse_compare:
             else []
         ),
     output:
-        table="results/inverse/{name}/comparison.csv",
-        figure="results/inverse/{name}/comparison.png",
-        runout="results/inverse/{name}/runout.png",
+        table=report(
+            "results/inverse/{name}/comparison.csv",
+            caption="../report/comparison_table.rst",
+            category="5. Inverse design",
+            subcategory="{name}",
+            labels={"result": "routes compared (table)"},
+        ),
+        figure=report(
+            "results/inverse/{name}/comparison.png",
+            caption="../report/comparison.rst",
+            category="5. Inverse design",
+            subcategory="{name}",
+            labels={"result": "routes compared"},
+        ),
+        runout=report(
+            "results/inverse/{name}/runout.png",
+            caption="../report/inverse_runout.rst",
+            category="5. Inverse design",
+            subcategory="{name}",
+            labels={"result": "runout of every route"},
+        ),
     log:
         "results/logs/inverse/inverse_compare/{name}.log",
     benchmark:
@@ -158,7 +194,13 @@ rule inverse_recovery:
         evaluation="results/gns/{dataset}/evaluation/summary.json",
     output:
         result="results/inverse_recovery/{dataset}/recovery.json",
-        figure="results/inverse_recovery/{dataset}/recovery.png",
+        figure=report(
+            "results/inverse_recovery/{dataset}/recovery.png",
+            caption="../report/recovery.rst",
+            category="5. Inverse design",
+            subcategory="recovery on {dataset}",
+            labels={"result": "parameter recovery"},
+        ),
     log:
         "results/logs/inverse/inverse_recovery/{dataset}.log",
     benchmark:

@@ -18,7 +18,12 @@ rule runout_methods:
         rollouts=list(RUNOUT_ROLLOUTS.values()),
     output:
         study="results/runout/methods.json",
-        figure="results/runout/methods.png",
+        figure=report(
+            "results/runout/methods.png",
+            caption="../report/methods.rst",
+            category="8. Runout methods",
+            labels={"result": "runout of every packing, by method"},
+        ),
         section="results/report/runout.md",
     log:
         "results/logs/runout/runout_methods.log",

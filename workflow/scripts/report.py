@@ -7,6 +7,11 @@ from pipeline.report import assemble_report
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
 sections = list(zip(snakemake.params.titles, snakemake.input.sections))
 assemble_report(
-    sections, snakemake.params.benchmarks, snakemake.output.report, snakemake.params.title, snakemake.output.time_figure
+    sections,
+    snakemake.params.benchmarks,
+    snakemake.output.report,
+    snakemake.params.title,
+    snakemake.output.time_figure,
+    captions=snakemake.params.captions,
 )
 logging.info("report %s: %d sections", snakemake.output.report, len(sections))

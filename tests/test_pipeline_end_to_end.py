@@ -1,0 +1,410 @@
+"""The whole DAG of config/tiny_all.yaml end to end: every stage runs for real, at its smallest size.
+
+One run for the module (a copy of the workflow, tests/test_workflow.py's machinery): DEM and the
+dataset, the GNS (training, rollout, evaluation), the runout-method study, the DoE, the inverse
+design (GNS, DEM validation, Bayesian optimisation on DEM, comparison, parameter recovery), the
+diagnosis, the calibrated model (its DoE, BO and GNS routes, every route validated on 3 packings,
+the finer-scale transfer, predictions), the ParaView export and the report. The measured column
+is data/test/tiny_quartz_a2.csv, a synthetic curve in the geometry of the config's one dataset.
+The checks are of plumbing and sanity (files written, numbers finite and in range, every stage in
+the report), not of accuracy: the GNS trains 200 steps on 3 columns of 77 grains.
+
+Cost: 105 jobs of 212 s in all (their benchmark files; most of it Python start-up per job, the
+longest chain 46 s). Measured at --cores 1 on the 2-core box beside another engineer's busy process:
+218 s, and 290-340 s under heavier load; at --cores 2 about half (the DAG list-scheduled with those
+job times: 107 s), plus 7 s for the checks. E2E_CORES sets the cores (default 2).
+"""
+
+import csv
+import json
+import math
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from dem.trajectory import read_attrs, read_trajectory
+from gns.dataset import load_dataset_metadata
+from tests.test_workflow import snakemake
+
+pytestmark = pytest.mark.slow
+CONFIG = "config/tiny_all.yaml"
+NAME, DATASET = "tiny", "tiny_quartz"  # the measured entry and the dataset whose GNS calibrates it
+MODEL_DATASET = f"calibrated_{NAME}"
+CORES = int(os.environ.get("E2E_CORES", "2"))
+PNG = b"\x89PNG\r\n\x1a\n"
+# Jobs per rule of the tiny DAG: 5 dataset cases + 10 DoE runs (3 x 3 levels + 1 centre replicate)
+# through the DEM rules; one GNS on the dataset and one on the calibrated model's 3 cases; 9 routes
+# of the calibrated model validated; 7 trajectories exported (2 rollouts + their 2 DEM runs, 2 DoE
+# validations, the inverse validation).
+EXPECTED_JOBS = {
+    "dem_deck": 15,
+    "dem_packing": 15,
+    "dem_run": 15,
+    "dem_figure": 5,
+    "dataset": 1,
+    "dataset_summary": 1,
+    "dataset_section": 1,
+    "gns_train": 2,
+    "gns_rollout": 2,
+    "gns_evaluate": 2,
+    "gns_section": 1,
+    "runout_methods": 1,
+    "doe_design": 1,
+    "doe_analyse": 1,
+    "doe_validate": 2,
+    "doe_section": 1,
+    "inverse_start": 1,
+    "inverse_design": 1,
+    "inverse_validate": 1,
+    "inverse_bayesopt": 1,
+    "inverse_compare": 1,
+    "inverse_recovery": 1,
+    "inverse_section": 1,
+    "diagnosis_library": 1,
+    "diagnosis": 1,
+    "diagnosis_section": 1,
+    "calibrated_model": 1,
+    "calibrated_doe": 1,
+    "calibrated_bayesopt": 1,
+    "calibrated_case": 3,
+    "calibrated_dataset": 1,
+    "calibrated_inverse": 1,
+    "calibrated_validate": 9,
+    "calibrated": 1,
+    "calibrated_section": 1,
+    "export_vtk": 7,
+    "export_calibrated_vtk": 1,
+    "report": 1,
+    "all": 1,
+}
+CALIBRATED_ROUTES = {
+    "diagnosis-base",
+    "diagnosis-model",
+    "base-inverse",
+    "base-bayesopt",
+    "base-doe-eq9",
+    "base-doe-quadratic",
+    "model-inverse",
+    "model-doe",
+    "model-bayesopt",
+}
+REPORT_SECTIONS = [  # in report order: the answer first
+    "The calibrated model",
+    "DEM datasets",
+    "Graph-network simulator",
+    "Calibration by design of experiments (DoE)",
+    "Inverse design through the GNS and the comparison with DoE",
+    "What the simulation gets wrong: diagnosis",
+    "How the runout is read: the methods compared",
+    "Time per stage",
+]
+# stages in the time table (the report job writes its own benchmark after the table)
+STAGES = ["calibrated", "dataset", "dem", "diagnosis", "doe", "export", "gns", "inverse", "runout"]
+
+
+@pytest.fixture(scope="module")
+def run(tiny_all_run):
+    """The finished tiny DAG (tests/conftest.py, one run per session): (workflow folder, {rule:
+    jobs} Snakemake planned, wall seconds)."""
+    return tiny_all_run
+
+
+@pytest.fixture(scope="module")
+def results(run):
+    return run[0] / "results"
+
+
+def load(path: Path):
+    """A JSON file, strictly: NaN and Infinity are not JSON (a value that may be absent is null)."""
+
+    def refuse(token):
+        raise ValueError(f"{path}: {token} in JSON")
+
+    return json.loads(path.read_text(), parse_constant=refuse)
+
+
+def flatten(values):
+    for v in values:
+        if isinstance(v, list | tuple):
+            yield from flatten(v)
+        else:
+            yield v
+
+
+def finite(*values) -> bool:
+    """Every number in values (nested lists too) is a finite number, none null."""
+    flat = list(flatten(values))
+    return bool(flat) and all(isinstance(v, int | float) and math.isfinite(v) for v in flat)
+
+
+def within(params: dict, names, bounds) -> bool:
+    return all(low - 1e-9 <= params[n] <= high + 1e-9 for n, (low, high) in zip(names, bounds))
+
+
+def assert_png(path: Path):
+    assert path.is_file(), path
+    head = path.read_bytes()[:8]
+    assert head == PNG and path.stat().st_size > 10_000, f"{path}: not a drawn PNG ({path.stat().st_size} bytes)"
+
+
+def assert_trajectory(path: Path, n_frames: int | None = None):
+    trajectory = read_trajectory(path)
+    assert trajectory.positions.ndim == 3 and np.isfinite(trajectory.positions).all(), path
+    if n_frames is not None:
+        assert trajectory.n_frames == n_frames, path
+    return trajectory
+
+
+# -- the DAG ----------------------------------------------------------------------------------------
+def test_every_stage_ran_each_planned_job_and_nothing_is_left_to_do(run):
+    workdir, stats, seconds = run
+    assert {rule: stats.get(rule, 0) for rule in EXPECTED_JOBS} == EXPECTED_JOBS
+    assert seconds < 600, f"the tiny DAG took {seconds:.0f} s"
+    summary = snakemake(workdir, "--summary", configfile=CONFIG, cores=CORES).stdout
+    rows = [line.split("\t") for line in summary.strip().splitlines()[1:]]
+    assert len(rows) > 100
+    stale = [(r[0], r[4], r[5]) for r in rows if r[4] != "ok" or r[5] != "no update"]
+    assert not stale, stale  # every declared output exists and a rerun would do nothing
+    for output, *_ in rows:  # every figure a rule declares is drawn
+        if output.endswith(".png"):
+            assert_png(workdir / output)
+    results = workdir / "results"
+    for rule, count in stats.items():  # every job left its benchmark (the report's time table)
+        if rule != "all":
+            found = list(results.glob(f"benchmarks/*/{rule}.tsv")) + list(results.glob(f"benchmarks/*/{rule}/**/*.tsv"))
+            assert len(found) == count, rule
+
+
+def test_every_json_is_strict_json_and_every_trajectory_finite(results):
+    jsons = [p for p in results.rglob("*.json") if "/logs/" not in str(p)]
+    assert len(jsons) > 30
+    for path in jsons:
+        load(path)
+    trajectories = [
+        p
+        for p in results.rglob("*.h5")
+        if "/packings/" not in str(p) and not p.name.startswith(".") and "/logs/" not in str(p)
+    ]
+    # 5 dataset cases, 10 DoE runs, 2 DoE validations, 3 cases of the calibrated model's GNS, 2 GNS
+    # rollouts, the inverse design's start and validation runs, the best BO run
+    assert len(trajectories) == 25
+    for path in trajectories:
+        assert_trajectory(path)
+
+
+# -- DEM and dataset ------------------------------------------------------------------------------------
+def test_dem_and_dataset(results, run):
+    config = yaml.safe_load((run[0] / CONFIG).read_text())
+    spec = config["datasets"][DATASET]
+    meta = load_dataset_metadata(results / "datasets" / DATASET / "metadata.json")
+    assert {k: len(v) for k, v in meta["splits"].items()} == {"train": 3, "valid": 1, "test": 1}
+    assert meta["dt_frame"] == pytest.approx(spec["output_interval"])
+    assert min(meta["velocity_std"]) > 0 and min(meta["acceleration_std"]) > 0
+    cases = (results / "datasets" / DATASET / "cases.csv").read_text().splitlines()
+    assert len(cases) == spec["n_cases"] + 1 and "final_L_star" in cases[0]
+    n_frames = None
+    for k in range(spec["n_cases"]):
+        path = results / "dem" / DATASET / "trajectories" / f"case_{k:03d}.h5"
+        attrs = read_attrs(path)
+        assert attrs["engine"] == "builtin" and attrs["material"] == "quartz" and attrs["aspect_ratio"] == 2
+        n_frames = assert_trajectory(path, n_frames).n_frames
+        simulated = (n_frames - 1) * attrs["dt_frame"]
+        assert simulated == pytest.approx(spec["duration_over_tstar"] * attrs["t_star"], abs=attrs["dt_frame"])
+
+
+# -- GNS ---------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("dataset, steps", [(DATASET, 200), (MODEL_DATASET, 50)])
+def test_gns_trained_rolled_out_and_scored(results, dataset, steps):
+    gns = results / "gns" / dataset
+    assert (gns / "train" / "model_best.pt").stat().st_size > 1000
+    metrics = np.genfromtxt(gns / "train" / "metrics.csv", delimiter=",", names=True)
+    assert metrics["step"][-1] == steps and np.isfinite(metrics["train_loss"]).all()
+    validated = np.isfinite(metrics["valid_one_step_loss"])
+    assert validated.any() and np.isfinite(metrics["valid_runout_mse"][validated]).all()
+    summary = load(gns / "evaluation" / "summary.json")
+    assert summary["n_cases"] == 1 and summary["n_failed"] == 0
+    assert finite(summary["runout_mse"], summary["position_mse_m2"], summary["position_mse_d2"])
+    (case,) = summary["cases"]
+    rollout = assert_trajectory(results.parent / case["gns"])
+    assert read_attrs(results.parent / case["gns"])["engine"] == "gns"
+    assert rollout.n_frames == read_trajectory(results.parent / case["dem"]).n_frames
+
+
+def test_runout_methods(results):
+    study = load(results / "runout" / "methods.json")
+    assert study["configured"]["method"] == "dense_front_reached"
+    assert set(study["cases"]) == {f"{DATASET} case_003", f"DoE {NAME} centre"}  # the GNS test case, the DoE centre
+    assert set(study["mean"]) == {"connected_front", "dense_front", "connected_front_reached", "dense_front_reached"}
+    for name, mean in study["mean"].items():
+        assert finite(mean["scatter_mean"], mean["flicker"], mean["rerun_mse"], mean["gns_mse"]), name
+        # the runs last 2 t*: the stopping phase (t/t* > 2.5) is not reached and is left out
+        assert set(mean["scatter_by_phase"]) == {"free_fall", "spreading"}, name
+        assert finite(list(mean["scatter_by_phase"].values())), name
+
+
+# -- DoE -----------------------------------------------------------------------------------------------
+def test_doe(results):
+    doe = results / "doe" / NAME
+    analysis = load(doe / "analysis.json")
+    assert analysis["n_runs"] == analysis["n_fitted"] == 10 and analysis["failed"] == {}
+    assert finite(analysis["best_run"]["mse"], analysis["pure_error"]["std"])
+    for model in ("eq9", "quadratic"):
+        fit = analysis["models"][model]
+        assert 0 <= fit["r_squared"] <= 1 and finite(fit["rmse"]), model
+        assert finite([c["estimate"] for c in fit["coefficients"]]), model
+        assert finite([(e["F"], e["p_value"]) for e in fit["effects"]]), model
+        optimum = fit["optimum"]
+        assert within(optimum["natural"], ["friction", "restitution"], [[0.3, 0.9], [0.3, 0.9]]), model
+        assert finite(optimum["predicted"]), model
+        validation = assert_trajectory(doe / "validation" / f"{model}.h5")
+        assert read_attrs(doe / "validation" / f"{model}.h5")["friction"] == pytest.approx(
+            optimum["natural"]["friction"]
+        )
+        assert validation.n_frames > 10
+    responses = (doe / "responses.csv").read_text().splitlines()
+    assert len(responses) == 11
+
+
+# -- inverse design, validation, Bayesian optimisation, comparison, recovery ----------------------------------
+def test_inverse_design_and_its_validation(results):
+    inverse = load(results / "inverse" / NAME / "inverse.json")
+    assert inverse["names"] == ["friction", "restitution"] and len(inverse["starts"]) == 1
+    assert inverse["starts"][0]["n_iterations"] <= 2
+    assert finite(inverse["best_value"], inverse["best_runout"], inverse["start_runout"], inverse["model_error_std"])
+    assert within(dict(zip(inverse["names"], inverse["best_params"])), inverse["names"], inverse["bounds"])
+    assert len(inverse["best_runout"]) == 7  # the measured points
+    assert finite([(p["value"], p["std"], p["low"], p["high"]) for p in inverse["posterior"]["parameters"]])
+    assert inverse["geometry"]["distance"] == 0  # the dataset holds the measured column
+    assert inverse["landscape"] is None  # inverse.landscape_levels 0: none drawn (documented as null)
+    validation = read_attrs(results / "inverse" / NAME / "validation.h5")
+    assert validation["friction"] == pytest.approx(inverse["best_params"][0], rel=1e-6)
+    assert_trajectory(results / "inverse" / NAME / "start.h5")
+
+
+def test_bayesopt_on_dem(results):
+    bo = load(results / "inverse" / NAME / "bayesopt.json")
+    assert bo["dem_runs"] == len(bo["values"]) == 7 and bo["failed"] == []  # 6 initial runs, 1 chosen by EI
+    assert finite(bo["values"]) and bo["best_value"] == min(bo["values"])
+    assert within(dict(zip(bo["names"], bo["best_params"])), bo["names"], [[0.3, 0.9], [0.3, 0.9]])
+
+
+def test_comparison_of_routes(results):
+    with open(results / "inverse" / NAME / "comparison.csv", newline="") as f:
+        table = list(csv.DictReader(f))
+    methods = {row["method"] for row in table}
+    assert methods == {"start point", "GNS inverse design", "DoE (eq9)", "DoE (quadratic)", "BO on DEM"}
+    for row in table:
+        assert float(row["wall_s"]) > 0 and int(row["dem_runs"]) >= 1, row
+        if row["stage"] == "offline":  # the GNS's dataset and training: no optimum to validate
+            assert row["validated_mse"] == "" and row["friction"] == "", row
+        else:
+            mse, mu, e = (float(row[k]) for k in ("validated_mse", "friction", "restitution"))
+            assert finite(mse, mu, e) and mse >= 0 and 0.3 - 1e-9 <= mu <= 0.9 + 1e-9, row
+
+
+def test_parameter_recovery(results):
+    recovery = load(results / "inverse_recovery" / DATASET / "recovery.json")
+    assert recovery["n_cases"] == len(recovery["cases"]) == 1 and recovery["packings"] == 2
+    assert finite(recovery["mu_error_mean"], recovery["packing_std"], recovery["model_error_std"])
+    (case,) = recovery["cases"]
+    assert finite(case["truth"], case["estimate"])
+    assert all(low - 1e-9 <= x <= high + 1e-9 for x, (low, high) in zip(case["estimate"], recovery["bounds"]))
+
+
+# -- diagnosis -------------------------------------------------------------------------------------------
+def test_diagnosis(results):
+    diagnosis = load(results / "diagnosis" / NAME / "diagnosis.json")
+    assert diagnosis["cause"] in ("none", "rolling_resistance") and diagnosis["verdict"]
+    assert diagnosis["best_candidate"] == "rolling_resistance"
+    assert (diagnosis["extended"] is None) == (diagnosis["cause"] == "none")  # null: no cause named
+    assert finite(list(diagnosis["base"]["emulator"]["parameters"].values()))
+    assert finite(list(diagnosis["candidates"]["rolling_resistance"]["emulator"]["parameters"].values()))
+    assert finite(diagnosis["residuals"]["chi2"]) and 0 <= diagnosis["residuals"]["p_value"] <= 1
+    errors = diagnosis["errors"]
+    assert finite([errors[k][w] for k in ("fit_mse", "heldout_mse") for w in ("before", "after")])
+    assert diagnosis["observables"]["measured"] == pytest.approx([0.06, 0.16, 0.36, 0.6, 0.85, 1.2, 1.5])
+
+
+# -- the calibrated model ------------------------------------------------------------------------------
+def test_calibrated_model_routes_and_validations(results):
+    calibrated = results / "calibrated" / NAME
+    model = load(calibrated / "model.json")
+    # auto with one candidate: the diagnosis' cause, else its best candidate, is rolling resistance
+    assert model["model"] == "rolling_resistance"
+    names, bounds = model["parameters"], model["bounds"]
+    assert names == ["friction", "restitution", "rolling_friction"]
+    for route in ("doe", "bayesopt"):
+        result = load(calibrated / f"{route}.json")
+        assert within(result["optimum"], names, bounds) and finite(list(result["optimum"].values())), route
+    assert load(calibrated / "doe.json")["dem_runs"] == 16  # 2^3 corners + 6 faces + centre + 1 replicate
+    assert load(calibrated / "bayesopt.json")["dem_runs"] == 4
+    gns = load(calibrated / "inverse.json")
+    assert gns["names"] == names and finite(gns["best_params"], gns["best_value"])
+    assert within(dict(zip(names, gns["best_params"])), names, bounds)
+    validations = {p.stem: load(p) for p in (calibrated / "validation").glob("*.json")}
+    assert set(validations) == CALIBRATED_ROUTES
+    for key, v in validations.items():
+        assert v["key"] == key and len(v["curves"]) == 3 and v["failed"] == {}, key
+        assert finite(v["mse"], v["mse_se"], v["mean"], v["curves"]) and v["mse"] >= 0, key
+        assert within(v["parameters"], list(v["parameters"]), [bounds[names.index(n)] for n in v["parameters"]]), key
+        assert v["model"] == ("base" if key.startswith(("base-", "diagnosis-base")) else "rolling_resistance"), key
+
+
+def test_calibrated_answer_transfer_and_prediction(results):
+    answer = load(results / "calibrated" / NAME / "calibrated.json")
+    routes = {r["key"]: r for r in answer["routes"]}
+    assert set(routes) == CALIBRATED_ROUTES
+    best = min((r for r in routes.values() if r["model"] == "rolling_resistance"), key=lambda r: r["mse"])
+    assert answer["answer"] == best["route"] and answer["validation_packings"] == 3
+    for r in routes.values():
+        assert finite(r["versus_answer"]["mse_difference"], r["versus_answer"]["se"]), r["key"]
+    assert finite(answer["gns_vs_doe"]["mse_difference"], answer["gns_vs_doe"]["se"])
+    transfer = answer["transfer"]  # finer_size_scale 3
+    assert finite(transfer["mse"], transfer["curves"]) and transfer["failed"] == {}
+    prediction = answer["prediction"]
+    assert prediction["aspect_ratios"] == [1.0, 3.0] and prediction["failed"] == {}
+    assert finite(prediction["final_runout"], prediction["final_height"])
+    assert prediction["final_runout"][0] < prediction["final_runout"][1]  # a taller column runs out further
+    for key in ("intervals", "gns_intervals"):
+        assert [p["name"] for p in answer[key]] == answer["parameters"]
+        assert finite([(p["value"], p["low"], p["high"]) for p in answer[key]]), key
+
+
+# -- export and report -------------------------------------------------------------------------------
+def test_paraview_export(results):
+    folders = [
+        f"gns/{DATASET}/rollouts",
+        f"gns/{MODEL_DATASET}/rollouts",
+        f"dem/{DATASET}/trajectories",
+        f"dem/{MODEL_DATASET}/trajectories",
+        f"doe/{NAME}/validation/eq9",
+        f"doe/{NAME}/validation/quadratic",
+        f"inverse/{NAME}/validation",
+        f"calibrated/{NAME}",
+    ]
+    for folder in folders:
+        collections = list((results / "vtk" / folder).rglob("*.pvd"))
+        assert collections, folder
+        for pvd in collections:
+            files = re.findall(r'file="([^"]+)"', pvd.read_text())
+            assert len(files) > 10 and all((pvd.parent / f).stat().st_size > 0 for f in files), pvd
+
+
+def test_report_names_every_stage(results):
+    report = (results / "report.md").read_text()
+    headings = re.findall(r"^## (.+)$", report, re.M)
+    assert headings == REPORT_SECTIONS
+    for title in REPORT_SECTIONS[:-1]:  # each stage's section has content, not only its heading
+        body = report.split(f"## {title}\n", 1)[1].split("\n## ", 1)[0]
+        assert len(body.strip()) > 100, title
+    for stage in STAGES:  # the time table: every stage's jobs
+        assert re.search(rf"^\| \*\*{stage}\*\* \| all \| \d+ \|", report, re.M), stage
+    links = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", report)
+    assert len(links) > 10
+    for link in links:
+        assert_png(results / link)
+    assert not re.search(r"\bnan\b", report, re.I)  # a value absent is said so, not printed as nan
