@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from dem.atomic import StrPath, write_text
-from pipeline.calibrated import _se, _span
+from pipeline.calibrated import format_se, format_span
 
 CELL = "padding: 2px 10px 2px 0; text-align: left; vertical-align: top"
 FIRST_SENTENCE = re.compile(r"(?<=[.:])\s+(?=[A-Z])")
@@ -45,9 +45,9 @@ def answer_html(result: dict, figure: StrPath | None = None) -> str:
         f"<p><b>Which parameters</b> (route: {e(answer['route'])}):</p>",
         _parameter_table(result, answer),
         f"<p><b>How well.</b> DEM runs at these parameters reproduce the measured runout "
-        f"({e(result['column'])}) with MSE <b>{answer['mse']:.3g}</b> &plusmn; {_se(answer.get('mse_se'))} "
+        f"({e(result['column'])}) with MSE <b>{answer['mse']:.3g}</b> &plusmn; {format_se(answer.get('mse_se'))} "
         f"(jackknife SE) on the mean L* of {n_ran} packings the calibration never saw; each packing "
-        f"alone {_span(answer['mse_each'])}.{_transfer(result, answer)}</p>",
+        f"alone {format_span(answer['mse_each'])}.{_transfer(result, answer)}</p>",
         f"<p><b>What it cost.</b> This route: {_runs(answer)} DEM runs and "
         f"{_duration(answer['calibration_seconds'])} to calibrate ({result['engine']} engine, size_scale "
         f"{result['size_scale']:g}). Every route, validated on the same packings:</p>",
@@ -96,7 +96,7 @@ def _route_table(result: dict, answer: dict) -> str:
             html.escape(route["route"]),
             html.escape(str(_runs(route))),
             _duration(route["calibration_seconds"]),
-            f"{route['mse']:.3g} &plusmn; {_se(route.get('mse_se'))}",
+            f"{route['mse']:.3g} &plusmn; {format_se(route.get('mse_se'))}",
         ]
         weight = "font-weight: bold; " if route is answer else ""
         rows.append("<tr>" + "".join(f'<td style="{weight}{CELL}">{c}</td>' for c in cells) + "</tr>")

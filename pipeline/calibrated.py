@@ -405,7 +405,7 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
             "",
             f"**{parameters}** (route: {answer['route']}), validated runout MSE **{answer['mse']:.3g}** "
             f"on the mean of {len(answer['seeds']) - len(answer['failed'])} packings "
-            f"(each packing alone: {_span(answer['mse_each'])}).",
+            f"(each packing alone: {format_span(answer['mse_each'])}).",
             "",
             f"Why this model: {result['why']}",
             "",
@@ -442,9 +442,9 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
             versus = route.get("versus_answer") or {}
             lines.append(
                 f"| {route['route']} | {values} | {runs} | {route['calibration_seconds']:.0f} s | "
-                f"{route['mse']:.4g} +- {_se(route.get('mse_se'))} | "
-                f"{versus.get('mse_difference', math.nan):+.3g} +- {_se(versus.get('se'))} | "
-                f"{_span(route['mse_each'])} | {failed} | {route['seconds']:.0f} s |"
+                f"{route['mse']:.4g} +- {format_se(route.get('mse_se'))} | "
+                f"{versus.get('mse_difference', math.nan):+.3g} +- {format_se(versus.get('se'))} | "
+                f"{format_span(route['mse_each'])} | {failed} | {route['seconds']:.0f} s |"
             )
         lines += [
             "",
@@ -464,7 +464,7 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
                 verdict = "the GNS route is better." if versus["mse_difference"] < 0 else "the DoE route is better."
             lines += [
                 f"**GNS against DoE** (the paper's claim): validated MSE of the GNS route minus the DoE route's "
-                f"{versus['mse_difference']:+.3g} +- {_se(versus['se'])} (paired), with "
+                f"{versus['mse_difference']:+.3g} +- {format_se(versus['se'])} (paired), with "
                 f"{versus['gns_dem_runs']} DEM runs against {versus['doe_dem_runs']}: {verdict}",
                 "",
             ]
@@ -517,7 +517,7 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
             )
             lines += [
                 f"**Scale transfer.** The same parameters one size_scale finer ({transfer['route']}): validated "
-                f"MSE **{transfer['mse']:.3g}** (each packing {_span(transfer['mse_each'])}) against "
+                f"MSE **{transfer['mse']:.3g}** (each packing {format_span(transfer['mse_each'])}) against "
                 f"{answer['mse']:.3g} at size_scale {result['size_scale']:g}: {verdict}",
                 "",
             ]
@@ -541,11 +541,13 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _se(value: float | None) -> str:
+def format_se(value: float | None) -> str:
+    """A standard error as the report writes it ("n/a" where there is none)."""
     return f"{value:.2g}" if value is not None and math.isfinite(value) else "n/a"
 
 
-def _span(values: Sequence[float]) -> str:
+def format_span(values: Sequence[float]) -> str:
+    """The range of the finite values, "low-high" ("none ran" without any)."""
     finite = [v for v in values if math.isfinite(v)]
     return f"{min(finite):.3g}-{max(finite):.3g}" if finite else "none ran"
 
