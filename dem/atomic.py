@@ -1,4 +1,4 @@
-"""Atomic output: write to a temporary file beside the target, then rename over it.
+"""Atomic output: write to a temporary file (or folder) beside the target, then rename over it.
 
 A crash mid-write leaves the temporary file (removed on error) and never a half-written target
 that a later stage or Snakemake could take as complete.
@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -32,6 +33,39 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+@contextlib.contextmanager
+def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary folder beside the folder `path`; on success it takes `path`'s place (a
+    previous folder there is swapped out and removed, and put back if the rename fails), on error
+    it is removed. The caller checks beforehand that whatever is at `path` may be replaced."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:
+        yield tmp
+        _replace_dir(tmp, path)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+
+
+def _replace_dir(tmp: Path, path: Path) -> None:
+    """Rename the finished folder `tmp` to `path`, replacing a previous folder there."""
+    if not path.exists():
+        os.replace(tmp, path)
+        return
+    old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
+    os.replace(path, old / path.name)
+    try:
+        os.replace(tmp, path)
+    except BaseException:
+        os.replace(old / path.name, path)  # put the previous folder back
+        raise
+    finally:
+        with contextlib.suppress(OSError):
+            shutil.rmtree(old)
 
 
 def write_text(path: str | os.PathLike, text: str) -> None:

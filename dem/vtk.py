@@ -19,10 +19,7 @@ file (the `.pvd` last) is complete. An existing folder is replaced only when it 
 
 from __future__ import annotations
 
-import contextlib
 import os
-import shutil
-import tempfile
 import xml.etree.ElementTree as ET
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -31,6 +28,7 @@ from pathlib import Path
 import meshio
 import numpy as np
 
+from dem.atomic import atomic_dir
 from dem.trajectory import Trajectory, read_trajectory
 
 EXPORT_SUFFIXES = (".vtu", ".pvd")  # what an export folder holds (and all it may hold to be replaced)
@@ -114,19 +112,13 @@ def export_trajectory(
     velocity = frame_velocities(trajectory.positions, float(trajectory.attrs["dt_frame"]))
     digits = max(4, len(str(trajectory.n_frames - 1)))
     files = [f"{name}_{k:0{digits}d}.vtu" for k in range(trajectory.n_frames)]
-    outdir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{outdir.name}.", suffix=".tmp", dir=outdir.parent))
-    try:
+    with atomic_dir(outdir) as tmp:
         for k, file in enumerate(files):
             mesh = frame_mesh(trajectory.positions[k], velocity[k], trajectory.radius, trajectory.particle_type)
             meshio.write(tmp / file, mesh, file_format="vtu")
             if progress is not None:
                 progress((k + 1) / len(files))
         (tmp / f"{name}.pvd").write_text(pvd_text(files, times))  # last: the collection lists complete frames
-        _replace_dir(tmp, outdir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return VtkExport(pvd=outdir / f"{name}.pvd", frames=[outdir / f for f in files], times=times)
 
 
@@ -161,20 +153,3 @@ def _check_replaceable(outdir: Path) -> None:
                 f"{outdir}: holds {sorted(foreign)[:5]}, not only a previous export's .vtu/.pvd files; "
                 "give an empty or new folder"
             )
-
-
-def _replace_dir(tmp: Path, outdir: Path) -> None:
-    """Rename the finished folder `tmp` to `outdir`, replacing a previous export there."""
-    if not outdir.exists():
-        os.replace(tmp, outdir)
-        return
-    old = Path(tempfile.mkdtemp(prefix=f".{outdir.name}.", suffix=".old", dir=outdir.parent))
-    os.replace(outdir, old / outdir.name)
-    try:
-        os.replace(tmp, outdir)
-    except BaseException:
-        os.replace(old / outdir.name, outdir)  # put the previous export back
-        raise
-    finally:
-        with contextlib.suppress(OSError):
-            shutil.rmtree(old)

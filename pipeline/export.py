@@ -14,18 +14,16 @@ from __future__ import annotations
 
 import json
 import logging
-import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-from calibration.calibrated import FAILURES, CalibrationError, read_model
+from calibration.calibrated import CalibrationError, read_model
 from calibration.design_runs import SimulationSettings
 from calibration.measured import load_column
 from calibration.objective import simulated_runout_at
-from dem.atomic import StrPath
-from dem.engines import simulate_case
+from dem.atomic import StrPath, atomic_dir
+from dem.engines import FAILURES, simulate_case
 from dem.progress import progress_logger
 from dem.runout import RunoutMethod
 from dem.vtk import ExportError, VtkExport, export_file, export_trajectory
@@ -69,10 +67,8 @@ def export_calibrated_vtk(
     runout = RunoutMethod.from_config(result["runout"])
     theta = [route["parameters"][name] for name in model.parameter_names]
     outdir = Path(outdir)
-    outdir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{outdir.name}.", suffix=".tmp", dir=outdir.parent))
     exports = []
-    try:
+    with atomic_dir(outdir) as tmp:
         for seed, recorded in zip(route["seeds"], route["curves"]):
             if recorded is None:
                 log.warning("%s: packing %d failed in the validation; not exported", result["answer"], seed)
@@ -99,10 +95,6 @@ def export_calibrated_vtk(
             outdir.rmdir()
         if outdir.exists():  # Snakemake removes a directory output before its job runs
             raise ExportError(f"{outdir}: exists and is not empty; remove it first")
-        tmp.rename(outdir)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
 
     def moved(path: Path) -> Path:
         return outdir / path.relative_to(tmp)
