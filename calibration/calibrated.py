@@ -241,11 +241,13 @@ def model_runout(
     seed: int,
     runout: RunoutMethod,
     dem_config: dict | None,
+    progress: Callable[[float], None] | None = None,
 ) -> np.ndarray:
     """L* [K] at the measured t/t* of one DEM run of `model` at theta [p] on packing `seed`, with the
-    engine of dem_config (the config's dem section). Raises one of FAILURES when the run fails."""
+    engine of dem_config (the config's dem section). Raises one of FAILURES when the run fails.
+    progress: callable(fraction of the run done) or None."""
     case = model.case(column, theta, settings, seed)
-    trajectory = simulate_case(case, dem_config)
+    trajectory = simulate_case(case, dem_config, progress=progress)
     t, curve = runout.curve(trajectory)
     return simulated_runout_at(t, curve, column)
 
@@ -290,15 +292,18 @@ def validate(
     n_packings: int = 4,
     dem_runs: int = 0,
     calibration_seconds: float = 0.0,
+    progress: Callable[[float], None] | None = None,
 ) -> Validation:
     """The model at theta [p] run on n_packings validation packings (VALIDATION_SEED0 + k); dem_runs
-    and calibration_seconds: what the route spent to find theta (reported beside the score)."""
+    and calibration_seconds: what the route spent to find theta (reported beside the score).
+    progress: callable(fraction of all the runs done) or None."""
     started = time.perf_counter()
     seeds = [VALIDATION_SEED0 + k for k in range(n_packings)]
     curves, failed = [], {}
-    for seed in seeds:
+    for k, seed in enumerate(seeds):
+        within = None if progress is None else (lambda f, k=k: progress((k + f) / n_packings))
         try:
-            curves.append(model_runout(model, column, theta, settings, seed, runout, dem_config).tolist())
+            curves.append(model_runout(model, column, theta, settings, seed, runout, dem_config, within).tolist())
         except FAILURES as exc:  # reported with its packing, never averaged in
             log.warning("%s: validation run on packing %d failed: %s", route, seed, exc)
             curves.append(None)
@@ -391,12 +396,14 @@ def predict(
     runout: RunoutMethod,
     dem_config: dict | None,
     seed: int = VALIDATION_SEED0,
+    progress: Callable[[float], None] | None = None,
 ) -> Prediction:
     """The model at theta [p] on columns of `column`'s material and L_i at each aspect ratio,
-    simulated to t/t* = PREDICTION_TSTAR on packing `seed`."""
+    simulated to t/t* = PREDICTION_TSTAR on packing `seed`. progress: callable(fraction of the
+    columns done) or None."""
     started = time.perf_counter()
     runouts, heights, failed = [], [], {}
-    for a in aspect_ratios:
+    for k, a in enumerate(aspect_ratios):
         other = replace(
             column,
             name=f"{column.name}_a{a:g}",
@@ -409,7 +416,8 @@ def predict(
             profile_std=None,
         )
         try:
-            trajectory = simulate_case(model.case(other, theta, settings, seed), dem_config)
+            within = None if progress is None else (lambda f, k=k: progress((k + f) / len(aspect_ratios)))
+            trajectory = simulate_case(model.case(other, theta, settings, seed), dem_config, progress=within)
             runouts.append(float(runout.curve(trajectory)[1][-1]))
             heights.append(final_height(trajectory.positions[-1], trajectory.radius))
         except FAILURES as exc:

@@ -29,7 +29,7 @@ from calibration.measured import MeasuredColumn
 from calibration.objective import objective
 from calibration.optimise import OptimisationHistory, PointFailed, one_at_a_time
 from dem.atomic import atomic_path, write_text
-from dem.case import CollapseCase
+from dem.case import CollapseCase, Material
 from dem.engines import FAILURES, failure_reason
 from dem.runout import RunoutMethod, runout_at
 from dem.trajectory import Trajectory
@@ -87,7 +87,7 @@ def case_like(
 ) -> CollapseCase:
     """The case of a trajectory's column and DEM model at other (mu, e) and packing seed."""
     return CollapseCase(
-        material=str(attrs["material"]),
+        material=Material.from_attrs(attrs),
         L_i=float(attrs["L_i"]),
         aspect_ratio=float(attrs["aspect_ratio"]),
         friction=friction,
@@ -153,8 +153,10 @@ def bayesopt_on_dem(
     seed: int = 0,
     names: Sequence[str] = ("friction", "restitution"),
     dem_config: dict | None = None,
+    progress: Callable[[float], None] | None = None,
 ) -> tuple[OptimisationHistory, Trajectory, float]:
     """GP expected-improvement BO where every objective call is a DEM run of the measured column.
+    progress: callable(fraction of the budget run), e.g. dem.progress.progress_logger.
 
     Returns (OptimisationHistory, best trajectory, seconds spent). The best run's objective is a
     validated value by construction: it is a DEM run with the same settings as the validation runs.
@@ -163,7 +165,7 @@ def bayesopt_on_dem(
     """
     if not 2 <= budget <= BO_MAX_RUNS:
         raise ComparisonError(f"bayesopt budget {budget}: must be between 2 and {BO_MAX_RUNS} DEM runs")
-    best = {"value": math.inf, "trajectory": None}
+    best = {"value": math.inf, "trajectory": None, "runs": 0}
 
     def dem_objective(params):
         try:
@@ -173,6 +175,10 @@ def bayesopt_on_dem(
             value = objective(trajectory, measured, runout)
         except FAILURES as exc:
             raise PointFailed(failure_reason(exc)) from exc
+        finally:
+            best["runs"] += 1
+            if progress is not None:
+                progress(best["runs"] / budget)
         if value < best["value"]:
             best.update(value=value, trajectory=trajectory)
         return value

@@ -4,6 +4,9 @@ The emulator (calibration/scoring.py) is cheap but not exact: its error near an 
 the noise. So the diagnosis runs the DEM at a model's calibrated parameters and at each held-out
 fold's, on a few packings (`dem_runs` -> `DEMRuns`), and scores the model by those runs
 (`dem_evaluate` -> `DEMScore`): chi^2, AIC, BIC, p-value, the runout objective, and held-out chi^2.
+The held-out chi^2 is calibration/scoring.py's `predictive_chi2`, the one the emulator's score uses:
+the DEM runs at a fold's parameters against the held-out data, with the noise and the fold fit's
+parameter uncertainty (its box-bounded Laplace covariance, propagated by the emulator's Jacobian).
 
 A run that fails (dem.engines.FAILURES) is recorded with its packing and reason (`failed_runs`)
 and left out: the means are over the runs that ran, never over a failed one. When every packing
@@ -24,7 +27,7 @@ from calibration.design_runs import DEMRunner, Model
 from calibration.objective import runout_mse
 from calibration.observables import Observables
 from calibration.residuals import DiagnosisError, Fold, NoiseModel
-from calibration.scoring import ModelScore, aic, bic, p_value
+from calibration.scoring import ModelScore, aic, bic, p_value, predictive_chi2
 from dem.engines import FAILURES, failure_reason
 from dem.runout import RunoutMethod
 from dem.trajectory import Trajectory
@@ -50,6 +53,10 @@ class DEMRuns:
     seconds: float  # wall time of all these runs
     fold_packings: list[list[int]]  # [folds][R'] packings of the rows of folds
     failed: list[dict]  # the runs that failed: each {held_out ("" for the fit), parameters, packing, reason}
+    # [folds][q, p] and [folds][p, p]: the emulator's Jacobian at each fold's parameters and the fold
+    # fit's box-bounded covariance (ModelScore's); None: no parameter uncertainty (plug-in held-out chi^2)
+    fold_jacobian: list[np.ndarray] | None = None
+    fold_covariance: list[np.ndarray] | None = None
 
 
 @dataclass(frozen=True)
@@ -57,12 +64,15 @@ class HeldOutFold:
     """One held-out fold in DEM runs: the held-out values predicted from a fit without them."""
 
     held_out: str  # what was held out, in words (calibration/residuals.py's Fold.description)
-    chi2: float  # chi^2 of the held-out values against the noise
+    # predictive chi^2 of the held-out values (calibration/scoring.py's `predictive_chi2`): against
+    # the noise and the fold fit's parameter uncertainty
+    chi2: float
     parameters: dict[str, float]  # the parameters fitted without them
+    plugin_chi2: float | None = None  # against the noise alone, at the fold's parameters (None: not recorded)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready, keys in field order."""
-        return {"held_out": self.held_out, "chi2": self.chi2, "parameters": self.parameters}
+        return {name: getattr(self, name) for name in self.__dataclass_fields__}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> HeldOutFold:
@@ -88,7 +98,7 @@ class DEMScore:
     bic: float
     objective: float  # runout MSE against the measurement, mean over the R runs
     objective_per_packing: list[float]  # [R] runout MSE of each run
-    heldout_chi2: float  # sum over folds of chi^2 on the held-out values
+    heldout_chi2: float  # sum over folds of the predictive chi^2 of the held-out values (HeldOutFold.chi2)
     n_heldout: int  # held-out values, all folds together
     heldout_mse: float  # runout MSE on the held-out runout points (NaN: none held out)
     heldout_folds: list[HeldOutFold]  # [folds]
@@ -99,6 +109,8 @@ class DEMScore:
     # runs that failed, left out of every number above: each {held_out ("" for the fit), parameters,
     # packing, reason}
     failed_runs: list[dict] = field(default_factory=list)
+    # sum over folds of the plug-in chi^2 (noise alone, HeldOutFold.plugin_chi2); None: not recorded
+    heldout_plugin_chi2: float | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready, keys in field order."""
@@ -182,6 +194,9 @@ def dem_runs(
         seconds=time.perf_counter() - started,
         fold_packings=fold_packings,
         failed=failed,
+        # a score without fold posteriors (a bare theta/fold_theta) is scored plug-in
+        fold_jacobian=getattr(score, "fold_jacobian", None) or None,
+        fold_covariance=getattr(score, "fold_covariance", None) or None,
     )
 
 
@@ -197,7 +212,11 @@ def dem_evaluate(runs: DEMRuns, observables: Observables, folds: list[Fold], noi
     Fit: the mean observables of the runs at the calibrated parameters against the data give chi^2
     (noise: measurement + packing scatter of the measured realisation + that of a mean of R runs),
     AIC, BIC, p-value; the objective (runout MSE) is averaged over the runs. Held out: each fold's
-    runs at the parameters fitted without it, on the held-out outputs only.
+    runs at the parameters fitted without it, on the held-out outputs only, scored by
+    `predictive_chi2`: r^T (diag(sigma^2) + J Sigma J^T)^-1 r with r the mean of the fold's runs
+    minus the data and sigma the noise of that mean, J [h, p] the emulator's Jacobian of the
+    held-out outputs at the fold's parameters and Sigma [p, p] the fold fit's box-bounded Laplace
+    covariance (`runs.fold_jacobian`, `runs.fold_covariance`; without them, Sigma = 0).
     """
     model = runs.model
     target = observables.measured
@@ -205,15 +224,23 @@ def dem_evaluate(runs: DEMRuns, observables: Observables, folds: list[Fold], noi
     sigma = noise_std(noise, len(runs.fit))  # the runs that ran: a failed one is in no mean
     mean = runs.fit.mean(axis=0)
     chi2 = float(np.sum(((mean - target) / sigma) ** 2))
-    heldout_chi2, squared, folds_out = 0.0, [], []
-    for fold, theta_k, fold_runs in zip(folds, runs.fold_theta, runs.folds):
-        fold_mean = fold_runs.mean(axis=0)
-        fold_sigma = noise_std(noise, len(fold_runs))
-        fold_chi2 = float(np.sum(((fold_mean[fold.held] - target[fold.held]) / fold_sigma[fold.held]) ** 2))
+    heldout_chi2, plugin_chi2, squared, folds_out = 0.0, 0.0, [], []
+    n_folds = len(runs.folds)
+    jacobians = runs.fold_jacobian or [None] * n_folds
+    covariances = runs.fold_covariance or [None] * n_folds
+    for fold, theta_k, fold_runs, jacobian, covariance in zip(
+        folds, runs.fold_theta, runs.folds, jacobians, covariances
+    ):
+        held = fold.held
+        residual = fold_runs.mean(axis=0)[held] - target[held]
+        fold_sigma = noise_std(noise, len(fold_runs))[held]
+        fold_chi2 = predictive_chi2(residual, fold_sigma, None if jacobian is None else jacobian[held], covariance)
+        fold_plugin = predictive_chi2(residual, fold_sigma)
         heldout_chi2 += fold_chi2
-        squared += list((fold_mean[fold.held & runout] - target[fold.held & runout]) ** 2)
+        plugin_chi2 += fold_plugin
+        squared += list(residual[runout[held]] ** 2)
         folds_out.append(
-            HeldOutFold(fold.description, fold_chi2, dict(zip(model.parameter_names, map(float, theta_k))))
+            HeldOutFold(fold.description, fold_chi2, dict(zip(model.parameter_names, map(float, theta_k))), fold_plugin)
         )
     objective = [runout_mse(r[runout], target[runout]) for r in runs.fit]
     result = DEMScore(
@@ -236,13 +263,15 @@ def dem_evaluate(runs: DEMRuns, observables: Observables, folds: list[Fold], noi
         curves=runs.curves,
         seconds=runs.seconds,
         failed_runs=runs.failed,
+        heldout_plugin_chi2=plugin_chi2,
     )
     log.info(
-        "DEM score of %s: chi2 %.1f, BIC %.1f, held-out chi2 %.1f, objective %.4g",
+        "DEM score of %s: chi2 %.1f, BIC %.1f, held-out chi2 %.1f (plug-in %.1f), objective %.4g",
         model.name,
         chi2,
         result.bic,
         heldout_chi2,
+        plugin_chi2,
         result.objective,
     )
     return result

@@ -14,8 +14,12 @@ compared on calibration/observables.py's observables, emulated by calibration/em
    an optimum can exceed the noise). So the base model and the `dem_top` best candidates are run
    in the DEM at their optima and at their folds' optima, on `n_packings` packings; fit chi^2, AIC
    and BIC (Gaussian noise of known sigma: -2 log L = chi^2 + const) and the held-out chi^2 come
-   from these runs. The runs then join the emulators (which become exact there) and, over
-   `n_rounds`, the optima are refined.
+   from these runs. The held-out chi^2, of every model alike and on the emulator too, is a
+   predictive check (calibration/scoring.py's `predictive_chi2`): r^T (C_noise + J Sigma J^T)^-1 r,
+   the fold fit's box-bounded Laplace covariance Sigma carried to the held-out values by the
+   emulator's Jacobian J, so a parameter the fold's data leave free widens its prediction. The
+   runs then join the emulators (which become exact there) and, over `n_rounds`, the optima are
+   refined.
 4. Residuals of the calibrated base model (its DEM runs), grouped by time phase, column and
    deposit region and put in words (calibration/residuals.py), and drawn
    (calibration/diagnosis_report.py).
@@ -158,12 +162,14 @@ def diagnose(
     runner: DEMRunner | None = None,
     data_warnings: Sequence[str] = (),
     name: str = "",
+    progress: Callable[[float], None] | None = None,
 ) -> Diagnosis:
     """The diagnosis of measured `columns` (`Diagnosis.to_dict()` is its JSON).
 
     library: design runs for these columns (built here when None; not modified); runner: a
     DEMRunner for them (keeps settled packings between calls). data_warnings: warnings raised
-    while reading the data (they forbid naming a cause).
+    while reading the data (they forbid naming a cause). progress: callable(fraction done) after
+    every fit of all models and every model's DEM runs, or None.
     """
     started = time.perf_counter()
     observables = Observables(columns, settings.runout)
@@ -173,7 +179,7 @@ def diagnose(
     notes += check_data(observables, library, models, noise)
     folds = held_out_folds(observables)
     library = library.copy()  # runs added while refining belong to these data, not to the shared library
-    scores, final, runs, noise = _dem_rounds(settings, models, observables, folds, library, runner, noise)
+    scores, final, runs, noise = _dem_rounds(settings, models, observables, folds, library, runner, noise, progress)
     dem = {n: dem_evaluate(r, observables, folds, noise) for n, r in runs.items()}
     notes += [  # recorded in the library (failed) and in each model's DEM score (failed_runs) too
         f"design run of {f['model']} at {f['parameters']} on packing {f['packing']} failed and is left out: "
@@ -272,20 +278,31 @@ def _dem_rounds(
     library: Library,
     runner: DEMRunner,
     noise: NoiseModel,
+    progress: Callable[[float], None] | None = None,
 ) -> tuple[dict[str, ModelScore], dict[str, ModelScore], dict[str, DEMRuns], NoiseModel]:
     """The DEM scoring rounds: each runs the base model and the `dem_top` candidates (emulator BIC)
     in the DEM at their emulator optima; the runs join `library` (modified), and the models are
     fitted again. Returns (the fits the last round ran, the final fits, the last round's runs, the
-    noise model with their packing scatter)."""
+    noise model with their packing scatter). progress: callable(fraction of the fits and DEM runs
+    done) or None."""
     by_name = {m.name: m for m in models}
+    n_dem = 1 + min(settings.dem_top, len(models) - 1)  # models run in the DEM per round
+    steps, done = 1 + settings.n_rounds * (n_dem + 1), [0]
+
+    def step():
+        done[0] += 1
+        if progress is not None:
+            progress(done[0] / steps)
+
     final = _score_all(models, library, observables, noise, folds, settings.seed)
+    step()
     for round_ in range(settings.n_rounds):
         scores = final  # the emulator optima this round runs in the DEM (reported with its DEM scores)
         leading = sorted((scores[m.name] for m in models[1:]), key=lambda s: s.bic)[: settings.dem_top]
-        runs = {
-            n: dem_runs(runner, by_name[n], scores[n], folds, settings.n_packings, round_ * settings.n_packings)
-            for n in ["base"] + [s.model for s in leading]
-        }
+        runs = {}
+        for n in ["base"] + [s.model for s in leading]:
+            runs[n] = dem_runs(runner, by_name[n], scores[n], folds, settings.n_packings, round_ * settings.n_packings)
+            step()
         # the runs join their models' emulators (exact there from now on), and their repeats on
         # different packings join the estimate of the packing scatter
         for n, r in runs.items():
@@ -297,6 +314,7 @@ def _dem_rounds(
         # rescored on the emulators that now hold these runs: the next round's optima, and after
         # the last round the emulators' final word, which the DEM ranking must agree with
         final = _score_all(models, library, observables, noise, folds, settings.seed)
+        step()
     return scores, final, runs, noise
 
 

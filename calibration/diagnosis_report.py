@@ -246,7 +246,7 @@ def candidates_figure(result: Diagnosis) -> plt.Figure:
     ax.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v:g}"))
     ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
     ax.set(
-        xlabel="held-out χ² against the noise (dimensionless; log scale; lower is better)",
+        xlabel="held-out χ² against the noise + the fold fit's parameter spread (dimensionless; log; lower is better)",
         title=f"held-out χ² ({best_dem.n_heldout} values predicted from fits without them)",
     )
 

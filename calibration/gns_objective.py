@@ -21,6 +21,7 @@ a mean or a maximum, an exact running maximum for the "_reached" methods.
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 import warnings
@@ -32,9 +33,12 @@ import torch
 
 from calibration.measured import MeasuredColumn
 from calibration.objective import runout_mse
+from dem.case import get_material
 from dem.runout import RunoutError, RunoutMethod
 from dem.trajectory import Trajectory
 from gns.runout import frames_needed, soft_runout_at
+
+log = logging.getLogger(__name__)
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
@@ -110,7 +114,7 @@ def nearest_dataset(measured: MeasuredColumn, rows: list[dict], datasets: Collec
     """
     best, best_distance = None, math.inf
     for row in rows:
-        if row["dataset"] not in datasets or row["split"] != "train" or row["material"] != measured.material:
+        if row["dataset"] not in datasets or row["split"] != "train" or material_name(row) != measured.material:
             continue
         distance = max(
             abs(float(row["aspect_ratio"]) - measured.aspect_ratio) / measured.aspect_ratio,
@@ -126,6 +130,11 @@ def nearest_dataset(measured: MeasuredColumn, rows: list[dict], datasets: Collec
     return best
 
 
+def material_name(row: dict) -> str:
+    """The name of a case-table row's material (a table name, or a mapping of a material's fields)."""
+    return get_material(row["material"]).name
+
+
 def check_geometry_of_dataset(measured: MeasuredColumn, rows: list[dict], dataset: str) -> dict:
     """check_geometry from case-table rows (before any DEM run): the dataset's parameter ranges
     over all its rows (as gns.dataset computes them) and its training rows as the training set."""
@@ -133,7 +142,7 @@ def check_geometry_of_dataset(measured: MeasuredColumn, rows: list[dict], datase
     ranges = {
         k: [min(float(r[k]) for r in mine), max(float(r[k]) for r in mine)] for k in ("L_i", "H_i", "aspect_ratio")
     }
-    metadata = {"materials": sorted({str(r["material"]) for r in mine}), "parameter_ranges": ranges}
+    metadata = {"materials": sorted({material_name(r) for r in mine}), "parameter_ranges": ranges}
     return check_geometry(measured, metadata, [r for r in mine if r["split"] == "train"])
 
 
@@ -344,13 +353,34 @@ class GNSObjective:
             self._runouts.update((self._key(points[j]), r) for j, r in zip(missing, fresh))
         return np.array([self._runouts[self._key(p)] for p in points])
 
-    def values(self, points: ArrayLike) -> np.ndarray:
-        """Objective [G] at points [G, P], no gradient."""
+    def _or_nan(self, points: np.ndarray, evaluate, with_gradient: bool) -> tuple:
+        """evaluate(points [G, P]) -> (values [G],) or (values [G], gradients [G, P]), with NaN for
+        every point that fails (its rollout raised, or its objective is not finite): a batch that
+        fails is evaluated point by point, so one diverged rollout does not take its batch with it."""
+        try:
+            return evaluate(points)
+        except InverseDesignError as exc:
+            if len(points) > 1:
+                parts = [self._or_nan(point[None], evaluate, with_gradient) for point in points]
+                return tuple(np.concatenate(column) for column in zip(*parts))
+            log.warning("%s (a failed point: NaN)", exc)
+            nan = (np.full(1, np.nan),)
+            return nan + (np.full((1, len(self.design_names)), np.nan),) if with_gradient else nan
+
+    def values(self, points: ArrayLike, allow_failed: bool = False) -> np.ndarray:
+        """Objective [G] at points [G, P], no gradient. allow_failed: NaN (logged with the reason) at a
+        point whose rollout fails or whose objective is not finite, instead of an InverseDesignError
+        (the optimiser records it as a failed point and goes on)."""
+        if allow_failed:
+            return self._or_nan(np.atleast_2d(points), lambda p: (self.values(p),), False)[0]
         runout = self.runout_values(points)
         return self._checked(np.array([runout_mse(r, self.measured.runout) for r in runout]), points)
 
-    def values_and_gradients(self, points: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-        """(objective [G], d objective / d theta [G, P]) by backpropagation through the rollout."""
+    def values_and_gradients(self, points: ArrayLike, allow_failed: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """(objective [G], d objective / d theta [G, P]) by backpropagation through the rollout;
+        allow_failed: NaN value and gradient at a point that fails (as `values`)."""
+        if allow_failed:
+            return self._or_nan(np.atleast_2d(points), self.values_and_gradients, True)
         theta = self._theta(points, requires_grad=True)
         with torch.enable_grad():
             runout = self.runout(theta)

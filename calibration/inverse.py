@@ -25,19 +25,32 @@ reported as not identifiable.
 from __future__ import annotations
 
 import logging
+import math
 import os
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from calibration.bayesopt import BOSettings, bayesian_optimisation
 from calibration.gns_objective import DESIGN_NAMES, GNSObjective, InverseDesignError, check_geometry
-from calibration.lbfgsb import FD_STEP, FTOL, GTOL, PAPER_START, LBFGSBSettings, multistart_lbfgsb, starting_points
+from calibration.lbfgsb import (
+    FD_STEP,
+    FTOL,
+    GTOL,
+    PAPER_START,
+    LBFGSBSettings,
+    StartResult,
+    multistart_lbfgsb,
+    starting_points,
+)
 from calibration.measured import MeasuredColumn
 from calibration.objective import runout_mse
+from calibration.optimise import OptimisationResult, PointFailed
 from calibration.uncertainty import LaplacePosterior, finite_difference_jacobian, laplace_posterior
+from dem.progress import progress_logger
 from dem.runout import RunoutMethod
 from dem.trajectory import Trajectory
 from gns.simulator import LearnedSimulator
@@ -54,6 +67,7 @@ ROUGHNESS_RADIUS = 2e-3
 # Two opposite diagonal probes: each probe is a whole rollout of online time (~10 CPU-s at 589
 # grains), and the spread of three values already shows noise against the Jacobian's trend.
 ROUGHNESS_PROBES = 2
+OPTIMISERS = ("lbfgsb", "bayesopt")  # inverse_design's optimiser
 
 
 # -- bounds ------------------------------------------------------------------------------------------
@@ -118,6 +132,9 @@ class InverseResult:
     roughness: dict | None = None  # objective near the optimum (see posterior_at)
     start_packing_std: list | None = None  # packing scatter of L* [K] joined to the noise model
     runout: dict | None = None  # the runout method (dem.runout.RunoutMethod.to_config) every L* was read by
+    # points whose rollout failed or was not finite: [{params, reason, seconds, start, iteration}]
+    failed_points: list = field(default_factory=list)
+    optimiser: str = "lbfgsb"  # OPTIMISERS
 
     def to_dict(self) -> dict:
         data = {
@@ -140,6 +157,8 @@ class InverseResult:
                 "roughness",
                 "start_packing_std",
                 "runout",
+                "failed_points",
+                "optimiser",
             )
         }
         data["starts"] = [s.to_dict() for s in self.starts]
@@ -239,8 +258,18 @@ def inverse_design(
     start_packing_std: ArrayLike | None = None,
     design_names: Sequence[str] = DESIGN_NAMES,
     runout: RunoutMethod | None = None,
+    optimiser: str = "lbfgsb",
+    budget: int = 40,
+    n_initial: int = 12,
 ) -> InverseResult:
     """Calibrate design_names against `measured` through the GNS `simulator`.
+
+    optimiser: "lbfgsb" (the paper's: multi-start L-BFGS-B on the gradient, `gradient`) or
+    "bayesopt": Bayesian optimisation of the GNS objective itself (`budget` points, the first
+    `n_initial` a Latin hypercube; calibration.bayesopt), no gradient. The exact gradient of a
+    rollout of a chaotic collapse grows with its length and describes the objective's roughness,
+    not its trend (benchmarks/chaotic_gradient.py), so L-BFGS-B's line searches fail at its first
+    step; a Gaussian process with a noise term smooths over the roughness instead.
 
     start: DEM trajectory of the measured column giving the first C frames, or several packings of
     it (the objective then scores their mean L*; see GNSObjective);
@@ -267,8 +296,17 @@ def inverse_design(
         objective.n_packings,
     )
 
-    def evaluate(points):
-        return objective.values_and_gradients(points) if gradient == "autograd" else objective.values(points)
+    def evaluate(points):  # a point whose rollout fails is NaN: the optimiser records it and goes on
+        if gradient == "autograd":
+            return objective.values_and_gradients(points, allow_failed=True)
+        return objective.values(points, allow_failed=True)
+
+    # the most points the starts can ask for (each start stops at max_evaluations; with finite
+    # differences each evaluation is a stencil of P + 1): the share of it done is the job's progress
+    stencil = 1 if gradient == "autograd" else len(names) + 1
+    most_points = len(starts) * (max_evaluations or 2 * max_iterations) * stencil
+    done = progress_logger(f"inverse design of {measured.name}: points of at most {most_points}", log)
+    asked = [0]
 
     def progress(batch, seconds, values):
         log.info(
@@ -278,12 +316,21 @@ def inverse_design(
             seconds,
             " ".join(f"{v:.4g}" for v in values),
         )
+        asked[0] += len(values)
+        done(min(asked[0] / most_points, 1.0))
 
     t0 = time.perf_counter()
     widths = np.array([high - low for low, high in bounds])
     scale = np.maximum(widths / PAPER_WIDTH, 1.0)  # mu and e as the paper's; a wide range in proportion
-    settings = LBFGSBSettings(starts, gradient, fd_step, max_iterations, ftol, gtol, max_evaluations, scale)
-    optimum = multistart_lbfgsb(evaluate, bounds, names, settings, progress)
+    if optimiser == "bayesopt":
+        budget_text = f"inverse design of {measured.name}: Bayesian optimisation, {budget} GNS points"
+        optimum = bayesopt_on_gns(objective, bounds, names, BOSettings(budget, n_initial, seed), budget_text)
+        gradient = "none (Bayesian optimisation)"
+    elif optimiser == "lbfgsb":
+        settings = LBFGSBSettings(starts, gradient, fd_step, max_iterations, ftol, gtol, max_evaluations, scale)
+        optimum = multistart_lbfgsb(evaluate, bounds, names, settings, progress)
+    else:
+        raise InverseDesignError(f"optimiser must be one of {OPTIMISERS}, got {optimiser!r}")
     t1 = time.perf_counter()
     posterior, best_runout, roughness = posterior_at(
         objective,
@@ -295,7 +342,10 @@ def inverse_design(
     )
     t2 = time.perf_counter()
     online = dict(objective.timing)  # where the online time went: rollouts, forward, backward
-    start_runout = objective.runout_values(starts[:1])[0]
+    try:  # NaN (JSON null) where the first start's rollout failed
+        start_runout = objective.runout_values(starts[:1])[0]
+    except InverseDesignError:
+        start_runout = np.full(len(measured.runout), np.nan)
     grid = landscape(objective, bounds, landscape_levels) if landscape_levels else None
     t3 = time.perf_counter()
     for p in posterior.parameters:
@@ -316,7 +366,7 @@ def inverse_design(
         best_params=list(optimum.params),
         best_value=optimum.value,
         best_runout=best_runout.tolist(),
-        start_runout=start_runout.tolist(),
+        start_runout=[None if not np.isfinite(v) else float(v) for v in start_runout],
         posterior=posterior.to_dict(),
         geometry=geometry,
         seconds={
@@ -337,7 +387,51 @@ def inverse_design(
         if start_packing_std is None
         else np.broadcast_to(start_packing_std, measured.runout.shape).tolist(),
         runout=runout.to_config(),
+        failed_points=optimum.history.failed,
+        optimiser=optimiser,
     )
+
+
+def bayesopt_on_gns(
+    objective: GNSObjective, bounds: Sequence[Sequence[float]], names: Sequence[str], settings: BOSettings, label: str
+) -> OptimisationResult:
+    """Bayesian optimisation of the GNS objective (one point per call, no gradient), its progress
+    logged under `label`; a point whose rollout fails is a failed point (recorded, the search goes
+    on). The result carries one StartResult, as a lone L-BFGS-B start would: its iterates are the
+    points that lowered the best value so far, so the paths figure draws the search's progress."""
+    done = progress_logger(label, log)
+
+    def gns_point(points):
+        values = objective.values(points, allow_failed=True)
+        if not np.all(np.isfinite(values)):
+            raise PointFailed("the GNS rollout failed or its objective is not finite there")
+        return values
+
+    def progress(calls, seconds, values):
+        log.info("point %d/%d in %.1f s: objective %s", calls, settings.budget, seconds, f"{values[0]:.4g}")
+        done(calls / settings.budget)
+
+    optimum = bayesian_optimisation(gns_point, bounds, names, settings, progress)
+    history = optimum.history
+    improving, best = [], math.inf
+    for params, value in zip(history.params, history.values):
+        if value < best:
+            improving.append((list(params), float(value)))
+            best = value
+    optimum.starts = [
+        StartResult(
+            start=improving[0][0],
+            params=list(optimum.params),
+            value=float(optimum.value),
+            success=True,
+            message=f"Bayesian optimisation: {history.n_calls} GNS points ({settings.n_initial} initial), "
+            f"{len(history.failed)} failed",
+            n_iterations=max(history.n_calls - settings.n_initial, 0),
+            evaluations=history,
+            iterates=improving,
+        )
+    ]
+    return optimum
 
 
 # -- outputs ----------------------------------------------------------------------------------------

@@ -11,7 +11,10 @@ take), and the points they ask for at the same moment are rolled out as one batc
 finite differences each start asks for its whole stencil (x and x + h e_j) at once.
 
 A GNS objective is rough (calibration.gns_objective), so line searches may fail; each start keeps
-its best evaluated point and says so.
+its best evaluated point and says so. A point where the objective is not finite (NaN or inf: a GNS
+rollout that diverged there) is a failed point: it is recorded in the start's history with the
+reason, and that start ends at its best point so far while the others go on; only when no point of
+any start could be evaluated is it an error.
 
 The call and its result are those of every optimiser here (calibration.optimise).
 """
@@ -57,6 +60,10 @@ STALL_EVALUATIONS = 3
 
 class _Stalled(Exception):
     """A start's last STALL_EVALUATIONS evaluations did not improve on its best."""
+
+
+class _Failed(Exception):
+    """The objective was not finite at a start's point (e.g. a GNS rollout that diverged there)."""
 
 
 # -- float32 resolution -----------------------------------------------------------------------------
@@ -199,7 +206,8 @@ def multistart_lbfgsb(
     progress: callable(batch number, seconds, values [G]) or None.
     Returns the best of the starts, the history of every start's evaluations (start k's labelled k,
     each with the iterations that start had completed; the stencil's other points are not recorded,
-    their time is), its StartResult per start (in start order) and the number of batches evaluated.
+    their time is; the failed points with their reason), its StartResult per start (in start order;
+    a start whose first point failed has none) and the number of batches evaluated.
     """
     starts, gradient, fd_step = settings.starts, settings.gradient, settings.fd_step
     max_iterations, ftol, gtol = settings.max_iterations, settings.ftol, settings.gtol
@@ -243,16 +251,26 @@ def multistart_lbfgsb(
             if stall["count"] >= STALL_EVALUATIONS:
                 raise _Stalled
 
+        def failed(x, answers, seconds):
+            """Record x as failed and end the start when any of its answers is not finite."""
+            if all(np.all(np.isfinite(a)) for a in answers):
+                return
+            reason = "objective not finite there" + (" (value or gradient)" if use_gradient else " (FD stencil)")
+            histories[index].record_failure(x, reason, seconds, index, len(iterates[index]))
+            raise _Failed(reason)
+
         def fun(z):
             x = z * scale
             if use_gradient:
                 ((answer, seconds),) = lockstep.request(index, x)
+                failed(x, answer, seconds)
                 histories[index].record(x, answer[0], seconds, index, len(iterates[index]))
                 check_stall(float(answer[0]))
                 return float(answer[0]), np.asarray(answer[1], float) * scale
             steps = np.array([fd_step if x[j] + fd_step <= bounds[j][1] else -fd_step for j in range(len(x))])
             stencil = np.vstack([x, x + np.diag(steps)])
             answers = lockstep.request(index, stencil)
+            failed(x, [a for a, _ in answers], sum(seconds for _, seconds in answers))
             value = float(answers[0][0])
             histories[index].record(x, value, sum(seconds for _, seconds in answers), index, len(iterates[index]))
             check_stall(value)
@@ -280,14 +298,23 @@ def multistart_lbfgsb(
                 options=options,
                 callback=callback,
             )
-        except _Stalled:
+        except (_Stalled, _Failed) as exc:
+            if not histories[index].values:  # failed at its start: nothing to keep
+                outcomes[index] = None
+                return
             params, value = histories[index].best
+            why = (
+                f"{STALL_EVALUATIONS} evaluations in a row without improvement (rough objective)"
+                if isinstance(exc, _Stalled)
+                else f"the objective at {np.round(histories[index].failed[-1]['params'], 4).tolist()} is not "
+                "finite (a failed point, recorded)"
+            )
             outcomes[index] = OptimizeResult(
                 x=np.asarray(params) / scale,
                 fun=value,
                 success=False,
                 nit=len(iterates[index]),
-                message=f"stopped: {STALL_EVALUATIONS} evaluations in a row without improvement (rough objective)",
+                message=f"stopped: {why}",
             )
         except BaseException as exc:  # noqa: BLE001 - reported by the main thread
             outcomes[index] = exc
@@ -306,6 +333,8 @@ def multistart_lbfgsb(
     for k, outcome in enumerate(outcomes):
         if isinstance(outcome, BaseException):
             raise outcome
+        if outcome is None:  # its start point failed: in the history's failed points only
+            continue
         # a line search that fails on a rough objective ends at its last accepted iterate, which may
         # be worse than a point it tried: keep the best point evaluated, and say so
         params, value = histories[k].best
@@ -326,11 +355,14 @@ def multistart_lbfgsb(
                 iterates=[(starts[k].tolist(), histories[k].values[0])] + iterates[k],
             )
         )
+    history = OptimisationHistory.concatenate(histories)
+    if not results:
+        raise InverseDesignError(f"no start could be evaluated: {history.failures_text()}")
     best = min(results, key=lambda r: r.value)
     return OptimisationResult(
         params=best.params,
         value=best.value,
-        history=OptimisationHistory.concatenate(histories),
+        history=history,
         n_batches=lockstep.batches,
         starts=results,
     )

@@ -8,7 +8,8 @@ Schema (full description and examples in data/measured/README.md). A CSV file in
     quartz_a6,quartz,6.0,0.02,profile,0.035,0.012,
 
   column        name of the measured column (several columns may share one file)
-  material      DEM material of the grains (a name known to dem.case.MATERIALS)
+  material      DEM material of the grains: a name of dem.case.MATERIALS, or a name of your own
+                whose grain_diameter, density and solid_fraction the file gives
   aspect_ratio  a = H_i / L_i of the initial column (-)
   L_i           initial column length (m)
   kind          `runout`: x = t/t* (-), value = runout L* = (L - L_i)/L_i (-)
@@ -22,6 +23,8 @@ Schema (full description and examples in data/measured/README.md). A CSV file in
   grain_diameter optional: mean diameter (m) of the measured grains, one value per column (empty:
                 the material's, dem.case.MATERIALS; say it when the data come from a sieve
                 fraction of its own or from a coarse-grained simulation)
+  density       kg/m^3, solid_fraction (-): a material not in dem.case.MATERIALS, one value per
+                column, with its grain_diameter (empty for a material of the table)
 
 Each column needs at least two runout points; material, aspect_ratio and L_i must agree on every
 row of a column. Every error names the file, the line and the CSV column that is wrong.
@@ -39,10 +42,12 @@ from typing import Any
 
 import numpy as np
 
-from dem.case import MATERIALS, CaseError, CollapseCase
+from dem.case import MATERIALS, CaseError, CollapseCase, Material
 
 REQUIRED_FIELDS = ("column", "material", "aspect_ratio", "L_i", "kind", "x", "value")
-OPTIONAL_FIELDS = ("std", "read_at", "bin_width", "grain_diameter")
+OPTIONAL_FIELDS = ("std", "read_at", "bin_width", "grain_diameter", "density", "solid_fraction")
+# What a material of your own needs (one value per column): with the name, the dem.case.Material fields.
+OWN_MATERIAL_FIELDS = ("grain_diameter", "density", "solid_fraction")
 PROFILE_READING = ("read_at", "bin_width")  # how a profile was read: one value per column, or none
 KINDS = ("runout", "profile")
 MAX_L_I = 1.0  # m; a column length above this is almost surely given in mm or cm
@@ -82,11 +87,21 @@ class MeasuredColumn:
     profile_bin_width: float | None = None
     profile_line: int | None = None  # line of the file's first profile row, for error messages
     grain_diameter: float | None = None  # m, of the measured grains; None: the material's
+    density: float | None = None  # kg/m^3, of a material not in dem.case.MATERIALS (None for one that is)
+    solid_fraction: float | None = None  # -, likewise
+
+    @property
+    def material_properties(self) -> Material:
+        """The DEM material: the table's (dem.case.MATERIALS), else the file's own (its grain_diameter,
+        density and solid_fraction)."""
+        if self.material in MATERIALS:
+            return MATERIALS[self.material]
+        return Material(self.material, self.grain_diameter, self.density, self.solid_fraction)
 
     @property
     def measured_diameter(self) -> float:
         """Mean diameter (m) of the grains that were measured: the file's, else the material's."""
-        return MATERIALS[self.material].diameter if self.grain_diameter is None else float(self.grain_diameter)
+        return self.material_properties.diameter if self.grain_diameter is None else float(self.grain_diameter)
 
     @property
     def profile_time(self) -> float:
@@ -101,7 +116,7 @@ class MeasuredColumn:
             return float(self.profile_bin_width)
         if self.profile_x is None:
             raise ValueError(f"column {self.name!r} has no profile")
-        return max(float(np.median(np.diff(self.profile_x))), MATERIALS[self.material].diameter)
+        return max(float(np.median(np.diff(self.profile_x))), self.material_properties.diameter)
 
     @property
     def profile_defaults(self) -> list[str]:
@@ -127,7 +142,7 @@ class MeasuredColumn:
         seed, ...). The simulated window must cover the last measured t/t*.
         """
         case = CollapseCase(
-            material=self.material,
+            material=self.material_properties,
             L_i=self.L_i,
             aspect_ratio=self.aspect_ratio,
             friction=friction,
@@ -146,6 +161,13 @@ class MeasuredColumn:
                 f"{case.duration_over_tstar:g})"
             )
         return case
+
+
+def own_material_fields(material: Material) -> dict:
+    """The MeasuredColumn fields that give `material` when it is not in dem.case.MATERIALS ({} when it is)."""
+    if MATERIALS.get(material.name) == material:
+        return {}
+    return {"grain_diameter": material.diameter, "density": material.density, "solid_fraction": material.solid_fraction}
 
 
 def expected_final_runout(aspect_ratio: float) -> float:
@@ -233,10 +255,8 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
     if not name:
         raise MeasuredDataError(f"{path}, line {first_line}, column 'column': empty column name")
     material = first["material"]
-    if material not in MATERIALS:
-        raise MeasuredDataError(
-            f"{path}, line {first_line}, column 'material': unknown material {material!r}; known: {sorted(MATERIALS)}"
-        )
+    if not material:
+        raise MeasuredDataError(f"{path}, line {first_line}, column 'material': empty material name")
     aspect_ratio = _number(path, first_line, "aspect_ratio", first["aspect_ratio"])
     L_i = _number(path, first_line, "L_i", first["L_i"])
     if aspect_ratio <= 0:
@@ -250,6 +270,7 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
         )
     series = {kind: [] for kind in KINDS}
     grains = []  # (line, grain_diameter or NaN) of every row
+    own = {field: [] for field in OWN_MATERIAL_FIELDS[1:]}  # density, solid_fraction (or NaN) of every row
     for line, row in rows:
         for field, expected in (("material", material),):
             if row[field] != expected:
@@ -287,8 +308,11 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
                 "(0 < d <= 0.1 m)"
             )
         grains.append((line, grain))
-        diameter = MATERIALS[material].diameter  # the units check: a bin holds at least a real grain
-        if not math.isnan(reading["bin_width"]) and reading["bin_width"] < diameter:
+        for field in own:
+            own[field].append(_number(path, line, field, row.get(field, ""), allow_empty=True))
+        diameter = grain if material not in MATERIALS else MATERIALS[material].diameter
+        # the units check: a bin holds at least a real grain
+        if not math.isnan(reading["bin_width"]) and diameter > 0 and reading["bin_width"] < diameter:
             raise MeasuredDataError(
                 f"{path}, line {line}, column 'bin_width': {reading['bin_width']} m is below one grain diameter "
                 f"of {material} ({diameter:g} m): no bin that narrow holds a grain (was it given in mm?)"
@@ -306,6 +330,11 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
     grain = _one_value(
         path, name, grains, [g for _, g in grains], "grain_diameter", "", "one measured column has one grain size"
     )
+    properties = {
+        field: _one_value(path, name, grains, values, field, "", "one measured column has one material")
+        for field, values in own.items()
+    }
+    _check_material(path, name, first_line, material, {"grain_diameter": grain, **properties})
     t, runout, std = _series(path, name, series["runout"], "t/t*", min_points=2)
     _all_or_none(path, name, series["runout"], [p[3] for p in series["runout"]], "std", "runout")
     profile, reading = None, {f: math.nan for f in PROFILE_READING}
@@ -338,9 +367,36 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
         profile_bin_width=None if math.isnan(reading["bin_width"]) else reading["bin_width"],
         profile_line=series["profile"][0][0] if series["profile"] else None,
         grain_diameter=None if math.isnan(grain) else grain,
+        **{field: None if math.isnan(value) else value for field, value in properties.items()},
     )
     _check_runout_units(path, column, series["runout"][0][0])
     return column
+
+
+def _check_material(path: Path, name: str, line: int, material: str, given: dict[str, float]) -> None:
+    """A material of the table takes the table's density and solid fraction (its grain_diameter may
+    differ: a sieve fraction of its own); any other material needs all of OWN_MATERIAL_FIELDS."""
+    stated = [field for field in OWN_MATERIAL_FIELDS[1:] if not math.isnan(given[field])]
+    if material in MATERIALS:
+        if stated:
+            raise MeasuredDataError(
+                f"{path}, line {line}, column {stated[0]!r}: {material!r} is a material of the table "
+                f"(dem.case.MATERIALS: {MATERIALS[material]}); leave {stated} empty, or give your material a name "
+                "of its own"
+            )
+        return
+    missing = [field for field in OWN_MATERIAL_FIELDS if math.isnan(given[field])]
+    if missing:
+        raise MeasuredDataError(
+            f"{path}, line {line}, column 'material': unknown material {material!r} (the table, dem.case.MATERIALS: "
+            f"{sorted(MATERIALS)}); a material of your own needs {list(OWN_MATERIAL_FIELDS)} on the rows of column "
+            f"{name!r} (missing: {missing})"
+        )
+    try:
+        Material(material, given["grain_diameter"], given["density"], given["solid_fraction"])
+    except CaseError as exc:
+        field = "solid_fraction" if "solid_fraction" in str(exc) else "density"
+        raise MeasuredDataError(f"{path}, line {line}, column {field!r}: {exc}") from None
 
 
 def _all_or_none(path: Path, name: str, points: list, values: list[float], field: str, kind: str) -> None:

@@ -31,7 +31,8 @@ import numpy as np
 from calibration.compare import case_like
 from calibration.gns_objective import DESIGN_NAMES
 from calibration.inverse import BOUNDS, inverse_design
-from calibration.measured import MeasuredColumn
+from calibration.measured import MeasuredColumn, own_material_fields
+from dem.case import Material
 from dem.runout import RunoutMethod, runout_at
 from dem.trajectory import Trajectory
 from gns.data import read_training_attrs
@@ -123,6 +124,7 @@ def synthetic_measured(
         runout=noisy,
         runout_std=np.sqrt(noise_std**2 + packing_std**2 / len(truths)),
         source=f"synthetic DEM runs ({name}: mean of {len(truths)} packings, noise {noise_std:g})",
+        **own_material_fields(Material.from_attrs(a)),
     )
 
 

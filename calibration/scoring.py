@@ -6,8 +6,12 @@ chi^2 + const with chi^2 = sum((measured - model)^2 / sigma^2), and:
 - `aic`, `bic`: Akaike and Bayesian information criteria from chi^2 (lower is better);
 - `p_value`: P(chi^2 >= observed) with n - p degrees of freedom;
 - `fit_emulated`: the parameters minimising chi^2 over the emulator's box;
+- `predictive_chi2`: the held-out chi^2 of a prediction from a fit without the held-out values,
+  carrying that fit's parameter uncertainty (`box_bounded_covariance`); the emulator's and the
+  DEM's held-out scores (calibration/dem_scoring.py) both use it;
 - `score_model` -> `ModelScore`: a model fitted on all data and without each held-out fold, with
-  its Laplace posterior; `EmulatorFit` and `FinalFit` are what the diagnosis reports of it (JSON).
+  its Laplace posterior (and each fold's); `EmulatorFit` and `FinalFit` are what the diagnosis
+  reports of it (JSON).
 
 Scoring in the DEM itself, at the optima found here, is calibration/dem_scoring.py's.
 """
@@ -15,7 +19,7 @@ Scoring in the DEM itself, at the optima found here, is calibration/dem_scoring.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -46,6 +50,56 @@ def bic(chi2: float, n_parameters: int, n_data: int) -> float:
 def p_value(chi2: float, n_parameters: int, n_data: int) -> float:
     """P(chi^2 >= observed) with n - p degrees of freedom, if the model and the noise were right."""
     return float(chi2_distribution.sf(chi2, max(n_data - n_parameters, 1)))
+
+
+# -- the held-out score: a predictive check ---------------------------------------------------------------
+def box_bounded_covariance(covariance: np.ndarray, bounds: np.ndarray) -> np.ndarray:
+    """[p, p] a Laplace covariance `covariance` [p, p] (parameter units squared) bounded by the box
+    bounds [p, 2]: (Sigma^-1 + diag(12 / width^2))^-1, width = high - low.
+
+    This adds to the fit's information a Gaussian prior of the box's own spread (a uniform
+    distribution over width has variance width^2 / 12): a well-determined parameter keeps its
+    Laplace variance (its information dwarfs the prior's), a direction the data cannot see (the
+    posterior's "not identifiable", variance ~1e12 from the ridge) comes out with the box's variance
+    instead of an infinite one, and no marginal variance exceeds width^2 / 12. Computed in the
+    unit-scaled parameters, Sigma_u = Sigma / (width width^T) = V diag(lambda) V^T, as
+    V diag(lambda / (1 + 12 lambda)) V^T: stable for lambda from 0 to 1e30.
+    """
+    covariance = np.asarray(covariance, float)
+    width = np.asarray(bounds, float)[:, 1] - np.asarray(bounds, float)[:, 0]
+    unit = covariance / np.outer(width, width)
+    eigenvalues, vectors = np.linalg.eigh(0.5 * (unit + unit.T))
+    eigenvalues = np.maximum(eigenvalues, 0.0)
+    bounded = (vectors * (eigenvalues / (1.0 + 12.0 * eigenvalues))) @ vectors.T
+    return bounded * np.outer(width, width)
+
+
+def predictive_chi2(
+    residual: np.ndarray, sigma: np.ndarray, jacobian: np.ndarray | None = None, covariance: np.ndarray | None = None
+) -> float:
+    """Held-out chi^2 of a prediction that carries its fit's parameter uncertainty (dimensionless):
+
+        chi^2 = r^T (C_noise + J Sigma J^T)^-1 r,   C_noise = diag(sigma^2)
+
+    residual r [h]: predicted - measured of the h held-out values (L* or m, per value); sigma [h]:
+    their noise std (same units); jacobian J [h, p]: d(predicted value)/d(parameter) at the fold
+    fit's optimum (value units per parameter unit); covariance Sigma [p, p]: the fold fit's
+    posterior covariance (parameter units squared; `box_bounded_covariance`). The fold's fit
+    predicts the held-out values as a Gaussian of mean `predicted` and covariance J Sigma J^T; the
+    measurement adds its noise. A parameter the fold's data do not constrain widens the prediction
+    instead of betting on one arbitrary value, so a miss along the direction it moves the
+    prediction costs little and a miss it cannot explain costs as much as before. Sigma = 0 (or
+    None): the plug-in sum((r / sigma)^2); never above it (C_noise + J Sigma J^T >= C_noise).
+    Solved whitened, (I + J' Sigma J'^T) with J' = J / sigma, by Cholesky.
+    """
+    whitened = np.asarray(residual, float) / np.asarray(sigma, float)
+    if jacobian is None or covariance is None or whitened.size == 0:
+        return float(whitened @ whitened)
+    scaled = np.asarray(jacobian, float).reshape(whitened.size, -1) / np.asarray(sigma, float)[:, None]
+    spread = scaled @ np.asarray(covariance, float) @ scaled.T
+    factor = np.linalg.cholesky(np.eye(whitened.size) + 0.5 * (spread + spread.T))
+    solved = np.linalg.solve(factor, whitened)
+    return float(solved @ solved)
 
 
 # -- fitting on the emulator ------------------------------------------------------------------------------
@@ -97,7 +151,9 @@ class EmulatorFit:
     aic: float
     bic: float
     fit_mse: float  # runout MSE (the objective) of the emulated runout at the optimum
-    heldout_chi2: float  # sum over folds of chi^2 on the held-out values, each from a fit without them
+    # sum over folds of the predictive chi^2 of the held-out values (`predictive_chi2`), each from a
+    # fit without them, its parameter uncertainty included
+    heldout_chi2: float
     heldout_mse: float  # runout MSE on the held-out runout points (NaN: none held out)
     heldout_parameters: list[dict[str, float]]  # [folds] parameters fitted without each fold
     emulator_loo_over_noise: float  # median over outputs of the emulator's leave-one-out RMSE / noise std
@@ -151,6 +207,11 @@ class ModelScore:
     posterior: LaplacePosterior
     emulator_loo_over_noise: float  # median over outputs of the emulator's LOO RMSE / total noise
     mechanism_z_off: float | None = None  # |parameter - off| / std for an extension
+    # [folds][q, p] emulator Jacobian of every output at each fold's parameters, and [folds][p, p]
+    # each fold fit's Laplace covariance bounded by the box (`box_bounded_covariance`): what the
+    # held-out chi^2 (`predictive_chi2`), here and in the DEM, widens the fold's prediction by
+    fold_jacobian: list[np.ndarray] = field(default_factory=list)
+    fold_covariance: list[np.ndarray] = field(default_factory=list)
 
     @property
     def bic(self) -> float:
@@ -200,31 +261,37 @@ def score_model(
     n_data: independent measured values (NoiseModel.n_effective; None: every output counts one).
     """
     target = observables.measured
+    bounds = model.bounds
     theta, chi2 = fit_emulated(emulator, target, sigma, seed=seed)
     predicted = emulator.predict(theta)[0]
-    heldout_chi2, squared, fold_theta = 0.0, [], []
+    heldout_chi2, squared, fold_theta, fold_jacobian, fold_covariance = 0.0, [], [], [], []
     for fold in folds:
-        theta_k, _ = fit_emulated(emulator, target, sigma, mask=~fold.held, seed=seed + 1, n_sweep=512)
+        fit_k = ~fold.held
+        theta_k, _ = fit_emulated(emulator, target, sigma, mask=fit_k, seed=seed + 1, n_sweep=512)
         prediction = emulator.predict(theta_k)[0]
-        heldout_chi2 += float(np.sum(((prediction[fold.held] - target[fold.held]) / sigma[fold.held]) ** 2))
+        jacobian_k = emulator_jacobian(model, emulator, theta_k)
+        posterior_k = laplace_posterior(
+            list(model.parameter_names),
+            theta_k,
+            jacobian_k[fit_k],
+            (prediction - target)[fit_k],
+            bounds.tolist(),
+            sigma=sigma[fit_k],
+        )
+        covariance_k = box_bounded_covariance(posterior_k.covariance, bounds)
+        held = fold.held
+        heldout_chi2 += predictive_chi2(prediction[held] - target[held], sigma[held], jacobian_k[held], covariance_k)
         runout = fold.held & (observables.kind == "runout")
         squared += list((prediction[runout] - target[runout]) ** 2)
         fold_theta.append(theta_k)
-    unit = model.box.to_unit(theta)[0]
-    jacobian = []
-    for j in range(model.n_parameters):  # central differences of 2% of the unit cube, kept inside it
-        up, down = unit.copy(), unit.copy()
-        up[j], down[j] = min(unit[j] + 0.02, 1.0), max(unit[j] - 0.02, 0.0)
-        theta_up, theta_down = model.box.from_unit(up)[0], model.box.from_unit(down)[0]
-        jacobian.append(
-            (emulator.predict(theta_up)[0] - emulator.predict(theta_down)[0]) / (theta_up[j] - theta_down[j])
-        )
+        fold_jacobian.append(jacobian_k)
+        fold_covariance.append(covariance_k)
     posterior = laplace_posterior(
         list(model.parameter_names),
         theta,
-        np.stack(jacobian, axis=1),
+        emulator_jacobian(model, emulator, theta),
         predicted - target,
-        model.bounds.tolist(),
+        bounds.tolist(),
         sigma=sigma,
     )
     z_off = None
@@ -246,4 +313,21 @@ def score_model(
         posterior,
         float(np.median(emulator.loo_rmse() / sigma)),
         z_off,
+        fold_jacobian,
+        fold_covariance,
     )
+
+
+def emulator_jacobian(model: Model, emulator: GPEmulator, theta: np.ndarray) -> np.ndarray:
+    """[q, p] d(emulated observable)/d(parameter) at theta [p]: central differences of 2% of the
+    box's unit cube, kept inside it (one-sided at a bound)."""
+    unit = model.box.to_unit(theta)[0]
+    jacobian = []
+    for j in range(model.n_parameters):
+        up, down = unit.copy(), unit.copy()
+        up[j], down[j] = min(unit[j] + 0.02, 1.0), max(unit[j] - 0.02, 0.0)
+        theta_up, theta_down = model.box.from_unit(up)[0], model.box.from_unit(down)[0]
+        jacobian.append(
+            (emulator.predict(theta_up)[0] - emulator.predict(theta_down)[0]) / (theta_up[j] - theta_down[j])
+        )
+    return np.stack(jacobian, axis=1)

@@ -156,7 +156,7 @@ def synthetic_measurement(
                 profile_height=profile,
                 profile_std=None if profile is None else np.full(len(profile), profile_noise),
                 # the truth's grains are the simulation's: say so, as a solver's data file would
-                grain_diameter=MATERIALS[c.material].diameter * settings.size_scale,
+                grain_diameter=c.material_properties.diameter * settings.size_scale,
             )
         )
     return out, clean
@@ -172,6 +172,8 @@ def write_measured_csv(columns: Sequence[MeasuredColumn], path: str | os.PathLik
             writer.writerow(REQUIRED_FIELDS + OPTIONAL_FIELDS)
             for c in columns:
                 grain = "" if c.grain_diameter is None else f"{c.grain_diameter:.10g}"
+                # a material of the CSV's own: its density and solid fraction (empty for a table's)
+                own = ["" if v is None else f"{v:.10g}" for v in (c.density, c.solid_fraction)]
                 std = c.runout_std if c.runout_std is not None else [None] * len(c.runout)
                 for t, value, s in zip(c.t_over_tstar, c.runout, std):
                     writer.writerow(
@@ -187,6 +189,7 @@ def write_measured_csv(columns: Sequence[MeasuredColumn], path: str | os.PathLik
                             "",
                             "",
                             grain,
+                            *own,
                         ]
                     )
                 if c.profile_x is not None:
@@ -207,6 +210,7 @@ def write_measured_csv(columns: Sequence[MeasuredColumn], path: str | os.PathLik
                                 read_at,
                                 bin_width,
                                 grain,
+                                *own,
                             ]
                         )
 

@@ -40,6 +40,20 @@ class Material:
         if self.solid_fraction >= 1:
             raise CaseError(f"material {self.name!r}: solid_fraction must be below 1, got {self.solid_fraction}")
 
+    @classmethod
+    def from_attrs(cls, attrs: dict) -> Material:
+        """The material a trajectory was run with, from its HDF5 attributes (CollapseCase.physical_parameters)."""
+        return cls(
+            str(attrs["material"]),
+            float(attrs["material_diameter"]),
+            float(attrs["material_density"]),
+            float(attrs["material_solid_fraction"]),
+        )
+
+    def to_config(self) -> str | dict:
+        """How a config or a case row names it: a table material by its name, any other by its fields."""
+        return self.name if MATERIALS.get(self.name) == self else dataclasses.asdict(self)
+
 
 # Table 1 of the paper (after Biroun et al. 2023).
 MATERIALS = {
@@ -63,7 +77,13 @@ def get_material(spec: str | dict | Material) -> Material:
         missing = {"name", "diameter", "density", "solid_fraction"} - set(spec)
         if missing:
             raise CaseError(f"material: custom material is missing {sorted(missing)}")
-        return Material(**{k: spec[k] for k in ("name", "diameter", "density", "solid_fraction")})
+        material = Material(**{k: spec[k] for k in ("name", "diameter", "density", "solid_fraction")})
+        if material.name in MATERIALS and material != MATERIALS[material.name]:  # one name, one material
+            raise CaseError(
+                f"material: {material.name!r} is a material of the table ({MATERIALS[material.name]}); "
+                "give your material another name"
+            )
+        return material
     raise CaseError(f"material: expected a name or a mapping, got {type(spec).__name__}")
 
 

@@ -43,8 +43,7 @@ def case_of(trajectory: Trajectory) -> CollapseCase:
 
     a = trajectory.attrs
     fields = {f.name: a[f.name] for f in dataclasses.fields(CollapseCase) if f.name in a and f.name != "material"}
-    material = Material(a["material"], a["material_diameter"], a["material_density"], a["material_solid_fraction"])
-    return CollapseCase(material=material, **fields)
+    return CollapseCase(material=Material.from_attrs(a), **fields)
 
 
 def phase_means(t: np.ndarray, values: np.ndarray) -> dict:

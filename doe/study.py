@@ -84,7 +84,7 @@ def case_rows(design: pd.DataFrame, measured: MeasuredColumn, dataset: str, **ca
             "dataset": dataset,
             "case_id": run_id,
             "split": "doe",
-            "material": case.material.name,
+            "material": case.material.to_config(),
             "L_i": case.L_i,
             "aspect_ratio": case.aspect_ratio,
             "friction": case.friction,

@@ -19,6 +19,17 @@ import torch
 from torch import nn
 
 
+class LayerNorm(nn.LayerNorm):
+    """nn.LayerNorm with its affine step (weight, bias) outside torch's fused kernel. That kernel's CPU
+    backward sums the weight and bias gradients over the rows in per-thread buffers, so they, and so
+    every trained weight, changed with the number of torch threads (issue 16: a training on 1 and on 2
+    threads differed after one step); autograd's sum of the elementwise affine over the rows is split
+    by output column, the same on any number of threads. Same parameters, same state_dict keys."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return nn.functional.layer_norm(x, self.normalized_shape, None, None, self.eps) * self.weight + self.bias
+
+
 def mlp(in_size: int, hidden_size: int, hidden_layers: int, out_size: int, layer_norm: bool = True) -> nn.Sequential:
     layers, size = [], in_size
     for _ in range(hidden_layers):
@@ -26,7 +37,7 @@ def mlp(in_size: int, hidden_size: int, hidden_layers: int, out_size: int, layer
         size = hidden_size
     layers.append(nn.Linear(size, out_size))
     if layer_norm:
-        layers.append(nn.LayerNorm(out_size))
+        layers.append(LayerNorm(out_size))
     return nn.Sequential(*layers)
 
 

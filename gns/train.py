@@ -37,6 +37,7 @@ import numpy as np
 import torch
 
 from dem.atomic import atomic_path
+from dem.progress import progress_logger
 from dem.runout import RunoutError, RunoutMethod
 from dem.trajectory import read_trajectory
 from gns.data import Batch, TrajectoryWindows, read_metadata, split_paths
@@ -351,9 +352,11 @@ class Trainer:
             self.config.connectivity_radius_m,
         )
         tick, tick_step = time.perf_counter(), self.step
+        progress = progress_logger(f"training {self.metadata.get('name')}, {s.steps} steps", log)
         while self.step < s.steps:
             loss = self.train_step()
             self.last_loss = loss
+            progress(self.step / s.steps)
             row = None
             if self.step % s.log_every == 0 or self.step == s.steps:
                 now = time.perf_counter()

@@ -206,9 +206,12 @@ def run_validation(
         section["validation_packings"],
         runs,
         seconds,
+        progress=progress_logger(f"{name}: {label} validated on {section['validation_packings']} packings", log),
     )
     validation.extra = extra
     result = dict(validation.to_dict(), key=key, model=route_model.name)
+    if (cost or {}).get("own_dem_runs") is not None:  # the model's GNS route: its own dataset's runs
+        result["own_dem_runs"] = cost["own_dem_runs"]
     write_json(out_json, result)
     log.info("%s: %s at %s validated, MSE %.4g", name, label, np.round(theta, 4).tolist(), validation.mse)
     return result
@@ -259,11 +262,13 @@ def run_calibrated(
     transfer = None
     if section["finer_size_scale"]:  # how far the answer transfers: the same validation with finer grains
         finer = SimulationSettings(size_scale=section["finer_size_scale"])
-        transfer = validate(
-            f"{best['route']}, at size_scale {finer.size_scale:g}", model, column, theta, finer, runout, dem, n_packings
-        )
+        label = f"{best['route']}, at size_scale {finer.size_scale:g}"
+        finer_done = progress_logger(f"{name}: {label}", log)
+        transfer = validate(label, model, column, theta, finer, runout, dem, n_packings, progress=finer_done)
         log.info("%s: at size_scale %g, MSE %.4g", name, finer.size_scale, transfer.mse)
-    prediction = predict(model, column, theta, settings, section["predict_aspect_ratios"], runout, dem)
+    aspect_ratios = section["predict_aspect_ratios"]
+    predicting = progress_logger(f"{name}: predictions at a = {', '.join(f'{a:g}' for a in aspect_ratios)}", log)
+    prediction = predict(model, column, theta, settings, aspect_ratios, runout, dem, progress=predicting)
     gns = next((r for r in routes if r["key"] == "model-inverse"), None)
     doe = next((r for r in routes if r["key"] == "model-doe"), None)
     # every route against the answer, packing by packing (all validations share their seeds)
@@ -278,6 +283,7 @@ def run_calibrated(
             "mse_difference": difference,
             "se": se,
             "gns_dem_runs": gns["dem_runs"],
+            "gns_own_dem_runs": gns.get("own_dem_runs"),  # without the base GNS's (shared with the paper's route)
             "doe_dem_runs": doe["dem_runs"],
         }
     result = {
@@ -465,7 +471,8 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
             lines += [
                 f"**GNS against DoE** (the paper's claim): validated MSE of the GNS route minus the DoE route's "
                 f"{versus['mse_difference']:+.3g} +- {format_se(versus['se'])} (paired), with "
-                f"{versus['gns_dem_runs']} DEM runs against {versus['doe_dem_runs']}: {verdict}",
+                f"{versus['gns_dem_runs']} DEM runs{own_runs_text(versus)} against {versus['doe_dem_runs']}: "
+                f"{verdict}",
                 "",
             ]
         for route in result["routes"]:
@@ -539,6 +546,13 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
             "",
         ]
     return "\n".join(lines) + "\n"
+
+
+def own_runs_text(versus: dict) -> str:
+    """The GNS route's own DEM runs in words, for calibrated.json's gns_vs_doe ("" when its file
+    does not say): the rest are the base GNS's, shared with the paper's route."""
+    own = versus.get("gns_own_dem_runs")
+    return "" if own is None else f" ({own} of its own dataset, the rest the base GNS's it starts from)"
 
 
 def format_se(value: float | None) -> str:

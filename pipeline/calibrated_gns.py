@@ -133,13 +133,15 @@ def run_model_inverse(
     evaluation_path: StrPath | None = None,
     threads: int | None = None,
     packing_paths: Sequence[StrPath] = (),
+    section: dict | None = None,
 ) -> InverseResult:
     """The GNS inverse design over every parameter of the model (settings: the config's `inverse`
     section). The start run is the base model's (the inverse stage's start.h5): its mechanism is
     off, and so it is at the first start (the paper's (mu, e), inverse.start); the other starts
     are a Latin hypercube over all the parameters. packing_paths: trajectories of the model's
     dataset (start_packing_cases) whose first frames start rollouts too: the objective is that of
-    the mean L* over the start run's packing and theirs."""
+    the mean L* over the start run's packing and theirs. section: the config's `calibration`
+    section (gns_optimiser, gns_budget, gns_n_initial; None: the paper's L-BFGS-B of `settings`)."""
     model, _ = read_model(model_json, channel_width)
     start_values = {}
     if model.mechanism is not None:
@@ -158,5 +160,12 @@ def run_model_inverse(
         threads=threads,
         design_names=model.parameter_names,
         start_values=start_values,
+        optimiser=None
+        if section is None
+        else {
+            "optimiser": section["gns_optimiser"],
+            "budget": section["gns_budget"],
+            "n_initial": section["gns_n_initial"],
+        },
     )
     return result

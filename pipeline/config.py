@@ -16,6 +16,7 @@ import copy
 import math
 import os
 import warnings
+from collections.abc import Iterable
 from pathlib import Path
 
 import jsonschema
@@ -24,14 +25,23 @@ import yaml
 from calibration.gns_objective import InverseDesignError, check_geometry_of_dataset, nearest_dataset
 from calibration.measured import MeasuredColumn, MeasuredDataError, MeasuredDataWarning, load_column, read_measured
 from calibration.mechanisms import get_mechanisms
-from dem.case import RENAMED_CASE_KEYS, CaseError, check_grains_across, grains_across
+from dem.case import (
+    RENAMED_CASE_KEYS,
+    CaseError,
+    CollapseCase,
+    Material,
+    check_grains_across,
+    get_material,
+    grains_across,
+)
 from dem.engines import ENGINES, EngineError, get_engine
-from dem.grid import SPLITS, VARIED, ConfigError, case_id_of
+from dem.grid import SPLITS, VARIED, ConfigError, case_id_of, sample_dataset
 from dem.runout import RunoutError, RunoutMethod
 
 __all__ = [
     "ConfigError",
     "validate_config",
+    "derive_columns",
     "check_cross_keys",
     "check_datasets",
     "check_gns",
@@ -62,7 +72,7 @@ def validate_config(config: dict, schema_path: str | os.PathLike) -> dict:
         raise ConfigError("invalid config:\n  " + "\n  ".join(sorted(set(problems))))
     _fill_defaults(config, schema, schema)
     for name, spec in config.get("datasets", {}).items():
-        problems += _check_dataset(name, spec)
+        problems += _check_dataset(name, spec, config.get("measured", {}))
     try:  # the schema checks each key; the class is the one definition every stage builds from it
         RunoutMethod.from_config(config.get("runout"))
     except RunoutError as exc:
@@ -166,9 +176,29 @@ def _renamed_keys(config: dict) -> list[str]:
     return problems
 
 
-def _check_dataset(name: str, spec: dict) -> list[str]:
-    """Checks the schema cannot express: range order, split fractions, overrides' case ids."""
+def _check_dataset(name: str, spec: dict, measured: dict) -> list[str]:
+    """Checks the schema cannot express: the column (material, aspect_ratio and L_i, or a `measured`
+    entry's), the material, range order, split fractions, overrides' case ids."""
     problems = []
+    column = [key for key in COLUMN_KEYS if key in spec]
+    if "measured" in spec:
+        if column:
+            problems.append(
+                f"datasets.{name}: measured {spec['measured']!r} gives the column; leave out {column} (they are its)"
+            )
+        if spec["measured"] not in measured:
+            problems.append(
+                f"datasets.{name}.measured: {spec['measured']!r} is not an entry of `measured` "
+                f"(entries: {sorted(measured)})"
+            )
+    elif len(column) < len(COLUMN_KEYS):
+        missing = [key for key in COLUMN_KEYS if key not in spec]
+        problems.append(f"datasets.{name}: {missing} missing; give {list(COLUMN_KEYS)}, or `measured: <entry>`")
+    if "material" in spec:
+        try:
+            get_material(spec["material"])
+        except CaseError as exc:
+            problems.append(f"datasets.{name}.{exc}")
     for key in VARIED:
         value = spec.get(key)
         if isinstance(value, dict) and "range" in value and value["range"][0] > value["range"][1]:
@@ -186,6 +216,118 @@ def _check_dataset(name: str, spec: dict) -> list[str]:
                 f"{case_id_of(0, spec['n_cases'])}..{case_id_of(spec['n_cases'] - 1, spec['n_cases'])}"
             )
     return problems
+
+
+# --- what the measured columns need -----------------------------------------------------------------
+COLUMN_KEYS = ("material", "aspect_ratio", "L_i")  # a dataset's column, or `measured: <entry>` in their place
+
+
+def derive_columns(config: dict, added: Iterable[str] = ()) -> dict:
+    """The validated `config` with what its measured columns need filled in (a new dict; deterministic).
+
+    - A dataset with `measured: <entry>` gets that column's material, aspect_ratio and L_i (a
+      material of the CSV's own as its {name, diameter, density, solid_fraction}).
+    - `added`: the `measured` entries given on the command line (Snakemake's --config); one that no
+      route names (doe.measured, inverse.measured) joins inverse.measured, so it is calibrated through
+      a GNS like the config's own columns (diagnosis and calibrated model: every entry anyway).
+    - An inverse.measured column without inverse.dataset that no GNS dataset holds (none of its
+      material, or its geometry outside every one's: calibration.gns_objective) gets one: dataset
+      `inverse_<name>`, the settings of the dataset whose GNS calibrates the config's other columns
+      (else the first GNS dataset; its gns.per_dataset too) on the column's material, a and L_i, at
+      that dataset's size_scale or the largest the size guard (dem.min_grains_across) lets the column
+      take, its frames as many per t*, simulated at least to the last measured t/t*.
+    Every material name means one material in every dataset and CSV. Raises ConfigError naming the
+    key and, for a CSV, the file and line.
+    """
+    config = copy.deepcopy(config)
+    columns = {name: _measured_column(config, name) for name in config["measured"]}
+    for spec in config["datasets"].values():
+        if "measured" in spec:
+            column = columns[spec["measured"]]
+            material = column.material_properties.to_config()
+            spec.update(material=material, aspect_ratio=column.aspect_ratio, L_i=column.L_i)
+    _check_materials(config, columns)
+    routed = set(config["doe"]["measured"]) | set(config["inverse"]["measured"])
+    config["inverse"]["measured"] += [name for name in sorted(set(added)) if name in columns and name not in routed]
+    for name in config["inverse"]["measured"]:
+        if name in columns and not config["inverse"]["dataset"].get(name):
+            _dataset_of_column(config, name, columns)
+    return config
+
+
+def _measured_column(config: dict, name: str) -> MeasuredColumn:
+    """The one column of `measured` entry `name` (its DoE, inverse design and datasets use one column)."""
+    columns = _measured_columns(config, name)
+    if len(columns) != 1:
+        raise ConfigError(
+            f"config key measured.{name}: {config['measured'][name]}: holds columns {list(columns)}; "
+            "give a file of one column"
+        )
+    return next(iter(columns.values()))
+
+
+def _check_materials(config: dict, columns: dict[str, MeasuredColumn]) -> None:
+    """One material per name across the datasets and the measured CSVs."""
+    seen: dict[str, tuple[Material, str]] = {}
+    sources = [(get_material(spec["material"]), f"datasets.{n}.material") for n, spec in config["datasets"].items()]
+    sources += [(c.material_properties, f"measured.{n} ({c.source})") for n, c in columns.items()]
+    for material, where in sources:
+        first = seen.setdefault(material.name, (material, where))
+        if first[0] != material:
+            raise ConfigError(
+                f"config key {where}: material {material.name!r} is {material}, but {first[1]} gives {first[0]}; "
+                "one name, one material"
+            )
+
+
+def _dataset_of_column(config: dict, name: str, columns: dict[str, MeasuredColumn]) -> None:
+    """inverse.dataset[name]: the GNS dataset that holds the column, else a new one (derive_columns)."""
+    with_gns, column = gns_datasets(config), columns[name]
+    rows = [row for dataset in with_gns for row in sample_dataset(dataset, config["datasets"][dataset])]
+
+    def holding(other: str) -> str | None:  # the GNS dataset that holds measured column `other`
+        if config["inverse"]["dataset"].get(other):
+            return config["inverse"]["dataset"][other]
+        try:
+            dataset = nearest_dataset(columns[other], rows, with_gns)
+            check_geometry_of_dataset(columns[other], rows, dataset)
+            return dataset
+        except InverseDesignError:
+            return None
+
+    if holding(name):
+        return  # inverse_datasets resolves it, as for any column
+    others = [holding(n) for n in config["inverse"]["measured"] if n != name and n in columns]
+    template = next((d for d in others if d), with_gns[0] if with_gns else None)
+    dataset = f"inverse_{name}"
+    if template is None or dataset in config["datasets"]:
+        why = f"dataset {dataset!r} is taken" if template else "the config has no GNS dataset whose settings to copy"
+        raise ConfigError(
+            f"config key inverse.measured: {name!r} ({column.source}) has no GNS dataset of its material and geometry, "
+            f"and {why}: add a dataset with `measured: {name}`"
+        )
+    spec = {k: copy.deepcopy(v) for k, v in config["datasets"][template].items() if k not in ("overrides", "measured")}
+    material = column.material_properties
+    largest = math.floor(column.L_i / (config["dem"]["min_grains_across"] * material.diameter) * 100) / 100
+    heights = [float(row["aspect_ratio"]) * float(row["L_i"]) for row in rows if row["dataset"] == template]
+    interval = spec["output_interval"] * math.sqrt(column.H_i / (sum(heights) / len(heights)))  # frames per t*
+    last = max([float(column.t_over_tstar[-1])] + ([column.profile_time] if column.profile_x is not None else []))
+    spec.update(
+        measured=name,
+        material=material.to_config(),
+        aspect_ratio=column.aspect_ratio,
+        L_i=column.L_i,
+        size_scale=min(spec.get("size_scale", 1.0), max(largest, 1.0)),
+        output_interval=float(f"{interval:.3g}"),
+    )
+    if last > spec.get("duration_over_tstar", CollapseCase.duration_over_tstar):
+        spec["duration_over_tstar"] = math.ceil(last * 2) / 2
+    config["datasets"][dataset] = spec
+    if "datasets" in config["gns"]:
+        config["gns"]["datasets"] = [*config["gns"]["datasets"], dataset]
+    if template in config["gns"].get("per_dataset", {}):
+        config["gns"]["per_dataset"][dataset] = copy.deepcopy(config["gns"]["per_dataset"][template])
+    config["inverse"]["dataset"][name] = dataset
 
 
 # --- keys that name another key's entries ------------------------------------------------------
@@ -274,7 +416,7 @@ def check_doe(config: dict) -> None:
         except MeasuredDataError as exc:
             raise ConfigError(f"config key doe.measured: {name!r}: {exc}") from exc
         size_scale = config["doe"]["size_scale"]
-        _guard(column.L_i, column.material, size_scale, config, f"doe.size_scale (measured {name!r})")
+        _guard(column.L_i, column.material_properties, size_scale, config, f"doe.size_scale (measured {name!r})")
 
 
 def check_inverse(config: dict, cases: dict[str, dict]) -> dict[str, str]:
@@ -298,12 +440,13 @@ def check_diagnosis(config: dict) -> None:
     for name in sorted(config["measured"]):
         for column in _measured_columns(config, name).values():
             where = f"diagnosis.size_scale (measured {name!r}, column {column.name!r})"
-            _guard(column.L_i, column.material, size_scale, config, where)
+            _guard(column.L_i, column.material_properties, size_scale, config, where)
 
 
 def check_calibration(config: dict) -> None:
     """calibration.model auto needs the diagnosis; a mechanism the chosen dem.engine cannot run (for
-    auto: any diagnosis candidate) is refused before any job runs."""
+    auto: any diagnosis candidate) is refused before any job runs; so is a Bayesian optimisation
+    budget below its initial design."""
     section = config["calibration"]
     if not section["enabled"] or not config["measured"]:
         return
@@ -313,6 +456,11 @@ def check_calibration(config: dict) -> None:
                 f"config key datasets.calibrated_{name}: the name is taken by the GNS dataset of the calibrated "
                 f"model of measured {name!r}"
             )
+    if section["gns_optimiser"] == "bayesopt" and section["gns_budget"] < section["gns_n_initial"]:
+        raise ConfigError(
+            f"config key calibration.gns_budget: {section['gns_budget']} GNS points cannot hold the "
+            f"{section['gns_n_initial']} of the initial design (calibration.gns_n_initial)"
+        )
     model = section["model"]
     if model == "auto" and not config["diagnosis"]["enabled"]:
         raise ConfigError(

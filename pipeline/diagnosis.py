@@ -13,6 +13,7 @@ The method is calibration/diagnosis.py (`diagnose`, `DiagnosisSettings`), its re
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import warnings
@@ -25,6 +26,9 @@ from calibration.diagnosis_result import Diagnosis, Evidence
 from calibration.measured import MeasuredColumn, MeasuredDataWarning, read_measured
 from calibration.observables import Observables
 from dem.atomic import StrPath, write_json, write_text
+from dem.progress import progress_logger
+
+log = logging.getLogger(__name__)
 
 
 # -- the jobs --------------------------------------------------------------------------------------------
@@ -33,7 +37,8 @@ def run_library(measured_path: StrPath, library_path: StrPath, section: dict, *,
     runouts read by `runout` (the config's runout section), which the library records."""
     columns, _ = read_columns(measured_path)
     settings = DiagnosisSettings.from_config({k: v for k, v in section.items() if k in LIBRARY_SETTINGS}, runout)
-    library = settings.library(Observables(columns, settings.runout))
+    progress = progress_logger(f"design runs of {', '.join(c.name for c in columns)}", log)
+    library = settings.library(Observables(columns, settings.runout), progress)
     library.save(library_path)
     return library
 
@@ -55,7 +60,14 @@ def run_diagnosis(
 
     columns, data_warnings = read_columns(measured_path)
     settings = DiagnosisSettings.from_config({k: v for k, v in section.items() if k != "enabled"}, runout)
-    result = diagnose(columns, settings, Library.load(library_path), data_warnings=data_warnings, name=name)
+    result = diagnose(
+        columns,
+        settings,
+        Library.load(library_path),
+        data_warnings=data_warnings,
+        name=name,
+        progress=progress_logger(f"diagnosis of {name}: fits and DEM scoring runs", log),
+    )
     result = replace(result, measured=str(measured_path))
     out_dir = Path(out_dir)
     write_diagnosis(result, out_dir / "diagnosis.json")

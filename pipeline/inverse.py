@@ -131,7 +131,10 @@ def run_bayesopt(
     measured = load_column(measured_path)
     fields = measured_case_fields(read_metadata(metadata_path), seed)
     runout = RunoutMethod.from_config(runout)
-    history, best, seconds = bayesopt_on_dem(measured, fields, bounds, runout, budget, n_initial, seed, dem_config=dem)
+    progress = progress_logger(f"BO on DEM runs of {measured.name}", log)
+    history, best, seconds = bayesopt_on_dem(
+        measured, fields, bounds, runout, budget, n_initial, seed, dem_config=dem, progress=progress
+    )
     write_trajectory(out_best, best)
     write_bayesopt(history, seconds, out_json, runout)
     data = json.loads(Path(out_json).read_text())
@@ -167,6 +170,7 @@ def run_inverse_design(
     threads: int | None = None,
     design_names: Sequence[str] = START_NAMES,
     start_values: dict | None = None,
+    optimiser: dict | None = None,
 ) -> InverseResult:
     """The inverse-design stage of one measured column: inverse.json and the two figures.
     start_path: the start run, or several packings of the column (GNSObjective's starts).
@@ -179,7 +183,8 @@ def run_inverse_design(
     design_names: the parameters designed (the GNS's inputs; bounds from settings[name], else the
     range the GNS was trained on); start_values: {name: value} of the start run that its file does
     not record (the start run of the base model has a mechanism at its off value), also the first
-    start of a parameter beyond inverse.start.
+    start of a parameter beyond inverse.start. optimiser: {"optimiser": "lbfgsb" | "bayesopt",
+    "budget", "n_initial"} (calibration.inverse.inverse_design's; None: the paper's L-BFGS-B).
     """
     if threads:
         torch.set_num_threads(threads)
@@ -210,6 +215,7 @@ def run_inverse_design(
         seed=settings["seed"],
         design_names=design_names,
         runout=runout,
+        **(optimiser or {}),
     )
     write_result(result, out_json)
     dem_points = None

@@ -1,5 +1,6 @@
 import os
 import time
+from pathlib import Path
 
 import pytest
 import torch
@@ -32,16 +33,36 @@ def one_torch_thread():
 
 
 TINY_ALL = "config/tiny_all.yaml"  # every stage at its smallest (tests/test_pipeline_end_to_end.py)
+# The column the tiny DAG calibrates, as a user brings one (README "Calibrate your own column"): a
+# CSV outside the workflow, of a material of its own (not in dem.case.MATERIALS), given on the
+# command line in place of config/tiny_all.yaml's own curve. The curve and geometry are those of
+# data/test/tiny_quartz_a2.csv; the grains are quartz-sized, so the DEM costs what quartz's does.
+OWN_MATERIAL = {"name": "glass", "diameter": 425e-6, "density": 2500.0, "solid_fraction": 0.6}
+
+
+def write_own_column(path) -> str:
+    """data/test/tiny_quartz_a2.csv as a column of OWN_MATERIAL, written to `path`; returns the path."""
+    name, own = OWN_MATERIAL["name"], ",".join(str(OWN_MATERIAL[k]) for k in ("diameter", "density", "solid_fraction"))
+    text = (Path(__file__).parents[1] / "data/test/tiny_quartz_a2.csv").read_text()
+    rows = [line for line in text.splitlines() if not line.startswith("#")]
+    lines = [rows[0] + ",grain_diameter,density,solid_fraction"]
+    lines += [row.replace("tiny_quartz_a2,quartz,", f"{name}_a2,{name},") + f",{own}" for row in rows[1:]]
+    path.write_text("\n".join(lines) + "\n")
+    return str(path)
 
 
 @pytest.fixture(scope="session")
 def tiny_all_run(tmp_path_factory):
     """config/tiny_all.yaml's whole DAG, run once for the session in a copy of the workflow (shared
-    by the end-to-end checks and the HTML report's): (workflow folder, {rule: jobs} Snakemake
-    planned, wall seconds). E2E_CORES sets the cores (default 2)."""
+    by the end-to-end checks and the HTML report's) on a measured CSV the fixture writes outside it
+    (write_own_column), given as the README tells a user: (workflow folder, {rule: jobs} Snakemake
+    planned, wall seconds, the command line's --config arguments, which every later snakemake call
+    on the folder repeats). E2E_CORES sets the cores (default 2)."""
     from tests.test_workflow import copy_workflow, job_stats, snakemake
 
     workdir = copy_workflow(tmp_path_factory.mktemp("tiny_all"))
+    csv = write_own_column(tmp_path_factory.mktemp("own_column") / "glass_a2.csv")
+    own = ("--config", f"measured={{tiny: {csv}}}")  # --config takes several values: the last option
     started = time.perf_counter()
-    proc = snakemake(workdir, configfile=TINY_ALL, cores=int(os.environ.get("E2E_CORES", "2")), timeout=1200)
-    return workdir, job_stats(proc.stderr), time.perf_counter() - started
+    proc = snakemake(workdir, *own, configfile=TINY_ALL, cores=int(os.environ.get("E2E_CORES", "2")), timeout=1200)
+    return workdir, job_stats(proc.stderr), time.perf_counter() - started, own

@@ -63,7 +63,10 @@ def test_the_model_is_the_configs_or_the_diagnosis_answer():
 def test_validation_scores_the_mean_curve_of_its_packings():
     """Known answer: the mean of the packings' own runout curves, and its MSE, computed here again."""
     theta = (0.5, 0.6)
-    result = validate("base", Model(), COLUMN, theta, SETTINGS, RUNOUT, None, n_packings=2)
+    fractions = []  # the job's progress: the share of all its runs done, rising to 1
+    result = validate("base", Model(), COLUMN, theta, SETTINGS, RUNOUT, None, n_packings=2, progress=fractions.append)
+    assert fractions == sorted(fractions) and fractions[-1] == pytest.approx(1.0)
+    assert any(0.4 < f <= 0.5 for f in fractions) and np.max(np.diff([0.0, *fractions])) <= 0.1 + 1e-9
     curves = [model_runout(Model(), COLUMN, theta, SETTINGS, seed, RUNOUT, None) for seed in result.seeds]
     np.testing.assert_allclose(result.mean, np.mean(curves, axis=0))
     np.testing.assert_allclose(result.std, np.std(curves, axis=0, ddof=1))
@@ -172,7 +175,13 @@ def test_the_stage_writes_its_answer_figure_and_report_section(tmp_path):
 
 def config_with(model, engine="builtin", diagnosis_enabled=True):
     return {
-        "calibration": {"enabled": True, "model": model},
+        "calibration": {
+            "enabled": True,
+            "model": model,
+            "gns_optimiser": "bayesopt",
+            "gns_budget": 40,
+            "gns_n_initial": 12,
+        },
         "measured": {"quartz": "data/measured/quartz_a6.csv"},
         "diagnosis": {
             "enabled": diagnosis_enabled,
@@ -192,6 +201,10 @@ def test_a_model_the_engine_cannot_run_is_refused_before_any_job():
         check_calibration(config_with("auto", "liggghts"))
     with pytest.raises(ConfigError, match="auto takes the diagnosis' answer, but diagnosis.enabled is false"):
         check_calibration(config_with("auto", diagnosis_enabled=False))
+    short = config_with("cohesion")
+    short["calibration"]["gns_budget"] = 10
+    with pytest.raises(ConfigError, match=r"calibration.gns_budget: 10 GNS points cannot hold the 12 of the initial"):
+        check_calibration(short)
 
 
 def test_every_routes_optimum_is_read_as_its_stage_writes_it(tmp_path):

@@ -276,3 +276,123 @@ def test_doe_column_too_few_grains_across_at_doe_size_scale():
     assert "Largest size_scale that passes: 5.88;" in cross_key_error(config)
     config["doe"]["size_scale"] = 5.88
     check_doe(config)
+
+
+# -- your own column (README "Calibrate your own column"): pipeline.config.derive_columns ----------------
+GLASS = {"name": "glass", "diameter": 0.0004, "density": 2500.0, "solid_fraction": 0.6}
+
+
+def own_csv(tmp_path, material="glass", a=3.0, L_i=0.02, own=",0.0004,2500,0.6", name="mine.csv") -> str:
+    """The shipped quartz curve's runout as a column of `material`, a, L_i, with the cells `own`."""
+    rows = [r for r in (ROOT / "data/measured/quartz_a6.csv").read_text().splitlines() if ",runout," in r]
+    header = "column,material,aspect_ratio,L_i,kind,x,value,std,grain_diameter,density,solid_fraction"
+    lines = [header] + [f"mine,{material},{a},{L_i},runout,{r.split(',')[5]},{r.split(',')[6]},{own}" for r in rows]
+    path = tmp_path / name
+    path.write_text("\n".join(lines) + "\n")
+    return str(path)
+
+
+def derived(config, added=("mine",)):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return pipeline.config.derive_columns(config, added)
+
+
+def test_shipped_configs_need_nothing_derived_but_the_tiny_datasets_column():
+    for name in ("config.yaml", "paper.yaml", "test.yaml"):
+        config = validated(name)
+        assert derived(config, ()) == config, name
+    tiny = derived(validated("tiny_all.yaml"), ())  # its dataset follows its CSV (`measured: tiny`)
+    spec = tiny["datasets"]["tiny_column"]
+    assert (spec["material"], spec["aspect_ratio"], spec["L_i"]) == ("quartz", 2.0, 0.01)
+    assert check_cross_keys(tiny, case_table(tiny)) == {"tiny": "tiny_column"}
+
+
+def test_a_column_added_on_the_command_line_gets_a_gns_dataset_of_its_own_material_and_geometry(tmp_path):
+    """--config measured='{mine: glass.csv}' on the default config: a dataset like quartz_multiple (the
+    GNS dataset of the config's inverse column) of the CSV's material, a and L_i, its GNS, the inverse design."""
+    config = derived(validated(edit=lambda c: c["measured"].update(mine=own_csv(tmp_path))))
+    spec, template = config["datasets"]["inverse_mine"], config["datasets"]["quartz_multiple"]
+    assert spec["material"] == GLASS and (spec["aspect_ratio"], spec["L_i"], spec["measured"]) == (3.0, 0.02, "mine")
+    for key in ("n_cases", "seed", "friction", "restitution", "splits", "size_scale", "duration_over_tstar"):
+        assert spec.get(key) == template.get(key), key
+    assert spec["output_interval"] == 0.00354  # 0.005 s x sqrt(H_i 0.06 / 0.12 m): as many frames per t*
+    assert config["inverse"]["measured"] == ["quartz", "mine"] and config["doe"]["measured"] == ["quartz"]
+    assert config["gns"]["datasets"] == ["quartz_multiple", "inverse_mine"]
+    assert check_cross_keys(config, case_table(config)) == {"quartz": "quartz_multiple", "mine": "inverse_mine"}
+    assert derived(config) == config  # deterministic, and derived once
+
+
+def test_a_derived_dataset_takes_the_largest_size_scale_the_size_guard_lets_its_column_take(tmp_path):
+    config = validated("tiny_all.yaml", lambda c: c["measured"].update(mine=own_csv(tmp_path, a=2.0, L_i=0.008)))
+    config = derived(config)
+    assert config["datasets"]["inverse_mine"]["size_scale"] == 4.0  # 0.008 / (5 x 0.4 mm) = 4 across the minimum
+    config = derived(validated("tiny_all.yaml", lambda c: c["measured"].update(mine=own_csv(tmp_path, L_i=0.006))))
+    assert config["datasets"]["inverse_mine"]["size_scale"] == 3.0
+
+
+def test_a_column_added_that_a_gns_dataset_holds_is_calibrated_by_it(tmp_path):
+    csv = own_csv(tmp_path, material="quartz", a=6.0, own=",,,")
+    config = derived(validated(edit=lambda c: c["measured"].update(mine=csv)))
+    assert "inverse_mine" not in config["datasets"] and config["inverse"]["measured"] == ["quartz", "mine"]
+    assert check_cross_keys(config, case_table(config)) == {"quartz": "quartz_multiple", "mine": "quartz_multiple"}
+
+
+def test_an_entry_of_the_config_file_keeps_the_routes_the_file_gives_it(tmp_path):
+    config = validated(edit=lambda c: c["measured"].update(mine=own_csv(tmp_path)))
+    assert derived(config, ()) == config  # not added on the command line: diagnosis and calibrated model only
+
+
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (  # a measured CSV that breaks the schema: the key, the file, the line and the CSV column
+            lambda c, p: c["measured"].update(mine=own_csv(p, own=",0.0004,,0.6")),
+            r"config key measured.mine: .*mine.csv, line 2, column 'material': unknown material 'glass'.*"
+            r"missing: \['density'\]",
+        ),
+        (
+            lambda c, p: c["measured"].update(mine=own_csv(p, L_i=20)),
+            r"config key measured.mine: .*mine.csv, line 2, column 'L_i': 20.0 is not a column length in metres",
+        ),
+        (  # one name, two materials
+            lambda c, p: c["measured"].update(mine=own_csv(p), other=own_csv(p, own=",0.0004,2400,0.6", name="o.csv")),
+            r"config key measured.other \(.*o.csv\): material 'glass' is .*density=2400.*, but measured.mine",
+        ),
+    ],
+)
+def test_bad_measured_input_fails_at_parse_time_naming_the_key_and_file(tmp_path, edit, message):
+    config = validated(edit=lambda c: edit(c, tmp_path))
+    with pytest.raises(ConfigError, match=message):
+        derived(config)
+
+
+WHERE = "datasets.quartz_multiple"
+
+
+@pytest.mark.parametrize(
+    "spec, message",
+    [
+        ({"material": "glass"}, rf"{WHERE}.material: unknown material 'glass'; known: \['copper', 'quartz'\]"),
+        (
+            {"material": {"name": "glass", "diameter": 4e-4, "density": 2500}},
+            rf"{WHERE}.material: 'solid_fraction' is a required property",
+        ),
+        ({"material": dict(GLASS, name="quartz")}, rf"{WHERE}.material: 'quartz' is a material of the table"),
+        ({"measured": "sand"}, rf"{WHERE}: measured 'sand' gives the column; leave out \['material', 'aspect_ratio'"),
+        (
+            {"measured": "sand", "material": None, "aspect_ratio": None, "L_i": None},
+            rf"{WHERE}.measured: 'sand' is not an entry of `measured`",
+        ),
+        ({"L_i": None}, rf"{WHERE}: \['L_i'\] missing; give \['material', 'aspect_ratio', 'L_i'\], or `measured"),
+    ],
+)
+def test_a_dataset_material_or_column_that_is_not_one_is_refused_naming_the_key(spec, message):
+    def edit(config):
+        dataset = config["datasets"]["quartz_multiple"]
+        dataset.update(spec)
+        for key in [k for k, v in spec.items() if v is None]:
+            del dataset[key]
+
+    with pytest.raises(ConfigError, match=message):
+        validated(edit=edit)

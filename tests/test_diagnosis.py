@@ -8,9 +8,11 @@ packings. Its data are read as another solver would: a dense profile (46 points 
 benchmarks/diagnosis_hidden.py runs the full-size version (size_scale 4, five hidden cases).
 """
 
+import hashlib
 import json
 import math
 from dataclasses import fields, replace
+from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
@@ -18,15 +20,15 @@ import pytest
 
 from calibration.decision import DecisionRule, decide
 from calibration.dem_scoring import DEMScore
-from calibration.design_runs import DesignRuns, Library, Model, SimulationSettings
-from calibration.diagnosis import DiagnosisSettings, diagnose
+from calibration.design_runs import DEMRunner, DesignRuns, Library, Model, SimulationSettings
+from calibration.diagnosis import LIBRARY_SETTINGS, DiagnosisSettings, diagnose
 from calibration.diagnosis_result import Diagnosis
 from calibration.emulator import GPEmulator, ParameterBox, latin_hypercube
 from calibration.measured import MeasuredColumn
 from calibration.mechanisms import MechanismError, bond_from_cohesion_energy, cohesion_energy_from_bond, get_mechanisms
 from calibration.observables import Observables
 from calibration.residuals import DiagnosisError, check_data, held_out_folds, noise_model, residual_structure, runs_test
-from calibration.scoring import EmulatorFit, fit_emulated
+from calibration.scoring import EmulatorFit, box_bounded_covariance, fit_emulated, predictive_chi2
 from calibration.synthetic import (
     draw_truth,
     evidence_margins,
@@ -34,6 +36,7 @@ from calibration.synthetic import (
     synthetic_measurement,
     write_measured_csv,
 )
+from calibration.uncertainty import laplace_posterior
 from dem.case import CollapseCase
 from dem.runout import RunoutMethod, runout_curve
 from dem.trajectory import Trajectory
@@ -187,15 +190,44 @@ def test_held_out_folds():
     assert np.sum([f.held for f in phases], axis=0)[one.kind == "runout"].tolist() == [1] * 8
 
 
+# -- the held-out score: a predictive check ------------------------------------------------------------
+def test_heldout_chi2_carries_the_fold_fits_parameter_uncertainty():
+    """A linear model y = J theta, theta in [0, 1]^2, noise 1. The fold's fit sees only theta_0 (16
+    values, J = [1, 0]); the held-out value moves with both (J = [1, 3]) and is missed by 2. By hand:
+    theta_0's Laplace variance 1/16 bounded by the box's 1/12 -> 1/(16 + 12) = 1/28; theta_1 unseen
+    -> the box's variance 1/12; chi^2 = 2^2 / (1 + 1/28 + 9/12), below the plug-in 4."""
+    bounds = np.array([[0.0, 1.0], [0.0, 1.0]])
+    fit_jacobian = np.tile([1.0, 0.0], (16, 1))
+    posterior = laplace_posterior(["a", "b"], [0.5, 0.5], fit_jacobian, np.zeros(16), bounds.tolist(), sigma=1.0)
+    assert posterior.parameters[0].identifiable and not posterior.parameters[1].identifiable
+    covariance = box_bounded_covariance(posterior.covariance, bounds)
+    np.testing.assert_allclose(covariance, np.diag([1 / 28, 1 / 12]), rtol=1e-9, atol=1e-12)
+    held = np.array([[1.0, 3.0]])
+    assert predictive_chi2([2.0], [1.0], held, covariance) == pytest.approx(4 / (1 + 1 / 28 + 9 / 12), rel=1e-9)
+    assert predictive_chi2([2.0], [1.0]) == 4.0  # plug-in: no parameter uncertainty
+    # a miss the parameters cannot move (J = 0 on that value) costs what it did
+    assert predictive_chi2([2.0, 1.0], [1.0, 0.5], np.array([[1.0, 3.0], [0.0, 0.0]]), covariance) == pytest.approx(
+        4 / (1 + 1 / 28 + 9 / 12) + 4.0
+    )
+    # several values: r^T (diag(sigma^2) + J Sigma J^T)^-1 r, in any units (sigma and r in mm here)
+    jacobian, sigma, residual = np.array([[1.0, 3.0], [2.0, -1.0], [0.5, 0.5]]), np.array([1.0, 2.0, 0.5]), np.ones(3)
+    total = np.diag(sigma**2) + jacobian @ covariance @ jacobian.T
+    expected = residual @ np.linalg.solve(total, residual)
+    assert predictive_chi2(residual, sigma, jacobian, covariance) == pytest.approx(expected, rel=1e-9)
+    # the box bounds every variance, whatever the Laplace covariance; a well-determined one is kept
+    wide = box_bounded_covariance(np.diag([1e30, 1e-8]), np.array([[0.0, 60.0], [0.3, 0.9]]))
+    assert wide[0, 0] == pytest.approx(60.0**2 / 12) and wide[1, 1] == pytest.approx(1e-8, rel=1e-5)
+
+
 # -- the decision rule ---------------------------------------------------------------------------------
-def dem_entry(chi2, heldout, n=20, p=3):
+def dem_entry(chi2, heldout, n=20, p=3, p_value=None):
     """The part of a DEMScore the decision reads."""
     return SimpleNamespace(
         chi2=chi2,
         bic=chi2 + p * math.log(n),
         heldout_chi2=heldout,
         n_heldout=n,
-        p_value=0.5 if chi2 < n else 1e-6,
+        p_value=(0.5 if chi2 < n else 1e-6) if p_value is None else p_value,
     )
 
 
@@ -217,7 +249,7 @@ def test_decision_names_a_cause_only_when_decisive():
     # held-out values) leaves the BIC margin to decide; clearly worse out of sample is overfitting
     tie = dict(decisive, cohesion=dem_entry(22, 84))
     assert decide(tie, rule, [], "cohesion")[0] == "cohesion"
-    overfit = dict(decisive, cohesion=dem_entry(22, 87))
+    overfit = dict(decisive, cohesion=dem_entry(22, 87), rolling_resistance=dem_entry(60, 80, p_value=0.05))
     cause, checks, _ = decide(overfit, rule, [], "cohesion")
     assert cause == "none" and not checks["heldout_no_worse_than_runner_up"]
     assert decide(decisive, rule, ["runout looks like metres"], "cohesion")[0] == "none"
@@ -338,6 +370,14 @@ def test_bad_input_is_an_error_not_a_cause():
     # ... but units belong to the file: one short column that barely moved beside one that collapsed is data
     mixed = [replace(columns[0], runout=columns[0].runout * columns[0].L_i), columns[1]]
     assert any("barely moved" in note for note in check_data(Observables(mixed), library, models, noise))
+    # runout in per cent (100 L*): far above every run; a little above the farthest run is data (a
+    # model's box can reach beyond its few design runs)
+    per_cent = [replace(c, runout=c.runout * 100) for c in columns]
+    with pytest.raises(DiagnosisError, match="check the units"):
+        check_data(Observables(per_cent), library, models, noise)
+    highest = library.runs["base"].observed.max()
+    beyond = [replace(c, runout=c.runout * 1.2 * highest / c.runout.max()) for c in columns]
+    assert any("outside the range" in note for note in check_data(Observables(beyond), library, models, noise))
     # ... and so is a column that stands (L* small but flat, say cohesive grains)
     standing = [replace(c, runout=np.full(len(c.runout), 0.02)) for c in columns]
     assert check_data(Observables(standing), library, models, noise)  # only a note: out of the runs' range
@@ -381,69 +421,153 @@ CI_SETTINGS = DiagnosisSettings(
     n_base=6,
     n_per_mechanism=5,
     n_rounds=1,
-    n_packings=3,  # on 2, the CI case's sidewall friction beat rolling resistance by BIC 5-12 run to run
+    # 2 packings per DEM score (3 cost 50% more DEM time a case; the cases' runner-up margins at 2:
+    # see the report of issue 16; an older side-wall case beat rolling resistance by only 5-12 on 2)
+    n_packings=2,
     dem_top=2,
     profile_noise=5e-4,
     seed=0,
 )
 RUNOUT_NOISE, PROFILE_NOISE = 0.05, 5e-4
+# One hidden case per candidate mechanism plus the null ("none"), each its own test id. The truth of
+# case k is drawn by default_rng(1600 + k) (fixed before any verdict was seen, never re-drawn): mu, e
+# in the inner base box, the mechanism's magnitude uniform in its stated `hidden_range`
+# (calibration/mechanisms.py), the range the diagnosis is meant to detect: its low ends lie above
+# the magnitudes below which the base model absorbs the effect (side-wall friction 0.055, rolling
+# friction 0.12 moved the best base fit's BIC by less than the rule's 10), and
+# benchmarks/diagnosis_hidden.py draws from the same ranges. Every case must come back right, so
+# a diagnosis that always names one mechanism fails five ids and one that always says "none" fails
+# five.
+HIDDEN = [m.name for m in get_mechanisms()] + ["none"]
+CSV_CASE = "sidewall_friction"  # diagnosed through the pipeline's CSV entry point, its outputs checked
+CACHE = Path(__file__).parent / "diagnosis_cache"
+# What the design runs depend on: the engine and the code that turns a column and a model into runs
+# and reads them (a change to any of these, or to CI_SETTINGS, rebuilds the cached library).
+LIBRARY_SOURCES = ("dem/*.py", "dem/engines/*.py") + tuple(
+    f"calibration/{m}.py" for m in ("design_runs", "mechanisms", "measured", "observables", "synthetic")
+)
+
+
+def library_key() -> str:
+    root = Path(__file__).parent.parent
+    digest = hashlib.sha256(
+        json.dumps(
+            [{k: CI_SETTINGS.to_dict()[k] for k in LIBRARY_SETTINGS}, Observables(synthetic_columns()).signature()]
+        ).encode()
+    )
+    for path in sorted(p for pattern in LIBRARY_SOURCES for p in root.glob(pattern)):
+        digest.update(path.relative_to(root).as_posix().encode() + path.read_bytes())
+    return digest.hexdigest()[:16]
 
 
 @pytest.fixture(scope="module")
-def ci_library(tmp_path_factory):
-    """Design runs for the CI columns (about 35 short DEM runs) and the hidden-truth generator."""
+def ci_library():
+    """Design runs for the CI columns (34 short DEM runs, ~30 s), cached in tests/diagnosis_cache/
+    under a hash of the engine's and the design's sources and CI_SETTINGS (rebuilt when it
+    changes), with every model's emulator fitted once for all hidden cases."""
     columns = synthetic_columns()
-    library = CI_SETTINGS.library(Observables(columns, CI_SETTINGS.runout))
-    path = tmp_path_factory.mktemp("diagnosis") / "library.npz"
-    library.save(path)
+    path = CACHE / f"library_{library_key()}.npz"
+    if path.exists():
+        library = Library.load(path)
+    else:
+        library = CI_SETTINGS.library(Observables(columns, CI_SETTINGS.runout))
+        for stale in CACHE.glob("library_*.npz"):
+            stale.unlink()
+        CACHE.mkdir(exist_ok=True)
+        library.save(path)
+    for k, model in enumerate(CI_SETTINGS.models()):  # as diagnose fits them; its copies share these
+        library.emulator(model, CI_SETTINGS.seed + k)
     return columns, library, path
 
 
-def hidden_data(columns, truth, seed):
-    rng = np.random.default_rng(seed)
+def hidden_case(columns, name):
+    """(HiddenTruth, measured columns) of hidden case `name`: DEM runs of the truth on a packing the
+    diagnosis never uses, plus noise."""
+    rng = np.random.default_rng(1600 + HIDDEN.index(name))
+    truth = draw_truth(rng, None if name == "none" else MECHANISMS[name])
     data, _ = synthetic_measurement(
-        truth,
-        columns,
-        get_mechanisms(),
-        CI_SETTINGS.simulation,
-        RUNOUT_NOISE,
-        PROFILE_NOISE,
-        rng,
-        runout=CI_SETTINGS.runout,
+        truth, columns, get_mechanisms(), CI_SETTINGS.simulation, RUNOUT_NOISE, PROFILE_NOISE, rng, CI_SETTINGS.runout
     )
-    return data
+    return truth, data
 
 
-def test_hidden_mechanism_is_named_from_a_csv(ci_library, tmp_path):
-    """One mechanism drawn at random (seeded), its magnitude and the packing too; the diagnosis
-    reads the CSV the DEM "measured" and must name it, with the workflow's outputs."""
-    columns, _, library_path = ci_library
-    rng = np.random.default_rng(8)
-    mechanism = get_mechanisms()[int(rng.integers(5))]
-    truth = draw_truth(rng, mechanism)
-    csv = tmp_path / "hidden.csv"
-    write_measured_csv(hidden_data(columns, truth, 8), csv, comment="synthetic, hidden mechanism")
-    section = {
-        "size_scale": 5.0,
-        "n_base": 6,
-        "n_per_mechanism": 5,
-        "n_rounds": 1,
-        "n_packings": 3,
-        "profile_noise": PROFILE_NOISE,
-        "enabled": True,
-    }
-    result = run_diagnosis(
-        csv, library_path, tmp_path / "out", section, runout=CI_SETTINGS.runout.to_config(), name="hidden"
-    )
+@pytest.fixture(scope="module")
+def hidden_diagnoses(ci_library, tmp_path_factory):
+    """diagnosed(name) -> (truth, data, Diagnosis, output folder or None), each case diagnosed once
+    with the shared library and DEM runner; CSV_CASE through the pipeline's CSV entry point."""
+    columns, library, library_path = ci_library
+    runner = DEMRunner(Observables(columns, CI_SETTINGS.runout), CI_SETTINGS.simulation)
+    done = {}
+
+    def load_fitted(path):  # the library file as the pipeline reads it, with the emulators already fitted
+        loaded = load(path)
+        for name, runs in library.runs.items():
+            assert np.array_equal(loaded.runs[name].theta, runs.theta)
+            assert np.array_equal(loaded.runs[name].observed, runs.observed)
+        loaded._emulators = dict(library._emulators)
+        return loaded
+
+    load = Library.load
+
+    def diagnosed(name):
+        if name not in done:
+            truth, data = hidden_case(columns, name)
+            out = None
+            if name == CSV_CASE:
+                folder = tmp_path_factory.mktemp("hidden_csv")
+                csv, out = folder / "hidden.csv", folder / "out"
+                write_measured_csv(data, csv, comment="synthetic, hidden mechanism")
+                section = {
+                    "size_scale": 5.0,
+                    "n_base": 6,
+                    "n_per_mechanism": 5,
+                    "n_rounds": 1,
+                    "n_packings": CI_SETTINGS.n_packings,
+                    "profile_noise": PROFILE_NOISE,
+                    "enabled": True,
+                }
+                with pytest.MonkeyPatch.context() as patch:
+                    patch.setattr(Library, "load", staticmethod(load_fitted))
+                    result = run_diagnosis(
+                        csv, library_path, out, section, runout=CI_SETTINGS.runout.to_config(), name="hidden"
+                    )
+            else:
+                fractions = diagnosed.progress[name] = []
+                result = diagnose(
+                    data, CI_SETTINGS, library=library, runner=runner, name=name, progress=fractions.append
+                )
+            done[name] = (truth, data, result, out)
+        return done[name]
+
+    diagnosed.progress = {}  # name -> the fractions done it reported
+    return diagnosed
+
+
+@pytest.mark.parametrize("hidden", HIDDEN)
+def test_hidden_case_comes_back_right(hidden, hidden_diagnoses):
+    """The hidden mechanism is named; for the null case, "none"."""
+    truth, _, result, _ = hidden_diagnoses(hidden)
+    margins = evidence_margins(result)["margins"]
+    print(hidden, result.cause, json.dumps(evidence_margins(result)), [k for k, ok in result.checks.items() if not ok])
+    assert result.cause == hidden, (truth, result.verdict, result.checks, margins)
+    if hidden != "none":  # named on the DEM runs, at a fitted magnitude of the right sign
+        assert result.extended.model == hidden and result.extended.scored_in == "dem"
+        assert margins["bic_vs_base"] >= CI_SETTINGS.rule.min_delta_bic_vs_base
+
+
+def test_hidden_mechanism_is_named_from_a_csv(hidden_diagnoses, tmp_path):
+    """One hidden case read from the CSV the DEM "measured", diagnosed by the pipeline's entry point:
+    the cause named, with the workflow's outputs."""
+    truth, _, result, out = hidden_diagnoses(CSV_CASE)
     assert result.cause == truth.mechanism, (truth, result.verdict, result.checks)
-    text = (tmp_path / "out" / "diagnosis.json").read_text()
+    text = (out / "diagnosis.json").read_text()
     assert json.loads(text)["extended"]["model"] == truth.mechanism
-    written = read_diagnosis(tmp_path / "out" / "diagnosis.json")
+    written = read_diagnosis(out / "diagnosis.json")
     write_diagnosis(written, tmp_path / "again.json")
     assert (tmp_path / "again.json").read_text() == text  # the file reads back whole
     assert written.cause == truth.mechanism
     for figure in ("residuals.png", "candidates.png"):
-        assert (tmp_path / "out" / figure).stat().st_size > 10_000
+        assert (out / figure).stat().st_size > 10_000
     # the contract: evidence per candidate, parameters with uncertainty, errors before/after, simulator
     assert set(written.candidates) == set(MECHANISMS)
     extended = written.extended
@@ -457,25 +581,30 @@ def test_hidden_mechanism_is_named_from_a_csv(ci_library, tmp_path):
     assert written.simulator.engine == "builtin" and written.simulator.gns_used is False
     assert written.residuals.summary
     # the report section, its figure links relative to the section's own folder
-    section_path = tmp_path / "report" / "diagnosis.md"
-    run_section(["hidden"], [tmp_path / "out" / "diagnosis.json"], section_path)
+    section_path = out.parent / "report" / "diagnosis.md"
+    run_section(["hidden"], [out / "diagnosis.json"], section_path)
     text = section_path.read_text()
     assert f"**Cause: {truth.mechanism}.**" in text and f"| **{truth.mechanism}** |" in text
     assert "![residuals](../out/residuals.png)" in text and "![candidates](../out/candidates.png)" in text
 
 
 @pytest.fixture(scope="module")
-def null_diagnosis(ci_library):
-    """The diagnosis of data made by the base model alone."""
-    columns, library, _ = ci_library
-    truth = draw_truth(np.random.default_rng(80), None)
-    return diagnose(hidden_data(columns, truth, 80), CI_SETTINGS, library=library, name="null")
+def null_diagnosis(hidden_diagnoses):
+    """The diagnosis of data made by the base model alone (the hidden case "none")."""
+    return hidden_diagnoses("none")[2]
 
 
 def test_null_case_names_no_cause(null_diagnosis):
     result = null_diagnosis
     assert result.cause == "none", result.verdict
     assert result.extended is None and result.verdict.startswith("No cause named")
+
+
+def test_the_diagnosis_reports_its_progress(null_diagnosis, hidden_diagnoses):
+    """One step per fit of all models and per model's DEM runs: 1 + n_rounds (1 + dem_top + 1)."""
+    fractions = hidden_diagnoses.progress["none"]
+    assert len(fractions) == 1 + CI_SETTINGS.n_rounds * (CI_SETTINGS.dem_top + 2)
+    assert fractions == sorted(fractions) and fractions[-1] == pytest.approx(1.0)
 
 
 def test_diagnosis_json_round_trips(null_diagnosis, tmp_path):
@@ -557,14 +686,14 @@ def test_profile_std_from_the_file_is_honoured():
     assert noise.measurement[profile].min() > 2e-3 and "profile std from the file" in noise.source
 
 
-def test_the_same_data_at_two_profile_resolutions_gives_the_same_verdict(ci_library, null_diagnosis):
+def test_the_same_data_at_two_profile_resolutions_gives_the_same_verdict(ci_library, hidden_diagnoses, null_diagnosis):
     """The null data read at every 4th profile point (the same DEM runs read fewer times): the
     verdict stays the same."""
     columns, library, _ = ci_library
-    truth = draw_truth(np.random.default_rng(80), None)  # the null fixture's data
+    _, data, _, _ = hidden_diagnoses("none")  # the null case's data
     coarse = [
         replace(c, profile_x=c.profile_x[::4], profile_height=c.profile_height[::4], profile_std=c.profile_std[::4])
-        for c in hidden_data(columns, truth, 80)
+        for c in data
     ]
     result = diagnose(coarse, CI_SETTINGS, library=library.restricted(Observables(coarse, CI_SETTINGS.runout)))
     assert sum(len(c.profile_x) for c in coarse) * 3.5 < sum(len(c.profile_x) for c in columns)

@@ -27,6 +27,7 @@ from gns.simulator import CheckpointError, load_simulator
 from gns.train import Trainer, train
 from pipeline import gns as gns_stage
 from tests.gns_synthetic import synthetic_dataset
+from tests.same_bits import run_in_fresh_processes, sha256_state_dict
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = dict(
@@ -75,6 +76,30 @@ def test_training_lowers_the_loss_and_writes_its_outputs(trained, dataset):
     model = torch.load(out / "model_best.pt", weights_only=False)
     assert model["valid_runout_mse"] == pytest.approx(result["best"]["valid_runout_mse"])
     load_simulator(out / "model_best.pt", read_metadata(dataset))
+
+
+# a training in a fresh interpreter: the sha256 of its saved model's weights
+TRAIN_IN_A_PROCESS = (
+    "import json, sys, torch; from gns.train import train; from tests.same_bits import sha256_state_dict; "
+    "train(sys.argv[1], sys.argv[2], json.loads(sys.argv[3]), runout='connected_front'); "
+    "print(sha256_state_dict(torch.load(sys.argv[2] + '/model_best.pt', weights_only=False)['state_dict']))"
+)
+
+
+def test_training_twice_in_fresh_processes_gives_the_same_weights_bit_for_bit(trained, dataset, tmp_path):
+    """Issue 16: the same settings and data give the same weights, bit for bit, in this process (one
+    torch thread) and in two fresh interpreters with other hash seeds and thread counts (1 and 2;
+    before gns.network.LayerNorm the thread count changed the LayerNorm gradients, so every weight)."""
+    out, _ = trained
+    here = sha256_state_dict(torch.load(out / "model_best.pt", weights_only=False)["state_dict"])
+    settings = json.dumps(dict(TINY, steps=60))
+    hashes = run_in_fresh_processes(
+        TRAIN_IN_A_PROCESS,
+        [[dataset, tmp_path / f"run_{k}", settings] for k in range(2)],
+        hash_seeds=(1, 2),
+        env=[{"OMP_NUM_THREADS": "1"}, {"OMP_NUM_THREADS": "2"}],
+    )
+    assert hashes == [here] * 2
 
 
 def test_training_resumes_after_a_kill_exactly_as_if_uninterrupted(dataset, tmp_path):

@@ -197,8 +197,8 @@ def test_answer_page_states_model_parameters_fit_and_cost(tmp_path):
 def finished(tiny_all_run):
     """config/tiny_all.yaml's whole DAG (every stage; tests/conftest.py, one run per session), then
     the HTML report: the workflow folder."""
-    workdir = tiny_all_run[0]
-    snakemake(workdir, "--report", "results/report.html", configfile=TINY_ALL)
+    workdir, *_, own = tiny_all_run
+    snakemake(workdir, "--report", "results/report.html", *own, configfile=TINY_ALL)
     return workdir
 
 

@@ -199,3 +199,43 @@ def test_profile_read_after_the_simulated_window_is_refused(tmp_path):
     assert column.collapse_case(0.5, 0.5, duration_over_tstar=5.0).duration_over_tstar == 5.0
     with pytest.raises(CaseError, match=r"m.csv, line 9, column 'read_at'.*t/t\* = 5, after the simulated window"):
         column.collapse_case(0.5, 0.5, duration_over_tstar=4.0)
+
+
+OWN_HEADER = "column,material,aspect_ratio,L_i,kind,x,value,std,grain_diameter,density,solid_fraction\n"
+
+
+def own_rows(material="glass", own=("0.0004", "2500", "0.6")):
+    """The quartz curve's runout rows as a column of `material`, with the cells of its own fields."""
+    rows = runout_rows().splitlines()
+    return "".join(row.replace(",quartz,", f",{material},") + "," + ",".join(own) + "\n" for row in rows)
+
+
+def test_a_material_of_your_own_is_given_by_its_grain_diameter_density_and_solid_fraction(tmp_path):
+    column = load_column(write(tmp_path, OWN_HEADER + own_rows()))
+    material = column.material_properties
+    assert (material.name, material.diameter, material.density, material.solid_fraction) == ("glass", 4e-4, 2500, 0.6)
+    assert column.collapse_case(0.5, 0.5).material == material and column.measured_diameter == 4e-4
+
+
+@pytest.mark.parametrize(
+    "material, own, where",
+    [
+        ("glass", ("0.0004", "", "0.6"), r"line 2, column 'material': unknown material 'glass'.*missing: \['density'"),
+        ("glass", ("", "", ""), r"unknown material 'glass'.*missing: \['grain_diameter', 'density', 'solid_fraction'"),
+        ("glass", ("0.0004", "2500", "1.2"), r"line 2, column 'solid_fraction': .*below 1"),
+        ("glass", ("0.0004", "-5", "0.6"), r"line 2, column 'density': .*positive"),
+        ("quartz", ("", "2500", ""), r"line 2, column 'density': 'quartz' is a material of the table"),
+    ],
+)
+def test_a_material_of_your_own_missing_a_property_or_renaming_the_tables(tmp_path, material, own, where):
+    path = write(tmp_path, OWN_HEADER + own_rows(material, own))
+    with pytest.raises(MeasuredDataError, match=where) as info:
+        read_measured(path)
+    assert str(path) in str(info.value)
+
+
+def test_a_material_of_your_own_is_one_material_per_column(tmp_path):
+    rows = own_rows().splitlines()
+    rows[2] = rows[2].replace(",2500,", ",2400,")
+    with pytest.raises(MeasuredDataError, match=r"line 4, column 'density': 2400 differs from 2500 on line 2"):
+        read_measured(write(tmp_path, OWN_HEADER + "\n".join(rows) + "\n"))

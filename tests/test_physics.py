@@ -1,5 +1,6 @@
 """The builtin engine against known answers: restitution, sliding to rolling, energy, rest, runout."""
 
+import json
 import math
 
 import numpy as np
@@ -10,6 +11,7 @@ from dem.collapse import simulate_collapse, state_from_packing
 from dem.integrate import ContactLaw, SimulationError, State, mechanical_energy, record, run
 from dem.packing import blowup_box, settle_column, walls_open, walls_with_gate
 from dem.runout import runout_curve
+from tests.same_bits import run_in_fresh_processes, sha256_arrays
 
 RADIUS = 212.5e-6
 DENSITY = 2650.0
@@ -116,10 +118,22 @@ def test_runout_grows_monotonically_to_plateau_and_friction_shortens_it(small_ca
     assert finals[0.3] > 1.1 * finals[0.9]
 
 
+# one case in a fresh interpreter: the sha256 of its trajectory arrays
+DEM_IN_A_PROCESS = (
+    "import json, sys; from dem.case import CollapseCase; from dem.collapse import simulate_collapse; "
+    "from tests.same_bits import sha256_arrays; "
+    "t = simulate_collapse(CollapseCase.from_dict(json.loads(sys.argv[1]))); "
+    "print(sha256_arrays(dict(positions=t.positions, radius=t.radius, particle_type=t.particle_type)))"
+)
+
+
 def test_same_seed_same_result_bit_for_bit(small_case):
+    """The same case gives the same trajectory arrays, bit for bit: here and in two fresh interpreters
+    with other hash seeds (issue 16: no dict or set order, no state left from an earlier run)."""
     case = small_case.replace(duration_over_tstar=1.0)
-    first, second = simulate_collapse(case), simulate_collapse(case)
-    assert np.array_equal(first.positions, second.positions)
+    first = simulate_collapse(case)
+    here = sha256_arrays(dict(positions=first.positions, radius=first.radius, particle_type=first.particle_type))
+    assert run_in_fresh_processes(DEM_IN_A_PROCESS, [[json.dumps(case.to_dict())]] * 2, hash_seeds=(1, 2)) == [here] * 2
     other = simulate_collapse(case.replace(seed=4))
     assert not np.array_equal(first.positions[-1], other.positions[-1])
 

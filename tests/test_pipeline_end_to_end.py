@@ -6,7 +6,10 @@ design (GNS, DEM validation, Bayesian optimisation on DEM, comparison, parameter
 diagnosis, the calibrated model (its DoE, BO and GNS routes, every route validated on 3 packings,
 the finer-scale transfer, predictions), the ParaView export and the report. The measured column
 is data/test/tiny_quartz_a2.csv, a synthetic curve in the geometry of the config's one dataset.
-The checks are of plumbing and sanity (files written, numbers finite and in range, every stage in
+The fixture gives the column as a user brings one (README "Calibrate your own column"): a CSV of
+a material of its own written outside the workflow, on the command line; config/tiny_all.yaml's
+dataset takes that column's material and geometry (`measured: tiny`), so the DAG builds it for the
+CSV. The checks are of plumbing and sanity (files written, numbers finite and in range, every stage in
 the report), not of accuracy: the GNS trains 200 steps on 3 columns of 77 grains.
 
 Cost: 105 jobs of 212 s in all (their benchmark files; most of it Python start-up per job, the
@@ -28,11 +31,12 @@ import yaml
 
 from dem.trajectory import read_attrs, read_trajectory
 from gns.dataset import load_dataset_metadata
+from tests.conftest import OWN_MATERIAL
 from tests.test_workflow import snakemake
 
 pytestmark = pytest.mark.slow
 CONFIG = "config/tiny_all.yaml"
-NAME, DATASET = "tiny", "tiny_quartz"  # the measured entry and the dataset whose GNS calibrates it
+NAME, DATASET = "tiny", "tiny_column"  # the measured entry and the dataset whose GNS calibrates it
 MODEL_DATASET = f"calibrated_{NAME}"
 CORES = int(os.environ.get("E2E_CORES", "2"))
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -109,7 +113,7 @@ STAGES = ["calibrated", "dataset", "dem", "diagnosis", "doe", "export", "gns", "
 @pytest.fixture(scope="module")
 def run(tiny_all_run):
     """The finished tiny DAG (tests/conftest.py, one run per session): (workflow folder, {rule:
-    jobs} Snakemake planned, wall seconds)."""
+    jobs} Snakemake planned, wall seconds, its --config arguments)."""
     return tiny_all_run
 
 
@@ -161,10 +165,10 @@ def assert_trajectory(path: Path, n_frames: int | None = None):
 
 # -- the DAG ----------------------------------------------------------------------------------------
 def test_every_stage_ran_each_planned_job_and_nothing_is_left_to_do(run):
-    workdir, stats, seconds = run
+    workdir, stats, seconds, own = run
     assert {rule: stats.get(rule, 0) for rule in EXPECTED_JOBS} == EXPECTED_JOBS
     assert seconds < 600, f"the tiny DAG took {seconds:.0f} s"
-    summary = snakemake(workdir, "--summary", configfile=CONFIG, cores=CORES).stdout
+    summary = snakemake(workdir, "--summary", *own, configfile=CONFIG, cores=CORES).stdout
     rows = [line.split("\t") for line in summary.strip().splitlines()[1:]]
     assert len(rows) > 100
     stale = [(r[0], r[4], r[5]) for r in rows if r[4] != "ok" or r[5] != "no update"]
@@ -210,10 +214,24 @@ def test_dem_and_dataset(results, run):
     for k in range(spec["n_cases"]):
         path = results / "dem" / DATASET / "trajectories" / f"case_{k:03d}.h5"
         attrs = read_attrs(path)
-        assert attrs["engine"] == "builtin" and attrs["material"] == "quartz" and attrs["aspect_ratio"] == 2
+        assert attrs["engine"] == "builtin" and attrs["material"] == OWN_MATERIAL["name"] and attrs["aspect_ratio"] == 2
+        assert attrs["material_density"] == OWN_MATERIAL["density"], path  # the CSV's material, not the table's
         n_frames = assert_trajectory(path, n_frames).n_frames
         simulated = (n_frames - 1) * attrs["dt_frame"]
         assert simulated == pytest.approx(spec["duration_over_tstar"] * attrs["t_star"], abs=attrs["dt_frame"])
+
+
+def test_own_column_got_its_dataset_calibration_diagnosis_and_report(results):
+    """The CSV's column (a material of its own): its dataset, GNS, inverse design, DoE, diagnosis,
+    calibrated model and report section, each of that material."""
+    meta = load_dataset_metadata(results / "datasets" / DATASET / "metadata.json")
+    assert meta["materials"] == [OWN_MATERIAL["name"]]
+    for trajectory in ("inverse/tiny/validation.h5", "doe/tiny/validation/eq9.h5"):
+        attrs = read_attrs(results / trajectory)
+        assert (attrs["material"], attrs["material_solid_fraction"]) == (OWN_MATERIAL["name"], 0.6), trajectory
+    assert load(results / "diagnosis" / NAME / "diagnosis.json")["columns"][0]["material"] == OWN_MATERIAL["name"]
+    assert load(results / "calibrated" / NAME / "calibrated.json")["answer"]
+    assert f"{NAME}: {OWN_MATERIAL['name']}, a = 2" in (results / "report.md").read_text()
 
 
 # -- GNS ---------------------------------------------------------------------------------------------

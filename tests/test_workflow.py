@@ -23,6 +23,7 @@ from dem.grid import read_deck
 from dem.trajectory import read_attrs, read_trajectory
 from gns.dataset import load_dataset_metadata
 from pipeline.report import assemble_report
+from tests.same_bits import sha256_hdf5
 
 ROOT = Path(__file__).resolve().parents[1]
 pytestmark = pytest.mark.slow
@@ -50,7 +51,7 @@ def env():
     return dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
 
 
-def snakemake(workdir, *args, timeout=300, check=True, configfile="config/test.yaml", cores=2):
+def snakemake(workdir, *args, timeout=300, check=True, configfile="config/test.yaml", cores=2, hash_seed=None):
     # --configfile takes several values: it goes before the options, targets go last
     cmd = [
         sys.executable,
@@ -64,7 +65,8 @@ def snakemake(workdir, *args, timeout=300, check=True, configfile="config/test.y
         str(cores),
         *args,
     ]
-    proc = subprocess.run(cmd, cwd=workdir, capture_output=True, text=True, timeout=timeout, env=env())
+    environment = env() if hash_seed is None else dict(env(), PYTHONHASHSEED=str(hash_seed))
+    proc = subprocess.run(cmd, cwd=workdir, capture_output=True, text=True, timeout=timeout, env=environment)
     if check and proc.returncode != 0:
         raise AssertionError(
             f"snakemake {' '.join(args)} failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-5000:]}"
@@ -130,6 +132,28 @@ def test_tiny_dag_builds_datasets_figures_and_report(finished):
     )
     for rule in ("dataset", "dataset_summary"):
         assert len(list((results / "benchmarks" / "dataset" / rule).glob("*.tsv"))) == 2
+
+
+def test_the_dag_again_in_another_clean_directory_gives_the_same_bits(finished, tmp_path):
+    """Same bits (issue 16): two DEM cases of the tiny DAG made again in another clean copy, on one
+    core instead of two, with another hash seed: the same decks (JSON), packings and trajectory
+    arrays (sha256). (GNS training twice in fresh processes: tests/test_gns_train.py; the whole
+    tiny DAG's outputs: tests/test_pipeline_end_to_end.py.)"""
+    cases = ("case_000", "case_003")
+    again = copy_workflow(tmp_path / "again")
+    snakemake(again, *(f"results/dem/tiny_friction/trajectories/{c}.h5" for c in cases), cores=1, hash_seed=7)
+
+    def fingerprint(workdir):
+        folder = workdir / "results/dem/tiny_friction"
+        prints = {
+            f"{kind}/{c}": sha256_hdf5(folder / kind / f"{c}.h5")
+            for kind in ("packings", "trajectories")
+            for c in cases
+        }
+        return prints, [(folder / "decks" / f"{c}.json").read_text() for c in cases]
+
+    first, second = fingerprint(finished), fingerprint(again)
+    assert first == second
 
 
 def test_changing_one_case_reruns_only_its_jobs_and_dependents(finished, tmp_path):

@@ -218,6 +218,7 @@ rule calibrated_inverse:
         mem_mb=4000,
     params:
         settings=INVERSE,
+        calibration=CALIBRATION,
         channel_width=CHANNEL_WIDTH,
         runout=RUNOUT,
     script:

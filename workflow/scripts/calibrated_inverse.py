@@ -21,5 +21,6 @@ result = run_model_inverse(
     evaluation_path=i.evaluation,
     threads=snakemake.threads,
     packing_paths=i.packings,
+    section=snakemake.params.calibration,
 )
 logging.info("optimum %s, GNS objective %.4f", result.best_params, result.best_value)
