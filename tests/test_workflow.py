@@ -84,11 +84,22 @@ def mtimes(folder: Path) -> dict:
     return {p.relative_to(folder): p.stat().st_mtime_ns for p in folder.rglob("*") if p.is_file()}
 
 
+def dem_bits(workdir: Path) -> dict:
+    """{path: sha256 of its arrays} of tiny_friction's packings and trajectories, and its decks' JSON."""
+    folder = workdir / "results/dem/tiny_friction"
+    bits = {str(p.relative_to(folder)): sha256_hdf5(p) for p in sorted(folder.glob("[pt]*/case_*.h5"))}
+    return bits | {str(p.relative_to(folder)): p.read_text() for p in sorted(folder.glob("decks/case_*.json"))}
+
+
+FINISHED_BITS: dict = {}  # dem_bits of the finished run, taken before any test changes its config
+
+
 @pytest.fixture(scope="module")
 def finished(tmp_path_factory):
     """A complete run of the tiny DAG: the workflow folder."""
     workdir = copy_workflow(tmp_path_factory.mktemp("finished"))
     snakemake(workdir, *TARGETS)
+    FINISHED_BITS.update(dem_bits(workdir))
     return workdir
 
 
@@ -134,28 +145,6 @@ def test_tiny_dag_builds_datasets_figures_and_report(finished):
         assert len(list((results / "benchmarks" / "dataset" / rule).glob("*.tsv"))) == 2
 
 
-def test_the_dag_again_in_another_clean_directory_gives_the_same_bits(finished, tmp_path):
-    """Same bits (issue 16): two DEM cases of the tiny DAG made again in another clean copy, on one
-    core instead of two, with another hash seed: the same decks (JSON), packings and trajectory
-    arrays (sha256). (GNS training twice in fresh processes: tests/test_gns_train.py; the whole
-    tiny DAG's outputs: tests/test_pipeline_end_to_end.py.)"""
-    cases = ("case_000", "case_003")
-    again = copy_workflow(tmp_path / "again")
-    snakemake(again, *(f"results/dem/tiny_friction/trajectories/{c}.h5" for c in cases), cores=1, hash_seed=7)
-
-    def fingerprint(workdir):
-        folder = workdir / "results/dem/tiny_friction"
-        prints = {
-            f"{kind}/{c}": sha256_hdf5(folder / kind / f"{c}.h5")
-            for kind in ("packings", "trajectories")
-            for c in cases
-        }
-        return prints, [(folder / "decks" / f"{c}.json").read_text() for c in cases]
-
-    first, second = fingerprint(finished), fingerprint(again)
-    assert first == second
-
-
 def test_changing_one_case_reruns_only_its_jobs_and_dependents(finished, tmp_path):
     workdir = tmp_path / "changed"
     shutil.copytree(finished, workdir)
@@ -196,7 +185,9 @@ def test_changing_one_case_reruns_only_its_jobs_and_dependents(finished, tmp_pat
     assert read_attrs(workdir / "results/dem/tiny_friction/trajectories/case_002.h5")["friction"] != 0.5
 
 
-def test_killed_run_resumes_recomputing_only_incomplete_jobs(tmp_path):
+def test_killed_run_resumes_recomputing_only_incomplete_jobs(finished, tmp_path):
+    """Killed midway and resumed, in another clean copy with another hash seed: only the incomplete
+    jobs run again, and the result is the same bits as the uninterrupted run's (issue 16)."""
     workdir = copy_workflow(tmp_path / "killed")
     target = "results/datasets/tiny_friction/metadata.json"
     trajectories = workdir / "results/dem/tiny_friction/trajectories"
@@ -216,7 +207,12 @@ def test_killed_run_resumes_recomputing_only_incomplete_jobs(tmp_path):
     finished_runs = 0
     with open(log_path, "w") as log:
         proc = subprocess.Popen(
-            cmd, cwd=workdir, stdout=log, stderr=subprocess.STDOUT, env=env(), start_new_session=True
+            cmd,
+            cwd=workdir,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            env=dict(env(), PYTHONHASHSEED="7"),
+            start_new_session=True,
         )
         try:
             deadline = time.time() + 240
@@ -239,7 +235,7 @@ def test_killed_run_resumes_recomputing_only_incomplete_jobs(tmp_path):
     before = mtimes(trajectories)
 
     snakemake(workdir, "--unlock", target)  # a killed run leaves its lock behind
-    rerun = snakemake(workdir, target)
+    rerun = snakemake(workdir, target, hash_seed=7)
     recomputed = job_stats(rerun.stderr)["dem_run"]
     # runs Snakemake had recorded as finished are kept; missing ones and ones still marked
     # incomplete (output written, job not yet recorded) are run again
@@ -247,6 +243,8 @@ def test_killed_run_resumes_recomputing_only_incomplete_jobs(tmp_path):
     after = mtimes(trajectories)
     kept = [p for p in before if p.suffix == ".h5" and not p.name.startswith(".") and after[p] == before[p]]
     assert len(kept) == 5 - recomputed
+    # same bits: decks, packings and trajectories equal those of the uninterrupted run in `finished`
+    assert len(FINISHED_BITS) == 15 and dem_bits(workdir) == FINISHED_BITS
     meta = load_dataset_metadata(workdir / target)
     assert sum(len(v) for v in meta["splits"].values()) == 5
     for paths in meta["splits"].values():

@@ -17,10 +17,9 @@ min_version("9.0")
 config.update(pipeline.config.validate_config(config, Path(workflow.basedir, "workflow/schemas/config.schema.yaml")))
 # What the measured columns need (README "Calibrate your own column"): a dataset's `measured:`
 # column, and a GNS dataset for each column the inverse design calibrates and no dataset holds; a
-# column given on the command line (--config measured=...) joins the GNS inverse design.
-config.update(
-    pipeline.config.derive_columns(config, ((workflow.config_settings.overwrite_config or {}).get("measured") or {}))
-)
+# column given on the command line (--config measured=...) joins the GNS inverse design; one of a
+# --configfile does not (Snakemake's overwrite_config holds both: config_settings.config is --config's).
+config.update(pipeline.config.derive_columns(config, ((workflow.config_settings.config or {}).get("measured") or {})))
 
 # The case table, built once: {case_key: row}, case_key = "<dataset>/<case_id>".
 # A row holds every CollapseCase field of the case plus dataset, case_id and split.
