@@ -165,7 +165,7 @@ class MeasuredColumn:
 
 def own_material_fields(material: Material) -> dict:
     """The MeasuredColumn fields that give `material` when it is not in dem.case.MATERIALS ({} when it is)."""
-    if MATERIALS.get(material.name) == material:
+    if isinstance(material.to_config(), str):  # a material of the table goes by its name alone
         return {}
     return {"grain_diameter": material.diameter, "density": material.density, "solid_fraction": material.solid_fraction}
 
