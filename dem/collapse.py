@@ -20,15 +20,19 @@ def state_from_packing(case: CollapseCase, packing: Trajectory) -> State:
 
 
 def simulate_collapse(
-    case: CollapseCase, packing: Trajectory | None = None, progress: Callable[[float], None] | None = None
+    case: CollapseCase,
+    packing: Trajectory | None = None,
+    progress: Callable[[float], None] | None = None,
+    threads: int = 1,
 ) -> Trajectory:
     """Collapse trajectory: case.n_frames frames every case.frame_interval, gate removed at t = 0.
 
     packing: the settled column (dem.packing.settle_column); settled here when None.
     progress: callable(fraction_done) or None.
+    threads: as in dem.integrate.run (recorded: the trajectory's bits depend on it).
     """
     if packing is None:
-        packing = settle_column(case)
+        packing = settle_column(case, threads=threads)
     state = state_from_packing(case, packing)
     frames, stats = record(
         state,
@@ -40,6 +44,7 @@ def simulate_collapse(
         case.n_frames,
         label=f"case {case.name or '?'}",
         progress=progress,
+        threads=threads,
     )
     attrs = engine_attrs(case, "builtin", ENGINE_VERSION)
     attrs.update(
@@ -47,6 +52,7 @@ def simulate_collapse(
         steps=stats.steps,
         wall_time_s=stats.wall_time,
         particle_steps_per_second=stats.particle_steps_per_second,
+        threads=threads,
         settled_height=packing.attrs.get("settled_height", np.nan),
     )
     return Trajectory(

@@ -24,6 +24,11 @@ LATTICE_CLEARANCE = 1.02  # lattice pitch / largest diameter
 REST_SPEED = 1e-3  # settled when the RMS grain speed is below this fraction of sqrt(g H_i)
 SETTLE_CHECK_TSTAR = 0.05  # check for rest every this many t*
 MAX_SETTLE_TSTAR = 20.0  # give up (error) after this many t*
+# Settling steps at contact_time / 20, not the collapse's / 50: only the state at rest is kept, and
+# 20 steps still resolve a contact (symplectic Euler is stable to ~contact_time / 1.6). The settle
+# then costs about what 1 t* of collapse costs (issue 18, benchmarks/builtin_engine.py); most of its
+# ~1.7 t* is the lattice falling ~0.2 H_i and a few grains splashed off the top falling back.
+SETTLE_STEPS_PER_CONTACT = 20
 
 
 def grain_radii(case: CollapseCase, rng: np.random.Generator) -> np.ndarray:
@@ -80,13 +85,20 @@ def blowup_box(case: CollapseCase) -> tuple:
     return (-margin, case.box_width + margin, -margin, case.box_height + margin)
 
 
-def settle_state(case: CollapseCase, progress: Callable[[float], None] | None = None) -> State:
-    """Pour and settle the column behind the gate; the settled State (velocities near zero)."""
+def settle_time_step(case: CollapseCase) -> float:
+    """Settling time step (s): contact_time / SETTLE_STEPS_PER_CONTACT, or the case's own if longer."""
+    return max(case.time_step, case.contact_time / SETTLE_STEPS_PER_CONTACT)
+
+
+def settle_state(case: CollapseCase, progress: Callable[[float], None] | None = None, threads: int = 1) -> State:
+    """Pour and settle the column behind the gate; the settled State (velocities near zero).
+    threads: as in dem.integrate.run."""
     positions, radius = pour_column(case)
     state = State.at_rest(positions, radius, case.density)
     law = ContactLaw.from_case(case)
     chunk = SETTLE_CHECK_TSTAR * case.t_star
-    steps = max(1, math.ceil(chunk / case.time_step))
+    dt = settle_time_step(case)
+    steps = max(1, math.ceil(chunk / dt))
     rest_speed = REST_SPEED * math.sqrt(9.81 * case.H_i)
     for k in range(int(MAX_SETTLE_TSTAR / SETTLE_CHECK_TSTAR)):
         run(
@@ -94,9 +106,10 @@ def settle_state(case: CollapseCase, progress: Callable[[float], None] | None = 
             law,
             walls_with_gate(case),
             blowup_box(case),
-            case.time_step,
+            dt,
             steps,
             label=f"case {case.name or '?'} settling",
+            threads=threads,
         )
         # RMS, not max: a lone rattler in a pore can keep bouncing long after the column is at rest
         speed = float(np.sqrt(np.mean(np.sum(state.v**2, axis=1) + (state.spin * state.radius) ** 2)))
@@ -114,11 +127,17 @@ def settle_state(case: CollapseCase, progress: Callable[[float], None] | None = 
     return state
 
 
-def settle_column(case: CollapseCase, progress: Callable[[float], None] | None = None) -> Trajectory:
-    """The settled column as a one-frame Trajectory (engine "builtin", stage "settled")."""
-    state = settle_state(case, progress)
+def settle_column(case: CollapseCase, progress: Callable[[float], None] | None = None, threads: int = 1) -> Trajectory:
+    """The settled column as a one-frame Trajectory (engine "builtin", stage "settled").
+    threads: as in dem.integrate.run (recorded: the packing's bits depend on it)."""
+    state = settle_state(case, progress, threads)
     attrs = engine_attrs(case, "builtin", ENGINE_VERSION)
-    attrs.update(stage="settled", settled_height=float(np.max(state.x[:, 1] + state.radius)), settle_steps=state.steps)
+    attrs.update(
+        stage="settled",
+        settled_height=float(np.max(state.x[:, 1] + state.radius)),
+        settle_steps=state.steps,
+        threads=threads,
+    )
     return Trajectory(
         positions=state.x[None].astype(np.float32),
         radius=state.radius.copy(),

@@ -13,18 +13,28 @@ Every output is written atomically; progress goes to the job's log.
 from __future__ import annotations
 
 import logging
+import math
 import shutil
 
 from dem import grid
 from dem.atomic import StrPath
 from dem.case import CollapseCase
 from dem.engines import get_engine
-from dem.packing import settle_column
+from dem.integrate import frame_steps, usable_threads
+from dem.packing import settle_column, settle_time_step
 from dem.progress import progress_logger
 from dem.runout import RunoutMethod
 from dem.trajectory import Trajectory, read_trajectory, write_trajectory
 
 log = logging.getLogger(__name__)
+
+# What a DEM job asks a cluster for (workflow/profiles/slurm): its particle-steps at a throughput
+# below any measured here (builtin 2-4e7 per thread, LIGGGHTS 0.8-0.9e7: benchmarks/builtin_engine.py),
+# doubled on each retry; memory for a few copies of its frames on top of the interpreter's.
+REQUEST_PARTICLE_STEPS_PER_S = 5e6
+SETTLE_TSTAR_REQUESTED = 4.0  # a settle takes ~1.7 t* (dem.packing)
+BASE_MEMORY_MB = 1000  # a DEM process with numba and h5py loaded
+MIN_RUNTIME_MIN = 10
 
 
 def write_deck(row: dict, path: StrPath) -> CollapseCase:
@@ -41,12 +51,35 @@ def write_deck(row: dict, path: StrPath) -> CollapseCase:
     return case
 
 
-def settle(deck_path: StrPath, out_path: StrPath) -> Trajectory:
-    """Pour and settle one case's column behind the gate (builtin engine); writes the settled
-    packing as a one-frame trajectory HDF5 at `out_path` and returns it."""
+def job_resources(row: dict, stage: str, threads: int = 1, attempt: int = 1) -> dict:
+    """{"runtime": minutes, "mem_mb": MB} that the DEM job `stage` ("settle" or "collapse") of a
+    case-table row asks for: it scales with grains x steps, so a full-scale case asks for hours
+    where a coarse one asks for minutes. A second thread counts as 0.7 of one (measured 1.7x)."""
+    case = grid.case_from_row(row)
+    if stage == "settle":
+        steps = SETTLE_TSTAR_REQUESTED * case.t_star / settle_time_step(case)
+    elif stage == "collapse":
+        steps = (case.n_frames - 1) * frame_steps(case.frame_interval, case.time_step)[0]
+    else:
+        raise ValueError(f"job_resources: unknown stage {stage!r} (settle or collapse)")
+    seconds = case.n_particles * steps / (REQUEST_PARTICLE_STEPS_PER_S * (1 + 0.7 * (threads - 1)))
+    frames_mb = 4 * case.n_frames * case.n_particles * 2 * 4 / 1e6  # float32 (x, y) per grain and frame
+    return {
+        "runtime": max(MIN_RUNTIME_MIN, math.ceil(seconds / 60)) * 2 ** (attempt - 1),
+        "mem_mb": BASE_MEMORY_MB + math.ceil(frames_mb),
+    }
+
+
+def settle(deck_path: StrPath, out_path: StrPath, threads: int = 1) -> Trajectory:
+    """Pour and settle one case's column behind the gate (builtin engine, `threads` as config
+    dem.threads); writes the settled packing as a one-frame trajectory HDF5 at `out_path` and
+    returns it."""
     case, _ = grid.read_deck(deck_path)
-    log.info("settling %s: %d grains", case.name, case.n_particles)
-    packing = settle_column(case, progress=lambda done: log.info("settling: rest criterion %.0f%%", 100 * done))
+    threads = usable_threads(threads)
+    log.info("settling %s: %d grains, %d thread(s)", case.name, case.n_particles, threads)
+    # progress: how close the RMS grain speed is to the rest criterion (it can fall back, and is
+    # logged each time it passes another tenth)
+    packing = settle_column(case, progress_logger(f"settling {case.name}, rest criterion", log), threads)
     write_trajectory(out_path, packing)
     log.info("settled height %.4g m after %s steps", packing.attrs["settled_height"], packing.attrs["settle_steps"])
     return packing
@@ -60,16 +93,18 @@ def run_case(
     solvers: dict,
     keep_work: bool,
     work_dir: StrPath,
+    threads: int = 1,
 ) -> Trajectory:
     """Run one case's collapse from its settled packing with `engine` (a dem.engines name;
-    `solvers`: config dem.solvers); writes the trajectory HDF5 at `out_path` and returns it.
+    `solvers`: config dem.solvers; `threads`: config dem.threads); writes the trajectory HDF5 at
+    `out_path` and returns it.
 
     work_dir: the engine's scratch folder, emptied first (a killed run's leftovers) and removed
     afterwards unless `keep_work`.
     """
     case, _ = grid.read_deck(deck_path)
     packing = read_trajectory(packing_path)
-    dem_engine = get_engine(engine, {"solvers": dict(solvers)})
+    dem_engine = get_engine(engine, {"solvers": dict(solvers), "threads": threads})
     log.info(
         "collapse %s with the %s engine (%s): %d grains, %d frames",
         case.name,

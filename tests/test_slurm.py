@@ -199,3 +199,23 @@ def test_tiny_dag_runs_through_the_slurm_executor(slurm_cluster, tmp_path):
         ["squeue", "--states=all", "-h", "-o", "%j %T"], capture_output=True, text=True, env=run_env
     ).stdout
     assert queue.count("COMPLETED") >= 2, queue
+
+
+def test_dem_jobs_ask_for_what_their_grains_need():
+    """A DEM job's runtime and memory request scales with its grains and steps (issue 18): the
+    measured column at full scale asks for about an hour where the coarse default's asks for the
+    minimum, two threads ask for less time, a retry for twice as much."""
+    from pipeline.dem import MIN_RUNTIME_MIN, job_resources
+
+    row = {"dataset": "quartz_multiple", "case_id": "case_000", "split": "train", "material": "quartz"}
+    row |= {"L_i": 0.02, "aspect_ratio": 6.0, "friction": 0.39, "restitution": 0.54, "seed": 0}
+    coarse, full = dict(row, size_scale=5.0), dict(row, size_scale=1.0)
+    assert job_resources(coarse, "collapse")["runtime"] == MIN_RUNTIME_MIN
+    one = job_resources(full, "collapse")
+    # 14,718 grains x 1.13e6 steps at the requested 5e6 particle-steps/s: 55 min
+    assert 50 <= one["runtime"] <= 60 and one["mem_mb"] > job_resources(coarse, "collapse")["mem_mb"]
+    assert job_resources(full, "collapse", threads=2)["runtime"] < 0.65 * one["runtime"]
+    assert job_resources(full, "collapse", attempt=2)["runtime"] == 2 * one["runtime"]
+    assert MIN_RUNTIME_MIN < job_resources(full, "settle")["runtime"] < one["runtime"]
+    with pytest.raises(ValueError, match="unknown stage 'run'"):
+        job_resources(full, "run")

@@ -76,15 +76,17 @@ def solver_paths(config: dict | None) -> dict:
 
 
 def get_engine(name: str = "auto", config: dict | None = None) -> Engine:
-    """The engine `name` ("auto", "builtin", "liggghts", "mfix"), solver paths from config['solvers'].
+    """The engine `name` ("auto", "builtin", "liggghts", "mfix"), solver paths from config['solvers'],
+    threads per run from config['threads'] (the builtin engine's; the solvers run serially).
 
     A named solver engine that is not installed raises EngineNotInstalled saying how to install it.
     """
     solvers = solver_paths(config)
+    threads = (config or {}).get("threads", 1)
     if name == "auto":
         reasons = []
         for candidate in AUTO_ORDER:
-            engine = ENGINES[candidate](solvers.get(candidate))
+            engine = ENGINES[candidate](solvers.get(candidate), threads)
             ok, why = engine.availability()
             reasons.append(why)
             if ok:
@@ -93,7 +95,7 @@ def get_engine(name: str = "auto", config: dict | None = None) -> Engine:
         raise EngineError("dem.engine auto: no engine available: " + "; ".join(reasons))  # unreachable: builtin
     if name not in ENGINES:
         raise EngineError(f"dem.engine: unknown engine {name!r}; choose one of auto, {', '.join(ENGINES)}")
-    engine = ENGINES[name](solvers.get(name))
+    engine = ENGINES[name](solvers.get(name), threads)
     engine.require_solver()
     log.info("dem.engine %s: %s", name, engine.availability()[1])
     return engine

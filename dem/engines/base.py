@@ -52,9 +52,11 @@ class Engine:
     install_hint = ""
     mechanisms: tuple[str, ...] = ()  # candidate-mechanism case fields (MECHANISMS) it can run
 
-    def __init__(self, solver_path: str | None = None):
-        """solver_path: the solver executable (path or command name); None: `executable` on PATH."""
+    def __init__(self, solver_path: str | None = None, threads: int = 1):
+        """solver_path: the solver executable (path or command name); None: `executable` on PATH.
+        threads: cores one run may use (config dem.threads); engines that run serially ignore it."""
         self.solver_path = solver_path
+        self.threads = threads
 
     # -- availability ---------------------------------------------------------------------------
     def find_solver(self) -> str | None:

@@ -49,6 +49,7 @@ class BuiltinEngine(Engine):
 
     def run(self, deck: Path, progress: Callable[[float], None] | None = None) -> None:
         from dem.collapse import simulate_collapse
+        from dem.integrate import usable_threads
 
         deck = Path(deck)
         log_path = deck.parent / LOG
@@ -64,11 +65,12 @@ class BuiltinEngine(Engine):
             case = CollapseCase.from_dict(spec["case"])
             packing = read_trajectory(deck.parent / spec["packing"])
             logger.info(
-                "builtin engine %s: case %s, %d grains, %d frames",
+                "builtin engine %s: case %s, %d grains, %d frames, %d thread(s)",
                 self.version(),
                 case.name,
                 case.n_particles,
                 case.n_frames,
+                self.threads,
             )
             last = [0.0]
 
@@ -80,7 +82,7 @@ class BuiltinEngine(Engine):
                     progress(fraction)
 
             t0 = time.perf_counter()
-            trajectory = simulate_collapse(case, packing, progress=report)
+            trajectory = simulate_collapse(case, packing, progress=report, threads=usable_threads(self.threads))
             logger.info(
                 "done in %.1f s (%.3g particle-steps/s)",
                 time.perf_counter() - t0,

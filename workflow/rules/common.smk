@@ -8,6 +8,7 @@ import dem.grid
 import dem.runout
 import pipeline.calibrated_gns
 import pipeline.config
+import pipeline.dem
 from snakemake.io import get_flag_value, is_flagged
 from snakemake.utils import min_version
 
@@ -104,6 +105,11 @@ def gns_init(dataset):
     if dataset not in MODEL_DATASETS:
         return []
     return [inverse_gns(MODEL_DATASETS[dataset]["name"], "model")]
+
+
+def dem_resources(wildcards, stage, threads, attempt):
+    """runtime (min) and mem_mb of a DEM job from its case-table row (pipeline.dem.job_resources)."""
+    return pipeline.dem.job_resources(case_row(wildcards), stage, threads, attempt)
 
 
 def critical_priority(dataset):

@@ -36,8 +36,8 @@ rule dem_packing:
         "../envs/pipeline.yaml"
     threads: config["dem"]["threads"]
     resources:
-        runtime=60,
-        mem_mb=1000,
+        runtime=lambda w, threads, attempt: dem_resources(w, "settle", threads, attempt)["runtime"],
+        mem_mb=lambda w, threads, attempt: dem_resources(w, "settle", threads, attempt)["mem_mb"],
     script:
         "../scripts/dem_packing.py"
 
@@ -57,8 +57,8 @@ rule dem_run:
         "../envs/pipeline.yaml"
     threads: config["dem"]["threads"]
     resources:
-        runtime=240,
-        mem_mb=2000,
+        runtime=lambda w, threads, attempt: dem_resources(w, "collapse", threads, attempt)["runtime"],
+        mem_mb=lambda w, threads, attempt: dem_resources(w, "collapse", threads, attempt)["mem_mb"],
     params:
         engine=config["dem"]["engine"],
         solvers=config["dem"]["solvers"],

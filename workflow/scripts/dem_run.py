@@ -7,6 +7,13 @@ from pipeline.dem import run_case
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
 p = snakemake.params
 run_case(
-    snakemake.input.deck, snakemake.input.packing, snakemake.output[0], p.engine, p.solvers, p.keep_work, p.work_dir
+    snakemake.input.deck,
+    snakemake.input.packing,
+    snakemake.output[0],
+    p.engine,
+    p.solvers,
+    p.keep_work,
+    p.work_dir,
+    snakemake.threads,
 )
 logging.info("wrote %s", snakemake.output[0])
