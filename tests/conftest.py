@@ -66,3 +66,15 @@ def tiny_all_run(tmp_path_factory):
     started = time.perf_counter()
     proc = snakemake(workdir, *own, configfile=TINY_ALL, cores=int(os.environ.get("E2E_CORES", "2")), timeout=1200)
     return workdir, job_stats(proc.stderr), time.perf_counter() - started, own
+
+
+# `run.sh test` runs the suite on two workers (pytest-xdist, --dist loadgroup): each test file is one
+# group, so a module's fixture (a DAG, a design library) runs once, on one worker; the two files that
+# share the session's tiny_all DAG are one group, so it runs once too.
+SHARED_GROUPS = {"test_html_report": "tiny_all", "test_pipeline_end_to_end": "tiny_all"}
+
+
+def pytest_collection_modifyitems(items):
+    for item in items:
+        module = item.module.__name__.rsplit(".", 1)[-1]
+        item.add_marker(pytest.mark.xdist_group(SHARED_GROUPS.get(module, module)))
