@@ -85,7 +85,7 @@ case "${1:-}" in
         fi
         # two workers, one per core, a test file per worker at a time (tests/conftest.py); the slowest
         # tests in the log: the suite must stay under 10 minutes on 2 cores (README)
-        exec "$VENV/bin/python" -m pytest -q -n 2 --dist loadgroup --durations=15 "$@"
+        exec "$VENV/bin/python" -m pytest -q -n 2 --dist loadfile --durations=15 "$@"
         ;;
     *)
         echo "usage: bash run.sh main [snakemake args] | bash run.sh test [pytest args]" >&2; exit 2

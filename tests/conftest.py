@@ -68,13 +68,22 @@ def tiny_all_run(tmp_path_factory):
     return workdir, job_stats(proc.stderr), time.perf_counter() - started, own
 
 
-# `run.sh test` runs the suite on two workers (pytest-xdist, --dist loadgroup): each test file is one
-# group, so a module's fixture (a DAG, a design library) runs once, on one worker; the two files that
-# share the session's tiny_all DAG are one group, so it runs once too.
-SHARED_GROUPS = {"test_html_report": "tiny_all", "test_pipeline_end_to_end": "tiny_all"}
+# `run.sh test` runs the suite on two workers (pytest-xdist, --dist loadfile): a test file runs on one
+# worker, so a module's fixture (a DAG, a design library) runs once; the two files that share the
+# session's tiny_all DAG are one unit, so it runs once too. (xdist's loadgroup marks do not reach
+# its scheduler under pytest 9, which no longer reads the node id xdist rewrites.)
+SHARED_UNITS = {"tests/test_html_report.py": "tiny_all", "tests/test_pipeline_end_to_end.py": "tiny_all"}
 
 
-def pytest_collection_modifyitems(items):
-    for item in items:
-        module = item.module.__name__.rsplit(".", 1)[-1]
-        item.add_marker(pytest.mark.xdist_group(SHARED_GROUPS.get(module, module)))
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    if config.getvalue("dist") != "loadfile":
+        return None
+    from xdist.scheduler import LoadFileScheduling
+
+    class SharedFixtureScheduling(LoadFileScheduling):
+        def _split_scope(self, nodeid):
+            path = super()._split_scope(nodeid)
+            return SHARED_UNITS.get(path, path)
+
+    return SharedFixtureScheduling(config, log)
