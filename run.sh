@@ -83,9 +83,10 @@ case "${1:-}" in
             && "$VENV/bin/python" -m snakemake --lint --profile workflow/profiles/default; }; then
             echo "run.sh: lint failed (see above); fix it before the tests run" >&2; exit 1
         fi
-        # two workers, one per core, a test file per worker at a time (tests/conftest.py); the slowest
-        # tests in the log: the suite must stay under 10 minutes on 2 cores (README)
-        exec "$VENV/bin/python" -m pytest -q -n 2 --dist loadfile --durations=15 "$@"
+        # two workers, one per core, a test file per worker at a time, the longest first
+        # (tests/conftest.py); the slowest tests in the log: the suite must stay under 10 minutes
+        # on 2 cores (README)
+        exec "$VENV/bin/python" -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder --durations=15 "$@"
         ;;
     *)
         echo "usage: bash run.sh main [snakemake args] | bash run.sh test [pytest args]" >&2; exit 2

@@ -226,6 +226,10 @@ def main():
             "collapse_s": round(collapse_s, 1),
             "total_s": round(total, 1),
             "particle_steps_per_second": round(trajectory.attrs["particle_steps_per_second"]),
+            # the settle against the mean cost of 1 t* of this whole collapse (the throughput runs'
+            # settle_cost_in_tstar_of_collapse is against their first, cheapest t*: the column is
+            # in the air, and a step costs about its touching pairs)
+            "settle_cost_in_mean_tstar_of_this_collapse": round(settle_s * args.full_run_duration / collapse_s, 3),
             "target_s": TARGET_FULL_RUN_S,
             "meets_target": total < TARGET_FULL_RUN_S,
             "meets_moonshot": total < MOONSHOT_FULL_RUN_S,

@@ -13,6 +13,66 @@ import numpy as np
 
 
 @nb.njit(cache=True)
+def _cells(x, radius, skin):
+    """Counting sort of the grains x [N, 2] (m) into square cells of side 2 r_max + skin over their
+    bounding box: (cell_of [N], cell_start [C+1], in_cell [N] (grains by cell), nx, ny)."""
+    n = x.shape[0]
+    side = 2.0 * radius.max() + skin
+    x_lo, y_lo = x[:, 0].min(), x[:, 1].min()
+    nx = int((x[:, 0].max() - x_lo) / side) + 1
+    ny = int((x[:, 1].max() - y_lo) / side) + 1
+    cell_of = np.empty(n, np.int64)
+    cell_start = np.zeros(nx * ny + 1, np.int64)
+    for i in range(n):
+        c = int((x[i, 1] - y_lo) / side) * nx + int((x[i, 0] - x_lo) / side)
+        cell_of[i] = c
+        cell_start[c + 1] += 1
+    for c in range(nx * ny):
+        cell_start[c + 1] += cell_start[c]
+    fill = cell_start[:-1].copy()
+    in_cell = np.empty(n, np.int64)
+    for i in range(n):
+        in_cell[fill[cell_of[i]]] = i
+        fill[cell_of[i]] += 1
+    return cell_of, cell_start, in_cell, nx, ny
+
+
+@nb.njit(cache=True)
+def _list_rows(i_start, i_end, x, radius, skin, cells, start, partner, old_start, old_partner, old_history, history):
+    """Rows i_start <= i < i_end of the pair list over the 3x3 cells around each grain: with
+    partner empty, count them into start[i + 1]; else fill partner[start[i]:start[i + 1]] (start
+    summed) and carry the history of pairs the old list held. Rows touch only their own slots."""
+    cell_of, cell_start, in_cell, nx, ny = cells
+    fill = partner.shape[0] > 0
+    for i in range(i_start, i_end):
+        ci = cell_of[i]
+        cx, cy = ci % nx, ci // nx
+        cursor = start[i]
+        for gy in range(max(cy - 1, 0), min(cy + 2, ny)):
+            for gx in range(max(cx - 1, 0), min(cx + 2, nx)):
+                c = gy * nx + gx
+                for k in range(cell_start[c], cell_start[c + 1]):
+                    j = in_cell[k]
+                    if j <= i:
+                        continue
+                    dx = x[j, 0] - x[i, 0]
+                    dy = x[j, 1] - x[i, 1]
+                    reach = radius[i] + radius[j] + skin
+                    if dx * dx + dy * dy < reach * reach:
+                        if fill:
+                            partner[cursor] = j
+                            cursor += 1
+                        else:
+                            start[i + 1] += 1
+        if fill and old_start.shape[0] == x.shape[0] + 1:
+            for k in range(start[i], start[i + 1]):
+                for m in range(old_start[i], old_start[i + 1]):
+                    if old_partner[m] == partner[k]:
+                        history[k, :] = old_history[m, :]
+                        break
+
+
+@nb.njit(cache=True)
 def build_pairs(
     x: np.ndarray,
     radius: np.ndarray,
@@ -28,62 +88,68 @@ def build_pairs(
     pair absent from the old list starts with relaxed springs (zero history).
     """
     n = x.shape[0]
-    r_max = radius.max()
-    side = 2.0 * r_max + skin
-    x_lo, y_lo = x[:, 0].min(), x[:, 1].min()
-    nx = int((x[:, 0].max() - x_lo) / side) + 1
-    ny = int((x[:, 1].max() - y_lo) / side) + 1
-    # counting sort of grains into cells
-    cell_of = np.empty(n, np.int64)
-    cell_start = np.zeros(nx * ny + 1, np.int64)
-    for i in range(n):
-        c = int((x[i, 1] - y_lo) / side) * nx + int((x[i, 0] - x_lo) / side)
-        cell_of[i] = c
-        cell_start[c + 1] += 1
-    for c in range(nx * ny):
-        cell_start[c + 1] += cell_start[c]
-    fill = cell_start[:-1].copy()
-    in_cell = np.empty(n, np.int64)
-    for i in range(n):
-        in_cell[fill[cell_of[i]]] = i
-        fill[cell_of[i]] += 1
-    # two passes over the 3x3 cell neighbourhood: count, then fill
+    cells = _cells(x, radius, skin)
     start = np.zeros(n + 1, np.int64)
-    partner = np.empty(0, np.int64)
-    for fill_pass in range(2):
-        if fill_pass == 1:
-            for i in range(n):
-                start[i + 1] += start[i]
-            partner = np.empty(start[n], np.int64)
-            cursor = start[:-1].copy()
-        for i in range(n):
-            ci = cell_of[i]
-            cx, cy = ci % nx, ci // nx
-            for gy in range(max(cy - 1, 0), min(cy + 2, ny)):
-                for gx in range(max(cx - 1, 0), min(cx + 2, nx)):
-                    c = gy * nx + gx
-                    for k in range(cell_start[c], cell_start[c + 1]):
-                        j = in_cell[k]
-                        if j <= i:
-                            continue
-                        dx = x[j, 0] - x[i, 0]
-                        dy = x[j, 1] - x[i, 1]
-                        reach = radius[i] + radius[j] + skin
-                        if dx * dx + dy * dy < reach * reach:
-                            if fill_pass == 0:
-                                start[i + 1] += 1
-                            else:
-                                partner[cursor[i]] = j
-                                cursor[i] += 1
-    # carry the history of pairs that were already listed
-    history = np.zeros((partner.shape[0], old_history.shape[1]))
-    if old_start.shape[0] == n + 1:
-        for i in range(n):
-            for k in range(start[i], start[i + 1]):
-                for m in range(old_start[i], old_start[i + 1]):
-                    if old_partner[m] == partner[k]:
-                        history[k, :] = old_history[m, :]
-                        break
+    history = np.zeros((0, old_history.shape[1]))
+    _list_rows(0, n, x, radius, skin, cells, start, np.empty(0, np.int64), old_start, old_partner, old_history, history)
+    for i in range(n):
+        start[i + 1] += start[i]
+    partner = np.empty(start[n], np.int64)
+    history = np.zeros((start[n], old_history.shape[1]))
+    _list_rows(0, n, x, radius, skin, cells, start, partner, old_start, old_partner, old_history, history)
+    return start, partner, history
+
+
+@nb.njit(parallel=True, cache=True)
+def build_pairs_threaded(
+    x: np.ndarray,
+    radius: np.ndarray,
+    skin: float,
+    old_start: np.ndarray,
+    old_partner: np.ndarray,
+    old_history: np.ndarray,
+    bounds: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """build_pairs with the rows of each range bounds[c] <= i < bounds[c + 1] ([n_chunks + 1]) on
+    their own thread: the same list, the same bits, whatever the ranges."""
+    n, n_chunks = x.shape[0], bounds.shape[0] - 1
+    cells = _cells(x, radius, skin)
+    start = np.zeros(n + 1, np.int64)
+    history = np.zeros((0, old_history.shape[1]))
+    for c in nb.prange(n_chunks):
+        _list_rows(
+            bounds[c],
+            bounds[c + 1],
+            x,
+            radius,
+            skin,
+            cells,
+            start,
+            np.empty(0, np.int64),
+            old_start,
+            old_partner,
+            old_history,
+            history,
+        )
+    for i in range(n):
+        start[i + 1] += start[i]
+    partner = np.empty(start[n], np.int64)
+    history = np.zeros((start[n], old_history.shape[1]))
+    for c in nb.prange(n_chunks):
+        _list_rows(
+            bounds[c],
+            bounds[c + 1],
+            x,
+            radius,
+            skin,
+            cells,
+            start,
+            partner,
+            old_start,
+            old_partner,
+            old_history,
+            history,
+        )
     return start, partner, history
 
 

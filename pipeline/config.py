@@ -37,6 +37,8 @@ from dem.case import (
 from dem.engines import ENGINES, EngineError, get_engine
 from dem.grid import SPLITS, VARIED, ConfigError, case_id_of, sample_dataset
 from dem.runout import RunoutError, RunoutMethod
+from dem.scale_ladder import DATASET as LADDER_DATASET
+from dem.scale_ladder import case_rows as ladder_rows
 
 __all__ = [
     "ConfigError",
@@ -48,6 +50,7 @@ __all__ = [
     "check_doe",
     "check_inverse",
     "check_diagnosis",
+    "check_scale_ladder",
     "gns_datasets",
     "inverse_datasets",
 ]
@@ -77,6 +80,10 @@ def validate_config(config: dict, schema_path: str | os.PathLike) -> dict:
         RunoutMethod.from_config(config.get("runout"))
     except RunoutError as exc:
         problems.append(str(exc))
+    try:  # the ladder's runs are cases: each must be one (the material above all)
+        ladder_rows(config["scale_ladder"])
+    except CaseError as exc:
+        problems.append(f"scale_ladder: not a valid DEM case: {exc}")
     if problems:
         raise ConfigError("invalid config:\n  " + "\n  ".join(problems))
     return config
@@ -271,6 +278,8 @@ def _check_materials(config: dict, columns: dict[str, MeasuredColumn]) -> None:
     seen: dict[str, tuple[Material, str]] = {}
     sources = [(get_material(spec["material"]), f"datasets.{n}.material") for n, spec in config["datasets"].items()]
     sources += [(c.material_properties, f"measured.{n} ({c.source})") for n, c in columns.items()]
+    if config["scale_ladder"]["size_scales"]:
+        sources.append((get_material(config["scale_ladder"]["material"]), "scale_ladder.material"))
     for material, where in sources:
         first = seen.setdefault(material.name, (material, where))
         if first[0] != material:
@@ -333,7 +342,7 @@ def _dataset_of_column(config: dict, name: str, columns: dict[str, MeasuredColum
 # --- keys that name another key's entries ------------------------------------------------------
 def check_cross_keys(config: dict, cases: dict[str, dict]) -> dict[str, str]:
     """Every check across keys of the validated `config`, in stage order (datasets, GNS, DoE,
-    inverse design, diagnosis).
+    inverse design, diagnosis, calibrated model, scale ladder).
 
     cases: the case table of `config` ({"<dataset>/<case_id>": row}, dem.grid.case_table). Returns
     what the inverse-design checks resolve on the way, {inverse.measured name: the dataset whose
@@ -345,6 +354,7 @@ def check_cross_keys(config: dict, cases: dict[str, dict]) -> dict[str, str]:
     resolved = check_inverse(config, cases)
     check_diagnosis(config)
     check_calibration(config)
+    check_scale_ladder(config)
     return resolved
 
 
@@ -441,6 +451,18 @@ def check_diagnosis(config: dict) -> None:
         for column in _measured_columns(config, name).values():
             where = f"diagnosis.size_scale (measured {name!r}, column {column.name!r})"
             _guard(column.L_i, column.material_properties, size_scale, config, where)
+
+
+def check_scale_ladder(config: dict) -> None:
+    """The scale ladder's runs (dataset scale_ladder of the case table) take a name no dataset has,
+    and its column passes the size guard (dem.min_grains_across) at its coarsest size_scale."""
+    section = config["scale_ladder"]
+    if not section["size_scales"]:
+        return
+    if LADDER_DATASET in config["datasets"]:
+        raise ConfigError(f"config key datasets.{LADDER_DATASET}: the name is taken by the runs of scale_ladder")
+    coarsest = max(section["size_scales"])
+    _guard(section["L_i"], section["material"], coarsest, config, f"scale_ladder.size_scales ({coarsest:g})")
 
 
 def check_calibration(config: dict) -> None:

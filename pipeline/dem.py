@@ -15,6 +15,8 @@ from __future__ import annotations
 import logging
 import math
 import shutil
+import time
+from pathlib import Path
 
 from dem import grid
 from dem.atomic import StrPath
@@ -72,17 +74,40 @@ def job_resources(row: dict, stage: str, threads: int = 1, attempt: int = 1) -> 
 
 def settle(deck_path: StrPath, out_path: StrPath, threads: int = 1) -> Trajectory:
     """Pour and settle one case's column behind the gate (builtin engine, `threads` as config
-    dem.threads); writes the settled packing as a one-frame trajectory HDF5 at `out_path` and
-    returns it."""
+    dem.threads); writes the settled packing as a one-frame trajectory HDF5 at `out_path` (its
+    attribute wall_time_s: the settle's wall seconds) and returns it."""
     case, _ = grid.read_deck(deck_path)
     threads = usable_threads(threads)
     log.info("settling %s: %d grains, %d thread(s)", case.name, case.n_particles, threads)
     # progress: how close the RMS grain speed is to the rest criterion (it can fall back, and is
     # logged each time it passes another tenth)
+    start = time.perf_counter()
     packing = settle_column(case, progress_logger(f"settling {case.name}, rest criterion", log), threads)
+    packing.attrs["wall_time_s"] = time.perf_counter() - start  # the settle's cost (a run's: its collapse's)
     write_trajectory(out_path, packing)
-    log.info("settled height %.4g m after %s steps", packing.attrs["settled_height"], packing.attrs["settle_steps"])
+    log.info(
+        "settled height %.4g m after %s steps in %.1f s",
+        packing.attrs["settled_height"],
+        packing.attrs["settle_steps"],
+        packing.attrs["wall_time_s"],
+    )
     return packing
+
+
+def clear_work_dir(work_dir: StrPath, keep: tuple[str, ...] = ()) -> None:
+    """Remove what a killed run left in work_dir, but for the files named in `keep`."""
+    work_dir = Path(work_dir)
+    if not work_dir.is_dir():
+        shutil.rmtree(work_dir, ignore_errors=True)
+        return
+    for path in work_dir.iterdir():
+        if path.name in keep and path.is_file():
+            log.info("keeping %s: the run resumes from it", path)
+            continue
+        if path.is_dir():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
 
 
 def run_case(
@@ -99,7 +124,8 @@ def run_case(
     `solvers`: config dem.solvers; `threads`: config dem.threads); writes the trajectory HDF5 at
     `out_path` and returns it.
 
-    work_dir: the engine's scratch folder, emptied first (a killed run's leftovers) and removed
+    work_dir: the engine's scratch folder, emptied first (a killed run's leftovers, but for the
+    files the engine resumes from: a killed builtin run goes on from its checkpoint) and removed
     afterwards unless `keep_work`.
     """
     case, _ = grid.read_deck(deck_path)
@@ -114,7 +140,7 @@ def run_case(
         case.n_frames,
     )
 
-    shutil.rmtree(work_dir, ignore_errors=True)  # a killed run's leftovers
+    clear_work_dir(work_dir, keep=dem_engine.resume_files)
     # writes the output atomically, only once the engine's output reads whole
     trajectory = dem_engine.simulate(
         case, packing, work_dir, progress=progress_logger(f"collapse {case.name}", log), output=out_path

@@ -75,6 +75,23 @@ def tiny_all_run(tmp_path_factory):
 SHARED_UNITS = {"tests/test_html_report.py": "tiny_all", "tests/test_pipeline_end_to_end.py": "tiny_all"}
 
 
+# The longest units first (seconds alone on 2 cores, 2026-11-30): each worker takes the next unit
+# when it is free, so a long one started last would hold the suite up alone.
+LONGEST_FIRST = (
+    "tests/test_html_report.py",  # with test_pipeline_end_to_end.py: the tiny_all DAG, ~170 s
+    "tests/test_pipeline_end_to_end.py",
+    "tests/test_diagnosis.py",  # ~200 s
+    "tests/test_workflow.py",  # ~100 s
+    "tests/test_slurm.py",  # ~55 s
+    "tests/test_liggghts.py",  # ~50 s
+)
+
+
+def pytest_collection_modifyitems(items):
+    rank = {path: k for k, path in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.nodeid.split("::")[0], len(rank)))  # stable: files keep their order
+
+
 @pytest.hookimpl(optionalhook=True)
 def pytest_xdist_make_scheduler(config, log):
     if config.getvalue("dist") != "loadfile":

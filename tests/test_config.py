@@ -278,6 +278,22 @@ def test_doe_column_too_few_grains_across_at_doe_size_scale():
     check_doe(config)
 
 
+def test_scale_ladder_guarded_at_its_coarsest_scale_named_apart_and_its_runs_cases():
+    """The default ladder (size_scale 5, 4, 3 of the quartz column) passes; size_scale 6 is 7.8 across
+    and refused, naming the key; a dataset named scale_ladder and a material that is none are refused."""
+    config = validated()
+    assert config["scale_ladder"]["size_scales"] == [5, 4, 3] and config["scale_ladder"]["friction"] == 0.39
+    pipeline.config.check_scale_ladder(config)
+    config["scale_ladder"]["size_scales"] = [6, 1]
+    assert cross_key_error(config).startswith("config key scale_ladder.size_scales (6): L_i = 0.02 m at size_scale 6")
+    config["scale_ladder"]["size_scales"] = [5]
+    config["datasets"]["scale_ladder"] = config["datasets"]["quartz_multiple"]
+    assert "config key datasets.scale_ladder: the name is taken by the runs of scale_ladder" in cross_key_error(config)
+    with pytest.raises(ConfigError, match="scale_ladder: not a valid DEM case: .*sand"):
+        validated(edit=lambda c: c["scale_ladder"].update(material="sand"))
+    assert validated("test.yaml")["scale_ladder"]["size_scales"] == []  # off unless a config asks
+
+
 # -- your own column (README "Calibrate your own column"): pipeline.config.derive_columns ----------------
 GLASS = {"name": "glass", "diameter": 0.0004, "density": 2500.0, "solid_fraction": 0.6}
 

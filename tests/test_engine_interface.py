@@ -117,7 +117,8 @@ def test_size_classes_keep_restitution_within_tolerance():
 
 def test_dem_stage_row_to_deck_packing_run_and_figure(tiny, tmp_path, caplog):
     """pipeline.dem, the DEM stage's jobs: a case-table row -> deck -> settled packing -> run with
-    the configured engine (stale scratch files cleared, the scratch folder removed) -> figure."""
+    the configured engine (stale scratch files cleared but a killed run's checkpoint, which it goes
+    on from, the scratch folder removed) -> figure."""
     from pipeline.dem import draw_case, run_case, settle, write_deck
 
     case, packing = tiny
@@ -141,6 +142,13 @@ def test_dem_stage_row_to_deck_packing_run_and_figure(tiny, tmp_path, caplog):
     work = tmp_path / "work"
     work.mkdir()
     (work / "stale.txt").write_text("a killed run's leftovers")
+
+    def killed(fraction):  # a run killed midway left its checkpoint, which the rerun goes on from
+        if fraction > 0.5:
+            raise InterruptedError
+
+    with pytest.raises(InterruptedError):
+        simulate_collapse(case, packing, killed, checkpoint=work / "checkpoint.npz", checkpoint_every_s=0.0)
     trajectory = run_case(
         tmp_path / "deck.json",
         tmp_path / "packing.h5",
@@ -152,6 +160,7 @@ def test_dem_stage_row_to_deck_packing_run_and_figure(tiny, tmp_path, caplog):
     )
     np.testing.assert_array_equal(read_trajectory(tmp_path / "out.h5").positions, trajectory.positions)
     np.testing.assert_array_equal(trajectory.positions, simulate_collapse(case, packing).positions)
+    assert trajectory.attrs["resumed_from_frame"] >= case.n_frames // 2 and "the run resumes from it" in caplog.text
     assert not work.exists()
     run_case(
         tmp_path / "deck.json",

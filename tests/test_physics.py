@@ -164,6 +164,46 @@ def test_two_threads_same_forces_and_same_bits(small_case, caplog):
     assert "dem.threads: 999 asked" in caplog.text
 
 
+class Killed(Exception):
+    """The run killed midway, as by a SLURM time limit."""
+
+
+def test_killed_run_resumes_from_its_checkpoint_with_the_same_bits(small_case, tmp_path, caplog):
+    """A run killed midway goes on from its last checkpoint and ends with the bits of a run never
+    stopped (issue 18: full-scale runs take minutes); a checkpoint that does not read whole or is
+    of another thread count is set aside, saying so, and the run starts clean."""
+    case, threads = small_case.replace(duration_over_tstar=1.0), 2
+    packing = settle_column(case)
+    whole = simulate_collapse(case, packing, threads=threads)
+    checkpoint = tmp_path / "checkpoint.npz"
+
+    def kill_midway(fraction):
+        if fraction > 0.5:
+            raise Killed
+
+    with pytest.raises(Killed):
+        simulate_collapse(case, packing, kill_midway, threads, checkpoint=checkpoint, checkpoint_every_s=0.0)
+    assert checkpoint.exists()
+    kept = checkpoint.read_bytes()
+    resumed = simulate_collapse(case, packing, threads=threads, checkpoint=checkpoint)
+    assert case.n_frames // 2 <= resumed.attrs["resumed_from_frame"] < case.n_frames
+    assert np.array_equal(resumed.positions, whole.positions)
+    assert resumed.attrs["steps"] == whole.attrs["steps"] and not checkpoint.exists()
+
+    for why, bad in (("BadZipFile", kept[: len(kept) // 2]), ("another case", None)):
+        if bad is None:  # the same checkpoint, but the run asks for another thread count
+            checkpoint.write_bytes(kept)
+            threads = 3 - threads
+            whole = simulate_collapse(case, packing, threads=threads)
+        else:
+            checkpoint.write_bytes(bad)
+        caplog.clear()
+        with caplog.at_level("WARNING", logger="dem.collapse"):
+            clean = simulate_collapse(case, packing, threads=threads, checkpoint=checkpoint)
+        assert f"checkpoint {checkpoint} set aside, starting clean" in caplog.text and why in caplog.text
+        assert clean.attrs["resumed_from_frame"] == 0 and np.array_equal(clean.positions, whole.positions)
+
+
 def test_blow_up_is_reported_with_case_and_step(small_case):
     state = State.at_rest([[0.5, 0.5], [0.5 + RADIUS, 0.5]], [RADIUS, RADIUS], DENSITY)  # 50% overlap
     with pytest.raises(SimulationError, match=r"case small.*step 0.*overlap"):

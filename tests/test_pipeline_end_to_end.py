@@ -4,7 +4,8 @@ One run for the module (a copy of the workflow, tests/test_workflow.py's machine
 dataset, the GNS (training, rollout, evaluation), the runout-method study, the DoE, the inverse
 design (GNS, DEM validation, Bayesian optimisation on DEM, comparison, parameter recovery), the
 diagnosis, the calibrated model (its DoE, BO and GNS routes, every route validated on 3 packings,
-the finer-scale transfer, predictions), the ParaView export and the report. The measured column
+the finer-scale transfer, predictions), the scale ladder (one size_scale, one packing), the ParaView
+export and the report. The measured column
 is data/test/tiny_quartz_a2.csv, a synthetic curve in the geometry of the config's one dataset.
 The fixture gives the column as a user brings one (README "Calibrate your own column"): a CSV of
 a material of its own written outside the workflow, on the command line; config/tiny_all.yaml's
@@ -12,10 +13,11 @@ dataset takes that column's material and geometry (`measured: tiny`), so the DAG
 CSV. The checks are of plumbing and sanity (files written, numbers finite and in range, every stage in
 the report), not of accuracy: the GNS trains 200 steps on 3 columns of 77 grains.
 
-Cost: 105 jobs of 212 s in all (their benchmark files; most of it Python start-up per job, the
-longest chain 46 s). Measured at --cores 1 on the 2-core box beside another engineer's busy process:
-218 s, and 290-340 s under heavier load; at --cores 2 about half (the DAG list-scheduled with those
-job times: 107 s), plus 7 s for the checks. E2E_CORES sets the cores (default 2).
+Cost: 109 jobs; the 105 before the scale ladder took 212 s in all (their benchmark files; most of
+it Python start-up per job, the longest chain 46 s). Measured at --cores 1 on the 2-core box beside
+another engineer's busy process: 218 s, and 290-340 s under heavier load; at --cores 2 about half
+(the DAG list-scheduled with those job times: 107 s), plus 7 s for the checks. With the ladder, at
+--cores 1 and nice 19 beside a busy benchmark: 345 s. E2E_CORES sets the cores (default 2).
 """
 
 import csv
@@ -41,13 +43,13 @@ MODEL_DATASET = f"calibrated_{NAME}"
 CORES = int(os.environ.get("E2E_CORES", "2"))
 PNG = b"\x89PNG\r\n\x1a\n"
 # Jobs per rule of the tiny DAG: 5 dataset cases + 10 DoE runs (3 x 3 levels + 1 centre replicate)
-# through the DEM rules; one GNS on the dataset and one on the calibrated model's 3 cases; 9 routes
+# + 1 scale-ladder run through the DEM rules; one GNS on the dataset and one on the calibrated model's 3 cases; 9 routes
 # of the calibrated model validated; 7 trajectories exported (2 rollouts + their 2 DEM runs, 2 DoE
 # validations, the inverse validation).
 EXPECTED_JOBS = {
-    "dem_deck": 15,
-    "dem_packing": 15,
-    "dem_run": 15,
+    "dem_deck": 16,
+    "dem_packing": 16,
+    "dem_run": 16,
     "dem_figure": 5,
     "dataset": 1,
     "dataset_summary": 1,
@@ -80,6 +82,7 @@ EXPECTED_JOBS = {
     "calibrated_validate": 9,
     "calibrated": 1,
     "calibrated_section": 1,
+    "scale_ladder": 1,
     "export_vtk": 7,
     "export_calibrated_vtk": 1,
     "report": 1,
@@ -104,10 +107,11 @@ REPORT_SECTIONS = [  # in report order: the answer first
     "Inverse design through the GNS and the comparison with DoE",
     "What the simulation gets wrong: diagnosis",
     "How the runout is read: the methods compared",
+    "How the runout depends on grain size: the scale ladder",
     "Time per stage",
 ]
 # stages in the time table (the report job writes its own benchmark after the table)
-STAGES = ["calibrated", "dataset", "dem", "diagnosis", "doe", "export", "gns", "inverse", "runout"]
+STAGES = ["calibrated", "dataset", "dem", "diagnosis", "doe", "export", "gns", "inverse", "runout", "scale_ladder"]
 
 
 @pytest.fixture(scope="module")
@@ -194,8 +198,8 @@ def test_every_json_is_strict_json_and_every_trajectory_finite(results):
         if "/packings/" not in str(p) and not p.name.startswith(".") and "/logs/" not in str(p)
     ]
     # 5 dataset cases, 10 DoE runs, 2 DoE validations, 3 cases of the calibrated model's GNS, 2 GNS
-    # rollouts, the inverse design's start and validation runs, the best BO run
-    assert len(trajectories) == 25
+    # rollouts, the inverse design's start and validation runs, the best BO run, the scale-ladder run
+    assert len(trajectories) == 26
     for path in trajectories:
         assert_trajectory(path)
 
@@ -262,6 +266,19 @@ def test_runout_methods(results):
         # the runs last 2 t*: the stopping phase (t/t* > 2.5) is not reached and is left out
         assert set(mean["scatter_by_phase"]) == {"free_fall", "spreading"}, name
         assert finite(list(mean["scatter_by_phase"].values())), name
+
+
+def test_scale_ladder(results):
+    """config/tiny_all.yaml's ladder: size_scale 4, one packing, 1 t*, read by the configured method."""
+    summary = load(results / "scale_ladder" / "summary.json")
+    assert summary["runout"]["method"] == "dense_front_reached" and summary["case"]["aspect_ratio"] == 2
+    (entry,) = summary["by_size_scale"].values()
+    assert entry["size_scale"] == 4 and entry["seeds"] == [0] and entry["final_t_over_tstar"] == pytest.approx(1.0)
+    assert set(entry["runout_at"]) == {"1"} and entry["runout_at"]["1"]["std"] is None  # one packing: no scatter
+    run = results / "dem" / "scale_ladder" / "trajectories" / "scale4_packing0.h5"
+    assert entry["n_particles"] == read_trajectory(run).n_particles
+    assert finite(entry["final_runout"]["mean"], entry["final_height_over_H_i"]["mean"], entry["settle_s"]["mean"])
+    assert entry["collapse_s"]["per_packing"] == [read_attrs(run)["wall_time_s"]]
 
 
 # -- DoE -----------------------------------------------------------------------------------------------

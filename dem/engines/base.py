@@ -51,6 +51,7 @@ class Engine:
     executable = None  # default solver command (looked up on PATH) or None for in-process
     install_hint = ""
     mechanisms: tuple[str, ...] = ()  # candidate-mechanism case fields (MECHANISMS) it can run
+    resume_files: tuple[str, ...] = ()  # files in work_dir a rerun of a killed run resumes from
 
     def __init__(self, solver_path: str | None = None, threads: int = 1):
         """solver_path: the solver executable (path or command name); None: `executable` on PATH.

@@ -22,11 +22,13 @@ DECK = "case.json"
 PACKING = "packing.h5"
 OUTPUT = "trajectory.h5"
 LOG = "builtin.log"
+CHECKPOINT = "checkpoint.npz"  # a long run's state; a rerun resumes from it (dem.collapse)
 
 
 class BuiltinEngine(Engine):
     name = "builtin"
     mechanisms = MECHANISMS  # it runs every candidate mechanism
+    resume_files = (CHECKPOINT,)
     install_hint = "The builtin engine is part of this package (dem.collapse)."
 
     def availability(self) -> tuple[bool, str]:
@@ -82,7 +84,15 @@ class BuiltinEngine(Engine):
                     progress(fraction)
 
             t0 = time.perf_counter()
-            trajectory = simulate_collapse(case, packing, progress=report, threads=usable_threads(self.threads))
+            trajectory = simulate_collapse(
+                case,
+                packing,
+                progress=report,
+                threads=usable_threads(self.threads),
+                checkpoint=deck.parent / CHECKPOINT,
+            )
+            if trajectory.attrs["resumed_from_frame"]:
+                logger.info("resumed from the checkpoint at frame %d", trajectory.attrs["resumed_from_frame"])
             logger.info(
                 "done in %.1f s (%.3g particle-steps/s)",
                 time.perf_counter() - t0,
