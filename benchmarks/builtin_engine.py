@@ -7,8 +7,9 @@ For each: the settle and --duration t* of collapse on 1 and on 2 threads (partic
 speed-up), the settle's cost in t* of collapse, and LIGGGHTS 3.8 on the same packing over
 --liggghts-duration t*, with the project's deck (one layer of spheres) and a plain 2D deck
 (`dimension 2`, `fix enforce2d`), and the ratios. Then the whole measured column at full scale,
-settled and collapsed over 4 t* on 2 threads (target: under 5 minutes; moonshot 3), and where a
-single-thread collapse spends its time (neighbour lists, forces, integration, output).
+settled and collapsed over 4 t* on 2 threads at each --full-run-steps (dt / contact time: the
+default 1/50 and 1/25, the settle's step 2.5x the collapse's; target: under 5 minutes, moonshot 3),
+and where a single-thread collapse spends its time (neighbour lists, forces, integration, output).
 
 Ratios are measured in this run, one after the other; run it on an otherwise idle machine.
 
@@ -32,6 +33,7 @@ from dem.collapse import simulate_collapse, state_from_packing
 from dem.engines import get_engine
 from dem.integrate import ContactLaw, _forces, _move, build_pairs, frame_steps, record, run
 from dem.packing import blowup_box, settle_column, walls_open
+from dem.runout import RunoutMethod
 from dem.trajectory import write_trajectory
 
 CASES = {"standard": 1.0, "full_scale": 6.0}  # aspect ratio a; quartz, L_i = 0.02 m, size_scale 1
@@ -200,6 +202,9 @@ def main():
     parser.add_argument("--duration", type=float, default=0.25, help="collapse t* of the throughput runs")
     parser.add_argument("--liggghts-duration", type=float, default=0.1, help="collapse t* of the LIGGGHTS runs")
     parser.add_argument("--full-run-duration", type=float, default=4.0, help="t* of the full-scale run (0: skip it)")
+    # the default step and the coarser one whose answers lie within the packing scatter
+    # (benchmarks/time_step.py); each settles the same poured lattice at its own settle step
+    parser.add_argument("--full-run-steps", default="0.02,0.04", help="dt / contact time of the full-scale runs")
     parser.add_argument("--cases", default="standard,full_scale")
     parser.add_argument("--skip-liggghts", action="store_true")
     args = parser.parse_args()
@@ -212,28 +217,32 @@ def main():
         "load_average_1min_at_start": round(os.getloadavg()[0], 2),
     }
     with tempfile.TemporaryDirectory() as scratch:
-        for name in args.cases.split(","):
+        for name in [c for c in args.cases.split(",") if c]:  # --cases "": the full-scale run alone
             result[name] = measure_case(name, CASES[name], args, Path(scratch))
     if args.full_run_duration > 0:
-        case = column(CASES["full_scale"], args.full_run_duration)
-        packing, settle_s = timed(settle_column, case, threads=2)
-        trajectory, collapse_s = timed(simulate_collapse, case, packing, threads=2)
-        total = settle_s + collapse_s
-        result["full_scale_run_2_threads"] = {
-            "n_particles": case.n_particles,
-            "duration_tstar": args.full_run_duration,
-            "settle_s": round(settle_s, 1),
-            "collapse_s": round(collapse_s, 1),
-            "total_s": round(total, 1),
-            "particle_steps_per_second": round(trajectory.attrs["particle_steps_per_second"]),
-            # the settle against the mean cost of 1 t* of this whole collapse (the throughput runs'
-            # settle_cost_in_tstar_of_collapse is against their first, cheapest t*: the column is
-            # in the air, and a step costs about its touching pairs)
-            "settle_cost_in_mean_tstar_of_this_collapse": round(settle_s * args.full_run_duration / collapse_s, 3),
-            "target_s": TARGET_FULL_RUN_S,
-            "meets_target": total < TARGET_FULL_RUN_S,
-            "meets_moonshot": total < MOONSHOT_FULL_RUN_S,
-        }
+        for step in (float(s) for s in args.full_run_steps.split(",")):
+            case = column(CASES["full_scale"], args.full_run_duration).replace(dt_over_contact_time=step)
+            packing, settle_s = timed(settle_column, case, threads=2)  # its step follows the collapse's
+            trajectory, collapse_s = timed(simulate_collapse, case, packing, threads=2)
+            total = settle_s + collapse_s
+            t, runout = RunoutMethod().curve(trajectory)
+            result[f"full_scale_run_2_threads_dt_tc_over_{1 / step:g}"] = {
+                "n_particles": case.n_particles,
+                "duration_tstar": args.full_run_duration,
+                "dt_over_contact_time": step,
+                "settle_s": round(settle_s, 1),
+                "collapse_s": round(collapse_s, 1),
+                "total_s": round(total, 1),
+                "particle_steps_per_second": round(trajectory.attrs["particle_steps_per_second"]),
+                # the settle against the mean cost of 1 t* of this whole collapse (the throughput runs'
+                # settle_cost_in_tstar_of_collapse is against their first, cheapest t*: the column is
+                # in the air, and a step costs about its touching pairs)
+                "settle_cost_in_mean_tstar_of_this_collapse": round(settle_s * args.full_run_duration / collapse_s, 3),
+                "runout_at": {f"{x:g}": round(float(np.interp(x, t, runout)), 3) for x in (1, 2, 3.5, 4) if x <= t[-1]},
+                "target_s": TARGET_FULL_RUN_S,
+                "meets_target": total < TARGET_FULL_RUN_S,
+                "meets_moonshot": total < MOONSHOT_FULL_RUN_S,
+            }
     result["load_average_1min_at_end"] = round(os.getloadavg()[0], 2)
     if "full_scale" in result:
         result["meets_speedup_target"] = result["full_scale"]["speedup_2_threads"] >= TARGET_SPEEDUP

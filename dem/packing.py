@@ -16,7 +16,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from dem.case import FILL_HEIGHT_FACTOR, CaseError, CollapseCase
+from dem.case import FILL_HEIGHT_FACTOR, MAX_DT_OVER_CONTACT_TIME, CaseError, CollapseCase
 from dem.integrate import ENGINE_VERSION, ContactLaw, SimulationError, State, run
 from dem.trajectory import GRAIN, Trajectory, TrajectoryError, engine_attrs
 
@@ -24,11 +24,14 @@ LATTICE_CLEARANCE = 1.02  # lattice pitch / largest diameter
 REST_SPEED = 1e-3  # settled when the RMS grain speed is below this fraction of sqrt(g H_i)
 SETTLE_CHECK_TSTAR = 0.05  # check for rest every this many t*
 MAX_SETTLE_TSTAR = 20.0  # give up (error) after this many t*
-# Settling steps at contact_time / 20, not the collapse's / 50: only the state at rest is kept, and
-# 20 steps still resolve a contact (symplectic Euler is stable to ~contact_time / 1.6). The settle
-# then costs about what 1 t* of collapse costs (issue 18, benchmarks/builtin_engine.py); most of its
-# ~1.7 t* is the lattice falling ~0.2 H_i and a few grains splashed off the top falling back.
-SETTLE_STEPS_PER_CONTACT = 20
+# Settling steps 2.5 times longer than the collapse's (contact_time / 20 at the default / 50), never
+# longer than contact_time / 10, the case's own stability bound (MAX_DT_OVER_CONTACT_TIME): only the
+# state at rest is kept, and 10-20 steps still resolve a contact (symplectic Euler is stable to
+# ~contact_time / 1.6). The settle then costs about half to two thirds of what 1 t* of collapse
+# costs at either step (issue 18, benchmarks/builtin_engine.py); most of its ~1.7 t* is the lattice
+# falling ~0.2 H_i and a few grains splashed off the top falling back.
+SETTLE_STEP_OVER_COLLAPSE_STEP = 2.5
+MIN_SETTLE_STEPS_PER_CONTACT = 1.0 / MAX_DT_OVER_CONTACT_TIME
 
 
 def grain_radii(case: CollapseCase, rng: np.random.Generator) -> np.ndarray:
@@ -86,8 +89,12 @@ def blowup_box(case: CollapseCase) -> tuple:
 
 
 def settle_time_step(case: CollapseCase) -> float:
-    """Settling time step (s): contact_time / SETTLE_STEPS_PER_CONTACT, or the case's own if longer."""
-    return max(case.time_step, case.contact_time / SETTLE_STEPS_PER_CONTACT)
+    """Settling time step (s): SETTLE_STEP_OVER_COLLAPSE_STEP collapse steps, at most contact_time / 10."""
+    # written as steps per contact so that the default's is contact_time / 20.0 exactly (1 / 0.02 is
+    # 50.0 in floating point): its packings keep their bits
+    collapse_steps_per_contact = 1.0 / case.dt_over_contact_time
+    steps_per_contact = max(MIN_SETTLE_STEPS_PER_CONTACT, collapse_steps_per_contact / SETTLE_STEP_OVER_COLLAPSE_STEP)
+    return case.contact_time / steps_per_contact
 
 
 def settle_state(case: CollapseCase, progress: Callable[[float], None] | None = None, threads: int = 1) -> State:

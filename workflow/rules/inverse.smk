@@ -25,6 +25,9 @@ rule inverse_start:
         "results/logs/inverse/inverse_start/{name}.log",
     benchmark:
         "results/benchmarks/inverse/inverse_start/{name}.tsv"
+    # on the longest path (the calibrated model's GNS inverse design starts from it) but ready long
+    # before: without it the DEM jobs queued ahead of it held that path ~3 min (issue 15 timing)
+    priority: 10
     conda:
         "../envs/pipeline.yaml"
     resources:
