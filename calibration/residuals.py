@@ -43,6 +43,9 @@ PHASES = (
 # A runout more than this many times the highest design run is read as wrong units (mm, per cent:
 # factors of 20 to 1000), not as data beyond the design.
 UNITS_FACTOR = 3.0
+# A curve "grows" when its least-squares slope over t/t* is this many standard errors above zero,
+# the errors from its own scatter about the line (growing_curve).
+GROWTH_T = 3.0
 BIAS_Z = 2.0  # |sum of z| / sqrt(n) above this: a group's residuals are biased
 
 
@@ -196,7 +199,9 @@ def check_data(observables: Observables, library: Library, models: list[Model], 
         )
     # Units. A runout given in metres (L - L_i = L* L_i) is far below every base-model run (which
     # always collapses), grows like a runout, and divided by L_i becomes a plausible L*. (A
-    # cohesive column that stands has an L* near zero too, but it does not grow.) A runout far
+    # cohesive column that stands has an L* near zero too, but it does not grow: its points are
+    # noise about zero, which can span more than half their peak, so the growth must stand out of
+    # the curve's own scatter, growing_curve.) A runout far
     # above every run of every model is wrong units of another kind (mm of L - L_i: 1000 L_i L*,
     # per cent: 100 L*): "far" is more than UNITS_FACTOR times the highest run. Merely above the
     # highest run is data: a few design runs need not reach the edge of a model's box (a hidden
@@ -216,6 +221,7 @@ def check_data(observables: Observables, library: Library, models: list[Model], 
         if (
             peak < base_peak.min() - margin
             and peak - lowest > 0.5 * peak
+            and growing_curve(observables.x[rows], target[rows])
             and base_peak.min() / 3 <= peak / c.L_i <= 3 * base_peak.max()
         ):
             metres_like.setdefault(c.source, []).append(
@@ -247,6 +253,20 @@ def check_data(observables: Observables, library: Library, models: list[Model], 
             f"({[observables.labels[j] for j in k[:4]]}...): no candidate can reach them"
         )
     return notes
+
+
+def growing_curve(t: np.ndarray, values: np.ndarray) -> bool:
+    """Whether values [K] grow with t [K] beyond their own scatter: the least-squares slope is more
+    than GROWTH_T standard errors above zero, the errors from the residuals about the line (so a
+    smooth curve grows whatever noise its file states, and noise about a constant does not)."""
+    t, values = np.asarray(t, float), np.asarray(values, float)
+    if len(t) < 3:
+        return bool(values[-1] > values[0])
+    dt = t - t.mean()
+    slope = float(dt @ (values - values.mean()) / (dt @ dt))
+    residual = values - values.mean() - slope * dt
+    error = math.sqrt(float(residual @ residual) / (len(t) - 2) / float(dt @ dt))
+    return slope > GROWTH_T * error
 
 
 @dataclass(frozen=True)

@@ -5,14 +5,20 @@ from its stated `hidden_range` (calibration/mechanisms.py), simulated by the bui
 seed that the diagnosis' own runs never use, observed like a measurement (runout L* at t/t* points,
 deposit height at x points) and perturbed by Gaussian measurement noise of a stated std. The
 diagnosis is then given the data and the noise level, never the truth.
+
+Two ways to simulate the truth: `synthetic_measurement`, the builtin DEM with the very model the
+diagnosis fits, and `liggghts_measurement`, another solver (LIGGGHTS, a Hertzian contact law, its
+own packing, its own runout reading), as real data never come from the model that fits them.
 """
 
 from __future__ import annotations
 
 import csv
 import os
+import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
+from functools import partial
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -22,13 +28,15 @@ from calibration.measured import OPTIONAL_FIELDS, REQUIRED_FIELDS, MeasuredColum
 from calibration.mechanisms import Mechanism
 from calibration.observables import Observables
 from dem.atomic import atomic_path
-from dem.case import MATERIALS
+from dem.case import MATERIALS, CollapseCase
 from dem.engines import BUILTIN, simulate_case
+from dem.engines.liggghts_hertz import LiggghtsHertzEngine, poured_column
 from dem.runout import RunoutMethod
 
 if TYPE_CHECKING:  # diagnosis does not depend on this module; this module calls it only in diagnose_hidden_cases
     from calibration.diagnosis import DiagnosisSettings
     from calibration.diagnosis_result import Diagnosis
+    from dem.trajectory import Trajectory
 
 # The test columns of the diagnosis: small quartz columns of two aspect ratios, runout every 0.5 t*
 # up to 5 t* (the paper stops at 3.5; by 5 the base model's front still creeps on while rolling
@@ -45,6 +53,10 @@ SYNTHETIC_PROFILE_READ_AT = 5.5  # t/t*
 # base-model truth is inside what the calibration can reach.
 TRUTH_BOX = ((0.4, 0.8), (0.4, 0.8))
 SEED_OFFSET = 10_000  # hidden packing seeds start here, far from the library's packing seeds
+# How liggghts_measurement reads its runout, as off a lab's images: the front of the mass connected
+# to the column's foot (a grain's gap to it under 2 d) that never moves back, not the diagnosis'
+# default dense front (which needs 8 neighbours within 2.4 d, so leaves out a thin tongue).
+LAB_RUNOUT = RunoutMethod("connected_front_reached")
 
 
 @dataclass(frozen=True)
@@ -124,25 +136,72 @@ def synthetic_measurement(
     rng: np.random.Generator,
     runout: dict | RunoutMethod | str | None = None,
 ) -> tuple[list[MeasuredColumn], np.ndarray]:
-    """The columns "measured" under `truth`: DEM observables plus Gaussian noise; runout: how its
-    L* is read (dem.runout.RunoutMethod; None: the default).
+    """The columns "measured" under `truth` by the builtin DEM (the model the diagnosis fits):
+    DEM observables plus Gaussian noise; runout: how its L* is read (dem.runout.RunoutMethod; None:
+    the default).
 
     runout_noise: std of L* (-), stored as each runout row's std; profile_noise: std of the deposit
     height (m). mechanisms: the candidates, to find the truth's by name. Returns (columns, clean
     observables [q] before noise).
     """
+    observables = Observables(columns, runout)
+    # the truth settles its own packing with its own contact law, as a real column would
+    cases = truth_cases(truth, observables.columns, mechanisms, settings)
+    trajectories = [simulate_case(case, BUILTIN) for case in cases]
+    return noisy_columns(observables, trajectories, runout_noise, profile_noise, rng)
+
+
+def liggghts_measurement(
+    truth: HiddenTruth,
+    columns: Sequence[MeasuredColumn],
+    mechanisms: Sequence[Mechanism],
+    settings: SimulationSettings,
+    runout_noise: float,
+    profile_noise: float,
+    rng: np.random.Generator,
+    runout: dict | RunoutMethod | str | None = LAB_RUNOUT,
+) -> tuple[list[MeasuredColumn], np.ndarray]:
+    """As synthetic_measurement, but the truth is simulated by another solver: LIGGGHTS with a
+    Hertz (+ SJKR cohesion, + EPSD2 rolling friction) contact law and a floor of its own, settling
+    its own packing (dem/engines/liggghts_hertz.py), and the runout read the lab's way
+    (LAB_RUNOUT), not the diagnosis'. The grains are the coarse-grained ones the diagnosis
+    simulates (settings.size_scale), drawn with the truth's seed."""
+    observables = Observables(columns, runout)
+    engine = LiggghtsHertzEngine()
+    trajectories = []
+    for case in truth_cases(truth, observables.columns, mechanisms, settings):
+        with tempfile.TemporaryDirectory(prefix="liggghts_truth_") as work_dir:
+            trajectories.append(engine.simulate(case, poured_column(case), work_dir))
+    return noisy_columns(observables, trajectories, runout_noise, profile_noise, rng)
+
+
+def truth_cases(
+    truth: HiddenTruth, columns: Sequence[MeasuredColumn], mechanisms: Sequence[Mechanism], settings: SimulationSettings
+) -> list[CollapseCase]:
+    """The CollapseCase of each column under `truth` (mechanism found by name in `mechanisms`),
+    coarse-grained per settings, on the truth's packing seed."""
     known = {m.name: m for m in mechanisms}
     model = Model(None if truth.mechanism is None else known[truth.mechanism])
     theta = [truth.friction, truth.restitution] + ([] if truth.mechanism is None else [truth.magnitude])
-    observables = Observables(columns, runout)
-    # the truth settles its own packing with its own contact law, as a real column would
-    trajectories = [simulate_case(model.case(c, theta, settings, truth.seed), BUILTIN) for c in observables.columns]
+    return [model.case(c, theta, settings, truth.seed) for c in columns]
+
+
+def noisy_columns(
+    observables: Observables,
+    trajectories: Sequence[Trajectory],
+    runout_noise: float,
+    profile_noise: float,
+    rng: np.random.Generator,
+) -> tuple[list[MeasuredColumn], np.ndarray]:
+    """The observables' columns holding the observables of one trajectory per column plus Gaussian
+    noise (runout std runout_noise (-), profile std profile_noise (m), both stated in the columns),
+    each stating its simulated grain diameter; and the clean observables [q]."""
     clean = observables.from_trajectories(trajectories)
     noisy = clean + rng.normal(0.0, 1.0, clean.shape) * np.where(
         observables.kind == "runout", runout_noise, profile_noise
     )
     out, k = [], 0
-    for c in observables.columns:
+    for c, trajectory in zip(observables.columns, trajectories, strict=True):
         n_t = len(c.t_over_tstar)
         runout, k = noisy[k : k + n_t], k + n_t
         profile = None
@@ -156,7 +215,7 @@ def synthetic_measurement(
                 profile_height=profile,
                 profile_std=None if profile is None else np.full(len(profile), profile_noise),
                 # the truth's grains are the simulation's: say so, as a solver's data file would
-                grain_diameter=c.material_properties.diameter * settings.size_scale,
+                grain_diameter=float(trajectory.attrs["diameter"]),
             )
         )
     return out, clean
@@ -251,14 +310,17 @@ def diagnose_hidden_cases(
     seed: int = 0,
     library: Library | None = None,
     progress: Callable[[float], None] | None = None,
+    measurement: Callable | None = None,
 ) -> dict:
     """Generate data for each HiddenTruth, diagnose it without the truth, and score the verdicts.
 
     settings: a calibration.diagnosis.DiagnosisSettings (its profile_noise is set to the stated
     `profile_noise`; the runout noise travels in the data as each point's std). columns: the
     columns to measure (default `synthetic_columns()`); library: their design runs (built here
-    when None). Returns {"cases": [...], "hit_rate", "null_correct", "library_seconds"}; each case
-    holds its Diagnosis as "result".
+    when None). measurement: how data are made of a truth, called as synthetic_measurement is
+    (without `runout`); None: synthetic_measurement reading the runout as the diagnosis does.
+    Returns {"cases": [...], "hit_rate", "null_correct", "library_seconds"}; each case holds its
+    Diagnosis as "result".
     """
     from calibration.design_runs import DEMRunner
     from calibration.diagnosis import diagnose  # here: diagnosis does not depend on this module
@@ -270,12 +332,12 @@ def diagnose_hidden_cases(
     if library is None:
         library = settings.library(observables)
     runner = DEMRunner(observables, settings.simulation)
+    if measurement is None:
+        measurement = partial(synthetic_measurement, runout=settings.runout)
     rng = np.random.default_rng(seed)
     cases = []
     for k, truth in enumerate(truths):
-        data, _ = synthetic_measurement(
-            truth, columns, mechanisms, settings.simulation, runout_noise, profile_noise, rng, runout=settings.runout
-        )
+        data, _ = measurement(truth, columns, mechanisms, settings.simulation, runout_noise, profile_noise, rng)
         result = diagnose(data, settings, library=library, runner=runner, name=f"hidden_{k}")
         expected = truth.mechanism or "none"
         fitted = None

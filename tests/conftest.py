@@ -80,7 +80,7 @@ SHARED_UNITS = {"tests/test_html_report.py": "tiny_all", "tests/test_pipeline_en
 LONGEST_FIRST = (
     "tests/test_html_report.py",  # with test_pipeline_end_to_end.py: the tiny_all DAG, ~170 s
     "tests/test_pipeline_end_to_end.py",
-    "tests/test_diagnosis.py",  # ~200 s
+    "tests/test_diagnosis.py",  # ~230 s
     "tests/test_workflow.py",  # ~100 s
     "tests/test_slurm.py",  # ~55 s
     "tests/test_liggghts.py",  # ~50 s

@@ -11,12 +11,14 @@ benchmarks/diagnosis_hidden.py runs the full-size version (size_scale 4, five hi
 import hashlib
 import json
 import math
+import shutil
 from dataclasses import fields, replace
 from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from scipy.optimize import minimize_scalar
 
 from calibration.decision import DecisionRule, decide
 from calibration.dem_scoring import DEMScore
@@ -32,12 +34,14 @@ from calibration.scoring import EmulatorFit, box_bounded_covariance, fit_emulate
 from calibration.synthetic import (
     draw_truth,
     evidence_margins,
+    liggghts_measurement,
     synthetic_columns,
     synthetic_measurement,
     write_measured_csv,
 )
 from calibration.uncertainty import laplace_posterior
 from dem.case import CollapseCase
+from dem.engines.liggghts_hertz import MAX_OVERLAP, hertz_parameters, sjkr_energy_density, sjkr_pull_off_force
 from dem.runout import RunoutMethod, runout_curve
 from dem.trajectory import Trajectory
 from pipeline.diagnosis import read_diagnosis, run_diagnosis, run_section, write_diagnosis
@@ -381,6 +385,11 @@ def test_bad_input_is_an_error_not_a_cause():
     # ... and so is a column that stands (L* small but flat, say cohesive grains)
     standing = [replace(c, runout=np.full(len(c.runout), 0.02)) for c in columns]
     assert check_data(Observables(standing), library, models, noise)  # only a note: out of the runs' range
+    # ... also when every column of the file stands and its points scatter by their stated noise, which
+    # spans more than half their peak (LIGGGHTS' cohesive columns, benchmarks/diagnosis_liggghts.py)
+    noisy = np.random.default_rng(3).normal(0.0, 0.05, (2, len(columns[0].runout)))
+    standing = [replace(c, runout=np.abs(n)) for c, n in zip(columns, noisy)]
+    assert check_data(Observables(standing), library, models, noise)
     # a single time point (or two) is no curve
     short = [
         replace(
@@ -646,6 +655,69 @@ def test_runout_in_metres_is_refused_before_any_run(ci_library):
     ]
     with pytest.raises(DiagnosisError, match="metres"):
         diagnose(metres, CI_SETTINGS, library=library)
+
+
+# -- hidden mechanism in another solver's data (LIGGGHTS, Hertz contacts, its own packing and reading) --
+def test_sjkr_pull_off_force_is_the_minimum_of_hertz_plus_sjkr():
+    """The Hertz + SJKR pull-off force (closed form) against the numerical minimum of
+    F(delta) = 4/3 E* sqrt(R*) delta^1.5 - k A(delta), with A = 2 pi R* delta; a case's cohesion (a
+    Bond number) becomes the k whose pull-off force of a mean pair is that many mean-grain weights,
+    within 1% also with the exact sphere-sphere intersection area SJKR uses, resting within
+    MAX_OVERLAP of d."""
+
+    def pull_off(e_star, r_eff, k, area):  # the numerical minimum, as a pulled pair feels it
+        hertz = lambda delta: 4 / 3 * e_star * math.sqrt(r_eff) * delta**1.5  # noqa: E731
+        found = minimize_scalar(
+            lambda delta: hertz(delta) - k * area(delta),
+            bounds=(0.0, 0.1 * r_eff),
+            method="bounded",
+            options={"xatol": 1e-15},
+        )
+        return -found.fun, found.x
+
+    e_star, r_eff, k = 2.0e6, 5.3e-4, 2.0e5
+    force, overlap = pull_off(e_star, r_eff, k, lambda delta: 2 * math.pi * r_eff * delta)
+    assert force == pytest.approx(sjkr_pull_off_force(k, e_star, r_eff), rel=1e-9)
+    assert overlap == pytest.approx(math.pi**2 * k**2 * r_eff / e_star**2, rel=1e-4)
+    assert sjkr_energy_density(force, e_star, r_eff) == pytest.approx(k, rel=1e-9)
+    # Bond number 30 through the cohesion candidate and the deck's parameters
+    case = Model(MECHANISMS["cohesion"]).at(CollapseCase("quartz", 0.02, 2.0, 0.5, 0.6, size_scale=5), [0.5, 0.6, 30])
+    params = hertz_parameters(case)
+    weight = case.sphere_mass(case.diameter) * 9.81
+    r_eff, radius = case.diameter / 4, case.diameter / 2  # a mean pair
+
+    def lens_area(delta):  # SJKR's area (LIGGGHTS cohesion_model_sjkr.h), equal spheres 2 R - delta apart
+        dist = 2 * radius - delta
+        return -math.pi / 4 * (dist - 2 * radius) * dist * dist * (dist + 2 * radius) / dist**2
+
+    k, e_star = params.cohesion_energy_density, params.effective_modulus
+    assert sjkr_pull_off_force(k, e_star, r_eff) == pytest.approx(30 * weight, rel=1e-9)
+    assert pull_off(e_star, r_eff, k, lens_area)[0] == pytest.approx(30 * weight, rel=0.01)
+    resting = 9 / 4 * math.pi**2 * k**2 * r_eff / e_star**2  # where Hertz balances SJKR
+    assert resting == pytest.approx(MAX_OVERLAP * case.diameter, rel=1e-9)  # the load that sets E here
+
+
+LIGGGHTS_CASE = "cohesion"  # the mechanism of the CI's LIGGGHTS case (the benchmark runs all three and the null)
+
+
+def test_a_hidden_mechanism_in_liggghts_data_is_named(ci_library):
+    """One hidden case simulated by LIGGGHTS with a Hertz contact law, SJKR cohesion, a packing it
+    settles itself and the runout read as a lab would (calibration.synthetic.liggghts_measurement),
+    diagnosed unchanged with the CI library: the mechanism is named.
+    benchmarks/diagnosis_liggghts.py runs every mechanism the deck models, the null and thresholds."""
+    if shutil.which("liggghts") is None:
+        pytest.skip("liggghts not installed (Debian: apt-get install liggghts): no other solver to make the data")
+    columns, library, _ = ci_library
+    rng = np.random.default_rng(1700)  # fixed before any verdict was seen
+    truth = draw_truth(rng, MECHANISMS[LIGGGHTS_CASE])
+    data, _ = liggghts_measurement(
+        truth, columns, get_mechanisms(), CI_SETTINGS.simulation, RUNOUT_NOISE, PROFILE_NOISE, rng
+    )
+    assert all(c.grain_diameter == pytest.approx(5 * 425e-6) for c in data)
+    runner = DEMRunner(Observables(columns, CI_SETTINGS.runout), CI_SETTINGS.simulation)
+    result = diagnose(data, CI_SETTINGS, library=library, runner=runner, name="liggghts")
+    print(truth, result.cause, json.dumps(evidence_margins(result)))
+    assert result.cause == LIGGGHTS_CASE, (truth, result.verdict, result.checks)
 
 
 # -- the profile: read as stated, noise as stated, never outvoting the runout by its row count --------

@@ -1,5 +1,7 @@
 """The LIGGGHTS engine: its deck reproduces the builtin physics, failures are reported clearly,
-and it agrees with the builtin engine on a collapse (one (mu, e) pair; the benchmark runs more)."""
+and it agrees with the builtin engine on a collapse (one (mu, e) pair; the benchmark runs more).
+The other-solver deck of the diagnosis' LIGGGHTS data (dem/engines/liggghts_hertz.py) releases
+only a column at rest."""
 
 import shutil
 
@@ -8,9 +10,10 @@ import pytest
 
 from dem.case import CollapseCase
 from dem.collapse import simulate_collapse
-from dem.engines import EngineError, get_engine
+from dem.engines import EngineError, get_engine, liggghts_hertz
 from dem.engines.base import runout_agreement
 from dem.engines.liggghts import DATA, FRAMES, read_dump_file, read_dump_frames, render_deck
+from dem.engines.liggghts_hertz import LiggghtsHertzEngine, poured_column
 from dem.integrate import ContactLaw, State, frame_steps, run
 from dem.packing import settle_column, walls_open
 from dem.runout import runout_curve
@@ -124,6 +127,16 @@ def test_missing_truncated_and_foreign_output_write_no_trajectory(tmp_path):
     with pytest.raises(EngineError, match="frame.0.txt: line 1: expected 'ITEM: TIMESTEP'"):
         read_dump_file(frame, TINY.n_particles)
     assert not output.exists()
+
+
+def test_the_hertz_deck_releases_only_a_column_at_rest(tmp_path, monkeypatch):
+    """The other solver's deck (dem/engines/liggghts_hertz.py, the diagnosis' LIGGGHTS data) settles
+    its own packing and removes the gate only once the column is at rest: given two checks, while the
+    poured lattice is still falling, it fails naming the kinetic energy, and releases nothing."""
+    monkeypatch.setattr(liggghts_hertz, "MAX_SETTLE_TSTAR", 0.5)
+    with pytest.raises(EngineError, match=r"(?s)not at rest after 0.5 t\* .*kinetic energy .*gate was never removed"):
+        LiggghtsHertzEngine().simulate(TINY, poured_column(TINY), tmp_path)
+    assert not list((tmp_path / FRAMES).glob("frame.*.txt"))
 
 
 def test_deck_is_reproducible():
