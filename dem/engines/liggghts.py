@@ -79,11 +79,7 @@ class LiggghtsEngine(SolverEngine):
         """The dump frames in work_dir/FRAMES as a Trajectory; attrs add the time step dt (s), the
         steps run and the solver's loop time (loop_time)."""
         work_dir = Path(work_dir)
-        positions, radius = read_dump_frames(work_dir / FRAMES, case.n_frames, case.n_particles)
-        if not np.allclose(radius, packing.radius, rtol=1e-6):
-            raise read_error(
-                work_dir / FRAMES, "grain radii differ from the packing's: these frames belong to another case"
-            )
+        positions, radius = self.read_frames(case, packing, work_dir)
         steps, dt = frame_steps(case.frame_interval, case.time_step)
         return self.grain_trajectory(
             case,
@@ -94,6 +90,16 @@ class LiggghtsEngine(SolverEngine):
             settled_height=packing.attrs.get("settled_height", np.nan),
             **loop_time(work_dir / LOG),
         )
+
+    def read_frames(self, case: CollapseCase, packing: Trajectory, work_dir: Path) -> tuple[np.ndarray, np.ndarray]:
+        """Positions [n_frames, N, 2] float32 (m) and radius [N] (m) of the dump frames in
+        work_dir/FRAMES, checked against the grains of `packing` (the run's start)."""
+        positions, radius = read_dump_frames(work_dir / FRAMES, case.n_frames, case.n_particles)
+        if not np.allclose(radius, packing.radius, rtol=1e-6):
+            raise read_error(
+                work_dir / FRAMES, "grain radii differ from the packing's: these frames belong to another case"
+            )
+        return positions, radius
 
 
 # -- deck -----------------------------------------------------------------------------------------

@@ -45,7 +45,7 @@ import numpy as np
 from dem.case import GRAVITY, CollapseCase
 from dem.contact import cohesion_force
 from dem.engines.base import EngineError, read_error, refuse_unsupported
-from dem.engines.liggghts import DATA, DUMP_COLUMNS, FRAMES, LOG, LiggghtsEngine, read_dump_frames
+from dem.engines.liggghts import DATA, DUMP_COLUMNS, FRAMES, LOG, LiggghtsEngine, _matrix_lines
 from dem.integrate import frame_steps
 from dem.packing import MAX_SETTLE_TSTAR, REST_SPEED, pour_column
 from dem.trajectory import GRAIN, Trajectory
@@ -117,12 +117,9 @@ def poured_column(case: CollapseCase) -> Trajectory:
     return Trajectory(positions[None].astype(np.float32), radius, np.full(len(radius), GRAIN, np.int32), {})
 
 
-def _matrix(name: str, value: float, n_types: int, kind: str = "peratomtypepair") -> str:
-    """`value` for every atom type (peratomtype: v1 .. vn) or type pair (peratomtypepair: n v11 v12 .. vnn)."""
-    if kind == "peratomtype":
-        return f"fix {name} all property/global {name} peratomtype " + " ".join([f"{value:.10g}"] * n_types)
-    values = " ".join([f"{value:.10g}"] * n_types**2)
-    return f"fix {name} all property/global {name} peratomtypepair {n_types} {values}"
+def _per_type(name: str, value: float, n_types: int) -> str:
+    """`value` for every atom type (peratomtype: v1 .. vn); type pairs: liggghts._matrix_lines."""
+    return f"fix {name} all property/global {name} peratomtype " + " ".join([f"{value:.10g}"] * n_types)
 
 
 def render_hertz_deck(case: CollapseCase, poured: Trajectory) -> tuple[str, str]:
@@ -161,20 +158,18 @@ def render_hertz_deck(case: CollapseCase, poured: Trajectory) -> tuple[str, str]
     restitution = np.full((3, 3), case.resolved_restitution_wall)
     restitution[0, 0] = case.restitution
     properties = [
-        _matrix("youngsModulus", hertz.youngs_modulus, 3, "peratomtype"),
-        _matrix("poissonsRatio", hertz.poisson_ratio, 3, "peratomtype"),
-        "fix coefficientRestitution all property/global coefficientRestitution peratomtypepair 3 "
-        + " ".join(f"{v:.10g}" for v in restitution.ravel()),
-        "fix coefficientFriction all property/global coefficientFriction peratomtypepair 3 "
-        + " ".join(f"{v:.10g}" for v in friction.ravel()),
+        _per_type("youngsModulus", hertz.youngs_modulus, 3),
+        _per_type("poissonsRatio", hertz.poisson_ratio, 3),
+        _matrix_lines("coefficientRestitution", restitution),
+        _matrix_lines("coefficientFriction", friction),
     ]
     model = "model hertz tangential history"  # keyword order: tangential, cohesion, rolling_friction
     if hertz.cohesion_energy_density > 0:
         model += " cohesion sjkr"
-        properties.append(_matrix("cohesionEnergyDensity", hertz.cohesion_energy_density, 3))
+        properties.append(_matrix_lines("cohesionEnergyDensity", np.full((3, 3), hertz.cohesion_energy_density)))
     if case.rolling_friction > 0:
         model += " rolling_friction epsd2"
-        properties.append(_matrix("coefficientRollingFriction", case.rolling_friction, 3))
+        properties.append(_matrix_lines("coefficientRollingFriction", np.full((3, 3), case.rolling_friction)))
     wall = f"all wall/gran {model} primitive type"
     properties = "\n".join(properties)
     deck = f"""# LIGGGHTS 3.8 input: 2D column collapse, Hertz contacts; rendered by dem/engines/liggghts_hertz.py
@@ -280,9 +275,7 @@ class LiggghtsHertzEngine(LiggghtsEngine):
         """The collapse frames as a Trajectory; attrs add the contact law, E, k, the time step and
         the settle's steps and final kinetic energy."""
         work_dir = Path(work_dir)
-        positions, radius = read_dump_frames(work_dir / FRAMES, case.n_frames, case.n_particles)
-        if not np.allclose(radius, packing.radius, rtol=1e-6):
-            raise read_error(work_dir / FRAMES, "grain radii differ from the poured column's: another case's frames")
+        positions, radius = self.read_frames(case, packing, work_dir)
         settled = settle_record(work_dir / LOG)
         if settled is None:
             raise read_error(work_dir / LOG, "no 'settle:' line: these frames were not written by this deck")
