@@ -4,8 +4,10 @@ benchmarks/diagnosis_hidden.py makes its data with the builtin DEM, the very mod
 fits. Here the truth is simulated by LIGGGHTS 3.8 (calibration.synthetic.liggghts_measurement,
 dem/engines/liggghts_hertz.py): a Hertz contact law (+ SJKR cohesion, + EPSD2 rolling friction,
 a floor wall of its own friction), a packing LIGGGHTS settles itself from a lattice, and the runout
-read the lab's way (connected front, farthest reached), not the diagnosis' (dense front); the
-diagnosis runs unchanged on it, with all five candidates. Cases: rolling resistance, cohesion (its
+read the lab's way (connected front, farthest reached), not the config's (dense front). The data
+state that reading (the CSV field `runout_method`), so the diagnosis reads its own runs the same
+way (its library is built for columns that state it); otherwise it runs unchanged, with all five
+candidates. Cases: rolling resistance, cohesion (its
 Bond number turned into SJKR's cohesion energy density by the Hertz + SJKR pull-off force) and
 basal friction, each at a random magnitude in its stated hidden range with random (mu, e) and
 packing seed, plus a null case; measurement noise as in diagnosis_hidden.py (runout std 0.05 L*,
@@ -20,6 +22,10 @@ halved each step; in log(parameter) for basal friction) until the verdict is no 
 mechanism; the weakest magnitude still named is the threshold. Needs `liggghts` on PATH.
 
     python benchmarks/diagnosis_liggghts.py [--size-scale 5] [--aspect-ratios 1 2 4] [--seed 16] [--quick]
+        [--cases rolling_resistance ...]
+
+--cases diagnoses only the named cases (mechanisms, or `none` for the null case); the truths are
+drawn for every case all the same, so a case's truth does not depend on which others run.
 """
 
 import argparse
@@ -48,6 +54,7 @@ from calibration.synthetic import (  # noqa: E402
 )
 
 MECHANISMS = ("rolling_resistance", "cohesion", "basal_friction")  # what the LIGGGHTS deck models
+CASES = MECHANISMS + ("none",)  # the hidden cases, in the order their truths are drawn
 LADDER = (0.5, 0.25, 0.125)  # fractions of the hidden case's distance from "off"
 
 
@@ -76,6 +83,7 @@ def main():
     parser.add_argument("--n-per-mechanism", type=int, default=8)
     parser.add_argument("--ladder", type=int, default=len(LADDER), help="weaker magnitudes tried per mechanism")
     parser.add_argument("--quick", action="store_true", help="smoke run: a = 1 and 2, small design, 1 round, 1 rung")
+    parser.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES), help="the hidden cases to diagnose")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     if shutil.which("liggghts") is None:
@@ -90,11 +98,14 @@ def main():
         seed=0,
     )
     started = time.perf_counter()
-    columns = synthetic_columns(aspect_ratios=args.aspect_ratios)
-    library = settings.library(Observables(columns, settings.runout))
+    # the columns state the lab's reading, so the library reads its runs as the data will be read
+    columns = synthetic_columns(aspect_ratios=args.aspect_ratios, runout_method=LAB_RUNOUT.method)
+    observables = Observables(columns, settings.runout)
+    library = settings.library(observables)
     known = {m.mechanism.name: m.mechanism for m in settings.models()[1:]}
     rng = np.random.default_rng(args.seed)
-    truths = [draw_truth(rng, known[name]) for name in MECHANISMS] + [draw_truth(rng, None)]
+    drawn = [draw_truth(rng, known[name]) for name in MECHANISMS] + [draw_truth(rng, None)]
+    truths = [truth for name, truth in zip(CASES, drawn) if name in args.cases]
 
     def diagnosed(truths, seed):
         return diagnose_hidden_cases(
@@ -109,14 +120,14 @@ def main():
 
     summary = diagnosed(truths, args.seed)
     thresholds = {}
-    for k, name in enumerate(MECHANISMS):
+    for k, name in enumerate(name for name in CASES if name in args.cases and name != "none"):
         hidden = summary["cases"][k]
         ladder = [{"magnitude": hidden["truth"]["magnitude"], "cause": hidden["cause"]}]
         for step, fraction in enumerate(LADDER[: args.ladder]):
             if ladder[-1]["cause"] != name:
                 break
             truth = weaker(truths[k], known[name], fraction)
-            (case,) = diagnosed([truth], args.seed + 100 * (k + 1) + step)["cases"]
+            (case,) = diagnosed([truth], args.seed + 100 * (CASES.index(name) + 1) + step)["cases"]
             ladder.append({"magnitude": truth.magnitude, "cause": case["cause"], **case["margins"]})
         named = [rung["magnitude"] for rung in ladder if rung["cause"] == name]
         missed = [rung["magnitude"] for rung in ladder if rung["cause"] != name]
@@ -142,10 +153,11 @@ def main():
                     "n_per_mechanism": args.n_per_mechanism,
                     "rounds": args.rounds,
                     "seed": args.seed,
+                    "cases": args.cases,
                     "runout_noise": 0.05,
                     "profile_noise_m": 5e-4,
                     "data_runout": LAB_RUNOUT.to_config(),
-                    "model_runout": settings.runout.to_config(),
+                    "model_runout": observables.reading(columns[0]).to_config(),  # as the data state
                     "decision_rule": settings.rule.to_dict(),
                 },
                 "hits": summary["hits"],

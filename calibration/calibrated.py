@@ -244,11 +244,12 @@ def model_runout(
     progress: Callable[[float], None] | None = None,
 ) -> np.ndarray:
     """L* [K] at the measured t/t* of one DEM run of `model` at theta [p] on packing `seed`, with the
-    engine of dem_config (the config's dem section). Raises one of FAILURES when the run fails.
+    engine of dem_config (the config's dem section), read as the column states its runout was read
+    (else by `runout`, the config's). Raises one of FAILURES when the run fails.
     progress: callable(fraction of the run done) or None."""
     case = model.case(column, theta, settings, seed)
     trajectory = simulate_case(case, dem_config, progress=progress)
-    t, curve = runout.curve(trajectory)
+    t, curve = column.runout_reading(runout).curve(trajectory)
     return simulated_runout_at(t, curve, column)
 
 
@@ -399,8 +400,8 @@ def predict(
     progress: Callable[[float], None] | None = None,
 ) -> Prediction:
     """The model at theta [p] on columns of `column`'s material and L_i at each aspect ratio,
-    simulated to t/t* = PREDICTION_TSTAR on packing `seed`. progress: callable(fraction of the
-    columns done) or None."""
+    simulated to t/t* = PREDICTION_TSTAR on packing `seed`, the runout read as `column`'s (its stated
+    method, else `runout`). progress: callable(fraction of the columns done) or None."""
     started = time.perf_counter()
     runouts, heights, failed = [], [], {}
     for k, a in enumerate(aspect_ratios):
@@ -418,7 +419,7 @@ def predict(
         try:
             within = None if progress is None else (lambda f, k=k: progress((k + f) / len(aspect_ratios)))
             trajectory = simulate_case(model.case(other, theta, settings, seed), dem_config, progress=within)
-            runouts.append(float(runout.curve(trajectory)[1][-1]))
+            runouts.append(float(column.runout_reading(runout).curve(trajectory)[1][-1]))
             heights.append(final_height(trajectory.positions[-1], trajectory.radius))
         except FAILURES as exc:
             log.warning("prediction at a = %g failed: %s", a, exc)

@@ -157,8 +157,13 @@ def dem_runs(
         for k in packings:
             try:
                 trajectories = runner.trajectories(model, theta, k)
-                one = runner.observables.from_trajectories(trajectories)
-                curve = [_thin_curve(tr, runner.observables.runout) for tr in trajectories] if not held_out else []
+                observables = runner.observables
+                one = observables.from_trajectories(trajectories)
+                curve = (
+                    [_thin_curve(tr, observables.reading(c)) for tr, c in zip(trajectories, observables.columns)]
+                    if not held_out
+                    else []
+                )
             except FAILURES as exc:  # recorded with its packing, never averaged in
                 parameters = dict(zip(model.parameter_names, map(float, theta)))
                 reason = failure_reason(exc)

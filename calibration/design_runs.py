@@ -235,8 +235,9 @@ class Library:
             raise LibraryError(
                 "the run library was built for other columns, observation points or runout "
                 f"method (columns {[c[0] for c in self.signature['columns']]}, runout "
-                f"{self.signature.get('runout', 'not recorded')!r}; asked for "
-                f"{observables.runout.to_config()!r}); rebuild it"
+                f"{self.signature.get('runout', 'not recorded')!r}, columns read otherwise "
+                f"{self.signature.get('runout_methods', {})!r}; asked for {observables.runout.to_config()!r}, "
+                f"columns read otherwise {observables.stated_methods!r}); rebuild it"
             )
         missing = [m.name for m in models if m.name not in self.runs]
         if missing:

@@ -177,6 +177,7 @@ def diagnose(
     runner, library = _checked_inputs(observables, models, settings, library, runner)
     noise, notes = settings.noise(observables, library)
     notes += check_data(observables, library, models, noise)
+    notes += [f"column {c.name!r}: {d}" for c in observables.columns for d in c.runout_defaults(settings.runout)]
     folds = held_out_folds(observables)
     library = library.copy()  # runs added while refining belong to these data, not to the shared library
     scores, final, runs, noise = _dem_rounds(settings, models, observables, folds, library, runner, noise, progress)
@@ -212,7 +213,7 @@ def diagnose(
         decision_rule=settings.rule,
         simulator=_simulator(settings, library, list(dem)),
         settings=settings.to_dict(),
-        columns=[_column(c) for c in observables.columns],
+        columns=[_column(c, observables) for c in observables.columns],
         observables=ObservedData(
             observables.labels, observables.measured, noise.measurement, noise.packing, noise.total, noise.source
         ),
@@ -358,7 +359,7 @@ def _simulator(settings: DiagnosisSettings, library: Library, scored_in_dem: lis
     )
 
 
-def _column(c: MeasuredColumn) -> ColumnSummary:
+def _column(c: MeasuredColumn, observables: Observables) -> ColumnSummary:
     return ColumnSummary(
         name=c.name,
         material=c.material,
@@ -367,6 +368,7 @@ def _column(c: MeasuredColumn) -> ColumnSummary:
         source=c.source,
         n_runout=len(c.t_over_tstar),
         n_profile=0 if c.profile_x is None else len(c.profile_x),
+        runout_reading=observables.reading(c).method,
     )
 
 

@@ -62,6 +62,8 @@ class ColumnSummary:
     source: str  # where the data come from
     n_runout: int  # runout points L*(t/t*)
     n_profile: int  # deposit-profile points (0: none measured)
+    # the dem.runout method its runs were read by: the file's, else the config's (None: an older diagnosis)
+    runout_reading: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready, keys in field order."""

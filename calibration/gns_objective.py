@@ -342,6 +342,14 @@ class GNSObjective:
         """A point as the model sees it (its dtype), so a cached runout is the one a rollout would give."""
         return self._theta(point).cpu().numpy().tobytes()
 
+    def evaluated(self) -> tuple[np.ndarray, np.ndarray]:
+        """(points [n, P], L* [n, K]) of every point rolled out so far, the points as the model saw
+        them (its dtype): what the inverse design has learnt of the GNS's response."""
+        dtype = torch.empty(0, dtype=self.simulator.bounds.dtype).numpy().dtype
+        points = [np.frombuffer(key, dtype=dtype).astype(float) for key in self._runouts]
+        width = len(self.design_names)
+        return np.reshape(points, (-1, width)), np.reshape(list(self._runouts.values()), (len(points), -1))
+
     def runout_values(self, points: ArrayLike) -> np.ndarray:
         """L* [G, K] (numpy, no gradient) at points [G, P]; points rolled out before are not rolled
         out again (a rollout is deterministic)."""

@@ -49,6 +49,7 @@ from calibration.lbfgsb import (
 from calibration.measured import MeasuredColumn
 from calibration.objective import runout_mse
 from calibration.optimise import OptimisationResult, PointFailed
+from calibration.sensitivity import parameter_sensitivity
 from calibration.uncertainty import LaplacePosterior, finite_difference_jacobian, laplace_posterior
 from dem.progress import progress_logger
 from dem.runout import RunoutMethod
@@ -135,6 +136,10 @@ class InverseResult:
     # points whose rollout failed or was not finite: [{params, reason, seconds, start, iteration}]
     failed_points: list = field(default_factory=list)
     optimiser: str = "lbfgsb"  # OPTIMISERS
+    # the GNS's response of the last L* to each design parameter against its dataset's DEM runs:
+    # {"parameters": [ParameterResponse.to_dict()], "why": "" or why not checked (too few runs),
+    # "dem" and "gns": {"points" [n][P], "last" [n]}}; None without those runs (calibration.sensitivity)
+    sensitivity: dict | None = None
 
     def to_dict(self) -> dict:
         data = {
@@ -159,6 +164,7 @@ class InverseResult:
                 "runout",
                 "failed_points",
                 "optimiser",
+                "sensitivity",
             )
         }
         data["starts"] = [s.to_dict() for s in self.starts]
@@ -261,6 +267,7 @@ def inverse_design(
     optimiser: str = "lbfgsb",
     budget: int = 40,
     n_initial: int = 12,
+    reference: tuple[ArrayLike, ArrayLike] | None = None,
 ) -> InverseResult:
     """Calibrate design_names against `measured` through the GNS `simulator`.
 
@@ -277,6 +284,9 @@ def inverse_design(
     (for the geometry check). bounds: [(low, high) or None] per design parameter (see design_bounds).
     model_error_std, start_packing_std: the posterior's model-side noise (see noise_level).
     runout: how L* is read (dem.runout.RunoutMethod; None: its default).
+    reference: the DEM runs of the GNS's dataset, (parameters [n, P] in the order of design_names,
+    L* [n, K] at the measured t/t*): the GNS's response to each parameter is checked against theirs
+    (calibration.sensitivity), and a parameter the GNS does not resolve is flagged not identifiable.
     Returns an InverseResult; seconds["online"] is the wall time of the
     optimisation and the posterior (the landscape, a figure, is timed apart).
     """
@@ -340,6 +350,37 @@ def inverse_design(
         JACOBIAN_STEP * (scale if np.any(scale != 1) else 1.0),
         start_packing_std,
     )
+    sensitivity = None
+    if reference is not None:
+        seen = objective.evaluated()
+        responses, why = [], ""
+        try:
+            responses = parameter_sensitivity(names, bounds, *reference, *seen)
+        except ValueError as exc:  # too few runs or points for a plane in every parameter
+            why = f"not checked: {exc}"
+            log.warning("the GNS's response to its parameters is %s", why)
+        sensitivity = {
+            "why": why,
+            "parameters": [r.to_dict() for r in responses],
+            **{
+                key: {"points": np.asarray(points).tolist(), "last": np.asarray(runout)[:, -1].tolist()}
+                for key, (points, runout) in (("dem", reference), ("gns", seen))
+            },
+        }
+        for r in responses:
+            log.info(
+                "%s: L* across the bounds GNS %+.2f +- %.2f, DEM %+.2f +- %.2f (resolved: %s)",
+                r.name,
+                r.gns,
+                r.gns_se,
+                r.dem,
+                r.dem_se,
+                r.resolved,
+            )
+        blind = {r.name: r.why for r in responses if r.resolved is False}
+        for p in posterior.parameters:  # linearised on the GNS, the posterior cannot know this
+            if p.name in blind:
+                p.identifiable, p.why = False, "; ".join(w for w in (p.why, blind[p.name]) if w)
     t2 = time.perf_counter()
     online = dict(objective.timing)  # where the online time went: rollouts, forward, backward
     try:  # NaN (JSON null) where the first start's rollout failed
@@ -389,6 +430,7 @@ def inverse_design(
         runout=runout.to_config(),
         failed_points=optimum.history.failed,
         optimiser=optimiser,
+        sensitivity=sensitivity,
     )
 
 

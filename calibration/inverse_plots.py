@@ -209,3 +209,47 @@ def plot_deposits(objective: GNSObjective, params: dict, path: str | os.PathLike
     fig.suptitle(title or f"GNS deposits during the inverse design of {objective.measured.name}", fontsize=9)
     fig.tight_layout()
     save_figure(fig, path)
+
+
+def plot_sensitivity(result: dict, path: str | os.PathLike, title: str = "") -> None:
+    """Does the GNS see each parameter (calibration.sensitivity): the last measured L* against each
+    design parameter, the DEM runs of the GNS's dataset beside the GNS's points of the inverse
+    design, each with the slope of its plane fit across the bounds; result: InverseResult.to_dict()
+    with its sensitivity."""
+    from dem.plots import plt, save_figure
+
+    data, names, bounds = result["sensitivity"], result["names"], result["bounds"]
+    fig, axes = plt.subplots(1, len(names), figsize=(3.4 * len(names), 3.4), squeeze=False)
+    if not data["parameters"]:  # not checked (too few DEM runs or GNS points): the points and why
+        responses = [{"dem": None, "gns": None, "resolved": "unchecked"} for _ in names]
+        fig.text(0.5, 0.5, data["why"], ha="center", va="center", fontsize=8, wrap=True, color="r")
+    else:
+        responses = data["parameters"]
+    for j, (ax, name, response) in enumerate(zip(axes[0], names, responses)):
+        for key, colour, label in (("dem", "k", "DEM runs of the dataset"), ("gns", "tab:orange", "GNS points")):
+            points, last = np.asarray(data[key]["points"], float), np.asarray(data[key]["last"], float)
+            ax.plot(points[:, j], last, "o", color=colour, ms=3, alpha=0.7, label=label)
+            centre, slope = np.mean(points[:, j]), response[key]
+            if slope is None:
+                continue
+            x = np.array(bounds[j], float)
+            u = (x - centre) / (x[1] - x[0])
+            # the plane fit's slope in this parameter, drawn through the points' mean
+            ax.plot(
+                x,
+                np.mean(last) + slope * u,
+                "-",
+                color=colour,
+                lw=1.2,
+                label=f"{slope:+.2f} +- {response[key + '_se']:.2f}",
+            )
+        verdict = {True: "resolved", False: "NOT resolved", None: "DEM flat", "unchecked": "not checked"}[
+            response["resolved"]
+        ]
+        ax.set(xlim=bounds[j], xlabel=name, ylabel="L* at the last measured t/t*")
+        ax.set_title(f"{name}: {verdict}", fontsize=9)
+        ax.legend(fontsize=6)
+        ax.grid(alpha=0.3)
+    fig.suptitle(title or f"does the GNS see each parameter? ({result['measured']})", fontsize=10)
+    fig.tight_layout()
+    save_figure(fig, path)

@@ -15,6 +15,9 @@ Schema (full description and examples in data/measured/README.md). A CSV file in
   kind          `runout`: x = t/t* (-), value = runout L* = (L - L_i)/L_i (-)
                 `profile`: final deposit, x = distance from the left wall (m), value = height (m)
   std           optional noise level: standard deviation of `value`, same units; empty = unknown
+  runout_method optional, runout rows: how the runout was read, a dem.runout method name
+                (dem.runout.METHODS), one value per column (empty: not stated; the simulated runs
+                are read by the config's `runout` method)
   read_at       optional, profile rows: t/t* at which the profile was read (empty: the last
                 runout t/t*, the end of the runout record)
   bin_width     optional, profile rows: width (m) of the bins the profile was read with, the
@@ -33,6 +36,7 @@ row of a column. Every error names the file, the line and the CSV column that is
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 import os
 import warnings
@@ -43,12 +47,14 @@ from typing import Any
 import numpy as np
 
 from dem.case import MATERIALS, CaseError, CollapseCase, Material
+from dem.runout import METHODS, RunoutMethod
 
 REQUIRED_FIELDS = ("column", "material", "aspect_ratio", "L_i", "kind", "x", "value")
-OPTIONAL_FIELDS = ("std", "read_at", "bin_width", "grain_diameter", "density", "solid_fraction")
+OPTIONAL_FIELDS = ("std", "read_at", "bin_width", "grain_diameter", "density", "solid_fraction", "runout_method")
 # What a material of your own needs (one value per column): with the name, the dem.case.Material fields.
 OWN_MATERIAL_FIELDS = ("grain_diameter", "density", "solid_fraction")
 PROFILE_READING = ("read_at", "bin_width")  # how a profile was read: one value per column, or none
+RUNOUT_READING = "runout_method"  # how the runout was read: one dem.runout method per column, or none
 KINDS = ("runout", "profile")
 MAX_L_I = 1.0  # m; a column length above this is almost surely given in mm or cm
 
@@ -69,7 +75,9 @@ class MeasuredColumn:
     profile_x [P] (m) and profile_height [P] (m), or None when no deposit profile was measured,
     with profile_std [P] (m) or None, and how it was read: profile_read_at (t/t*) and
     profile_bin_width (m), None where the file does not say (`profile_time`, `profile_bin` give the
-    values used then, `profile_defaults` says which were defaulted).
+    values used then, `profile_defaults` says which were defaulted); runout_method: how the runout
+    was read (a dem.runout method name), None where the file does not say (`runout_reading` gives
+    the reading the simulated runs are scored with, `runout_defaults` says when it was defaulted).
     """
 
     name: str
@@ -89,6 +97,7 @@ class MeasuredColumn:
     grain_diameter: float | None = None  # m, of the measured grains; None: the material's
     density: float | None = None  # kg/m^3, of a material not in dem.case.MATERIALS (None for one that is)
     solid_fraction: float | None = None  # -, likewise
+    runout_method: str | None = None  # how the runout was read (dem.runout.METHODS); None: not stated
 
     @property
     def material_properties(self) -> Material:
@@ -129,6 +138,21 @@ class MeasuredColumn:
         if self.profile_bin_width is None:
             out.append(f"bins of {self.profile_bin * 1e3:.3g} mm (not stated: the spacing of its x points)")
         return out
+
+    def runout_reading(self, configured: RunoutMethod | dict | str | None) -> RunoutMethod:
+        """How a simulated run of this column is read to be compared with it: the configured runout
+        settings (the config's `runout` section), with the method the file states in place of the
+        config's. The one place a column's reading is resolved, so every score reads it alike."""
+        configured = RunoutMethod.from_config(configured)
+        if self.runout_method is None:
+            return configured
+        return dataclasses.replace(configured, method=self.runout_method)
+
+    def runout_defaults(self, configured: RunoutMethod | dict | str | None) -> list[str]:
+        """What the file left unsaid about its runout reading, and the method used instead."""
+        if self.runout_method is not None:
+            return []
+        return [f"runout read by {RunoutMethod.from_config(configured).method} (not stated: the config's `runout`)"]
 
     @property
     def H_i(self) -> float:
@@ -271,6 +295,7 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
     series = {kind: [] for kind in KINDS}
     grains = []  # (line, grain_diameter or NaN) of every row
     own = {field: [] for field in OWN_MATERIAL_FIELDS[1:]}  # density, solid_fraction (or NaN) of every row
+    methods = []  # runout_method (or "") of every runout row
     for line, row in rows:
         for field, expected in (("material", material),):
             if row[field] != expected:
@@ -297,6 +322,19 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
                     f"{path}, line {line}, column {field!r}: a runout row is read at its own t/t* (x); "
                     f"{field} applies to profile rows only: leave it empty"
                 )
+        method = row.get(RUNOUT_READING, "")
+        if method and kind != "runout":
+            raise MeasuredDataError(
+                f"{path}, line {line}, column {RUNOUT_READING!r}: says how a runout was read; it applies to "
+                "runout rows only: leave it empty"
+            )
+        if method and method not in METHODS:
+            raise MeasuredDataError(
+                f"{path}, line {line}, column {RUNOUT_READING!r}: {method!r} is not a runout method "
+                f"(dem.runout: {list(METHODS)}); leave it empty to read the runs by the config's `runout`"
+            )
+        if kind == "runout":
+            methods.append(method)
         if not math.isnan(reading["read_at"]) and reading["read_at"] <= 0:
             raise MeasuredDataError(
                 f"{path}, line {line}, column 'read_at': a profile is read at t/t* > 0, got {reading['read_at']}"
@@ -337,6 +375,9 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
     _check_material(path, name, first_line, material, {"grain_diameter": grain, **properties})
     t, runout, std = _series(path, name, series["runout"], "t/t*", min_points=2)
     _all_or_none(path, name, series["runout"], [p[3] for p in series["runout"]], "std", "runout")
+    method = _one_value(
+        path, name, series["runout"], methods, RUNOUT_READING, "runout", f"one runout of {name!r} is read one way"
+    )
     profile, reading = None, {f: math.nan for f in PROFILE_READING}
     if series["profile"]:
         profile = _series(path, name, series["profile"], "profile x", min_points=2)
@@ -368,6 +409,7 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
         profile_line=series["profile"][0][0] if series["profile"] else None,
         grain_diameter=None if math.isnan(grain) else grain,
         **{field: None if math.isnan(value) else value for field, value in properties.items()},
+        runout_method=method or None,
     )
     _check_runout_units(path, column, series["runout"][0][0])
     return column
@@ -399,9 +441,10 @@ def _check_material(path: Path, name: str, line: int, material: str, given: dict
         raise MeasuredDataError(f"{path}, line {line}, column {field!r}: {exc}") from None
 
 
-def _all_or_none(path: Path, name: str, points: list, values: list[float], field: str, kind: str) -> None:
-    """A field given on some `kind` rows of a column and not on others is an error naming the first gap."""
-    missing = [math.isnan(v) for v in values]
+def _all_or_none(path: Path, name: str, points: list, values: list[float | str], field: str, kind: str) -> None:
+    """A field given on some `kind` rows of a column and not on others is an error naming the first gap
+    (a missing number is NaN, a missing name "")."""
+    missing = [v == "" if isinstance(v, str) else math.isnan(v) for v in values]
     if any(missing) and not all(missing):
         line = points[missing.index(True)][0]
         rows = f"{kind} rows" if kind else "rows"
@@ -411,17 +454,24 @@ def _all_or_none(path: Path, name: str, points: list, values: list[float], field
         )
 
 
-def _one_value(path: Path, name: str, points: list, values: list[float], field: str, kind: str, why: str) -> float:
-    """The one value a field has on every `kind` row of a column (NaN: on none); given on some rows
-    only, or differing between rows, is an error naming the line."""
+def _one_value(
+    path: Path, name: str, points: list, values: list[float | str], field: str, kind: str, why: str
+) -> float | str:
+    """The one value a field has on every `kind` row of a column (NaN, or "" for a name: on none);
+    given on some rows only, or differing between rows, is an error naming the line."""
     _all_or_none(path, name, points, values, field, kind)
     for (line, *_), value in zip(points, values):
-        if not (math.isnan(value) or value == values[0]):
+        if value != values[0] and not (isinstance(value, float) and math.isnan(value)):
             raise MeasuredDataError(
-                f"{path}, line {line}, column {field!r}: {value:g} differs from {values[0]:g} on line "
+                f"{path}, line {line}, column {field!r}: {_cell(value)} differs from {_cell(values[0])} on line "
                 f"{points[0][0]}: {why}"
             )
     return values[0]
+
+
+def _cell(value: float | str) -> str:
+    """A parsed cell as a message shows it: a number by %g, a name quoted."""
+    return repr(value) if isinstance(value, str) else f"{value:g}"
 
 
 def _series(path, name, points, what, min_points):

@@ -4,8 +4,9 @@ Observables (`Observables`): for every measured column, the runout L* at its mea
 and, when a deposit profile was measured, the deposit height (m) at its measured x points, read
 by dem.runout.profile_at the way the file says the measurement was read: at its t/t* (default:
 the last runout t/t*) with its bin width in metres (default: the spacing of its x points). The
-runout is read by the configured dem.runout method (`Observables.runout`), the same as every other
-stage's.
+runout is read as the file says the measurement was read (its `runout_method`), else by the
+configured dem.runout method (`Observables.runout`), the same as every other stage's
+(MeasuredColumn.runout_reading).
 """
 
 from __future__ import annotations
@@ -33,8 +34,9 @@ class LibraryError(ValueError):
 class Observables:
     """The simulated numbers compared with the measurement, in one flat order [q].
 
-    Per column, in column order: runout L* at its t/t* points (read by `runout`, a
-    dem.runout.RunoutMethod), then (if measured) deposit height (m) at its profile x points.
+    Per column, in column order: runout L* at its t/t* points (read by `runout`, the config's
+    dem.runout.RunoutMethod, with the column's stated method in place of its own), then (if
+    measured) deposit height (m) at its profile x points.
     """
 
     columns: tuple[MeasuredColumn, ...]
@@ -95,17 +97,34 @@ class Observables:
                 parts.append(c.profile_std if c.profile_std is not None else np.full(len(c.profile_x), np.nan))
         return np.concatenate(parts).astype(float)
 
+    def reading(self, column: MeasuredColumn) -> RunoutMethod:
+        """How a run of `column` is read: its stated method, else the configured one."""
+        return column.runout_reading(self.runout)
+
+    @property
+    def stated_methods(self) -> dict[str, str]:
+        """{column name: runout method} of the columns whose file states a method other than the
+        configured one (the only columns whose runs are read otherwise)."""
+        return {c.name: self.reading(c).method for c in self.columns if self.reading(c).method != self.runout.method}
+
     def signature(self) -> dict:
         """What a library built for these observables must match (geometry, observation points and
         how the runout is read off a run)."""
-        return {
-            "columns": [[c.name, c.material, c.aspect_ratio, c.L_i] for c in self.columns],
-            "labels": [list(label) for label in self.labels],
-            "runout": self.runout.to_config(),
-        } | (  # how each profile is read (only where there is one, so runout-only libraries keep their signature)
-            {"profiles": {c.name: [c.profile_time, c.profile_bin] for c in self.columns if c.profile_x is not None}}
-            if any(c.profile_x is not None for c in self.columns)
-            else {}
+        return (
+            {
+                "columns": [[c.name, c.material, c.aspect_ratio, c.L_i] for c in self.columns],
+                "labels": [list(label) for label in self.labels],
+                "runout": self.runout.to_config(),
+            }
+            # a column read by another method than the configured one (only then, so that the
+            # libraries of columns read the configured way keep their signature)
+            | ({"runout_methods": self.stated_methods} if self.stated_methods else {})
+            # how each profile is read (only where there is one, so runout-only libraries keep their signature)
+            | (
+                {"profiles": {c.name: [c.profile_time, c.profile_bin] for c in self.columns if c.profile_x is not None}}
+                if any(c.profile_x is not None for c in self.columns)
+                else {}
+            )
         )
 
     def from_trajectories(self, trajectories: Sequence[Trajectory], columns: Sequence[int] | None = None) -> np.ndarray:
@@ -116,7 +135,7 @@ class Observables:
         parts = []
         for j, trajectory in zip(columns, trajectories, strict=True):
             column = self.columns[j]
-            t, runout = self.runout.curve(trajectory)
+            t, runout = self.reading(column).curve(trajectory)
             parts.append(simulated_runout_at(t, runout, column))
             if column.profile_x is not None:
                 # read as the measurement states it was read: same time, same bins in metres

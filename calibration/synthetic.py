@@ -8,7 +8,9 @@ diagnosis is then given the data and the noise level, never the truth.
 
 Two ways to simulate the truth: `synthetic_measurement`, the builtin DEM with the very model the
 diagnosis fits, and `liggghts_measurement`, another solver (LIGGGHTS, a Hertzian contact law, its
-own packing, its own runout reading), as real data never come from the model that fits them.
+own packing, its own runout reading), as real data never come from the model that fits them. Each
+writes the runout reading it used into its columns (`runout_method`, as a measured file states it),
+so the diagnosis reads its own runs the same way.
 """
 
 from __future__ import annotations
@@ -95,11 +97,13 @@ def synthetic_columns(
     profile_step_diameters: float | None = SYNTHETIC_PROFILE_STEP_DIAMETERS,
     profile_read_at: float = SYNTHETIC_PROFILE_READ_AT,
     profile_bin_diameters: float = SYNTHETIC_PROFILE_BIN_DIAMETERS,
+    runout_method: str | None = None,
 ) -> list[MeasuredColumn]:
     """Columns to be "measured" (values still zero): one per aspect ratio, runout L* at `times`
     (t/t*), deposit height every `profile_step_diameters` real grain diameters over
     SYNTHETIC_PROFILE_SPAN_OVER_L_I x L_i (None: no profile), read at t/t* = `profile_read_at` in
-    bins of `profile_bin_diameters` real grain diameters; L_i in m."""
+    bins of `profile_bin_diameters` real grain diameters; L_i in m. runout_method: how their runout
+    will be read (a dem.runout method; None: not stated, the measurement's own)."""
     times = np.asarray(times, float)
     diameter = MATERIALS[material].diameter
     profile_x = np.array([])
@@ -121,6 +125,7 @@ def synthetic_columns(
             source="synthetic",
             profile_read_at=profile_read_at if len(profile_x) else None,
             profile_bin_width=profile_bin_diameters * diameter if len(profile_x) else None,
+            runout_method=runout_method,
         )
         for a in aspect_ratios
     ]
@@ -137,8 +142,8 @@ def synthetic_measurement(
     runout: dict | RunoutMethod | str | None = None,
 ) -> tuple[list[MeasuredColumn], np.ndarray]:
     """The columns "measured" under `truth` by the builtin DEM (the model the diagnosis fits):
-    DEM observables plus Gaussian noise; runout: how its L* is read (dem.runout.RunoutMethod; None:
-    the default).
+    DEM observables plus Gaussian noise; runout: how its L* is read where a column states no method
+    (dem.runout.RunoutMethod; None: the default), stated in the columns returned.
 
     runout_noise: std of L* (-), stored as each runout row's std; profile_noise: std of the deposit
     height (m). mechanisms: the candidates, to find the truth's by name. Returns (columns, clean
@@ -164,7 +169,8 @@ def liggghts_measurement(
     """As synthetic_measurement, but the truth is simulated by another solver: LIGGGHTS with a
     Hertz (+ SJKR cohesion, + EPSD2 rolling friction) contact law and a floor of its own, settling
     its own packing (dem/engines/liggghts_hertz.py), and the runout read the lab's way
-    (LAB_RUNOUT), not the diagnosis'. The grains are the coarse-grained ones the diagnosis
+    (LAB_RUNOUT, where a column states no method), stated in the columns returned, so that the
+    diagnosis reads its own runs the same way. The grains are the coarse-grained ones the diagnosis
     simulates (settings.size_scale), drawn with the truth's seed."""
     observables = Observables(columns, runout)
     engine = LiggghtsHertzEngine()
@@ -195,7 +201,8 @@ def noisy_columns(
 ) -> tuple[list[MeasuredColumn], np.ndarray]:
     """The observables' columns holding the observables of one trajectory per column plus Gaussian
     noise (runout std runout_noise (-), profile std profile_noise (m), both stated in the columns),
-    each stating its simulated grain diameter; and the clean observables [q]."""
+    each stating its simulated grain diameter and how its runout was read; and the clean
+    observables [q]."""
     clean = observables.from_trajectories(trajectories)
     noisy = clean + rng.normal(0.0, 1.0, clean.shape) * np.where(
         observables.kind == "runout", runout_noise, profile_noise
@@ -216,6 +223,7 @@ def noisy_columns(
                 profile_std=None if profile is None else np.full(len(profile), profile_noise),
                 # the truth's grains are the simulation's: say so, as a solver's data file would
                 grain_diameter=float(trajectory.attrs["diameter"]),
+                runout_method=observables.reading(c).method,
             )
         )
     return out, clean
@@ -234,6 +242,7 @@ def write_measured_csv(columns: Sequence[MeasuredColumn], path: str | os.PathLik
                 # a material of the CSV's own: its density and solid fraction (empty for a table's)
                 own = ["" if v is None else f"{v:.10g}" for v in (c.density, c.solid_fraction)]
                 std = c.runout_std if c.runout_std is not None else [None] * len(c.runout)
+                method = c.runout_method or ""
                 for t, value, s in zip(c.t_over_tstar, c.runout, std):
                     writer.writerow(
                         [
@@ -249,6 +258,7 @@ def write_measured_csv(columns: Sequence[MeasuredColumn], path: str | os.PathLik
                             "",
                             grain,
                             *own,
+                            method,
                         ]
                     )
                 if c.profile_x is not None:
@@ -270,6 +280,7 @@ def write_measured_csv(columns: Sequence[MeasuredColumn], path: str | os.PathLik
                                 bin_width,
                                 grain,
                                 *own,
+                                "",
                             ]
                         )
 
@@ -316,9 +327,10 @@ def diagnose_hidden_cases(
 
     settings: a calibration.diagnosis.DiagnosisSettings (its profile_noise is set to the stated
     `profile_noise`; the runout noise travels in the data as each point's std). columns: the
-    columns to measure (default `synthetic_columns()`); library: their design runs (built here
-    when None). measurement: how data are made of a truth, called as synthetic_measurement is
-    (without `runout`); None: synthetic_measurement reading the runout as the diagnosis does.
+    columns to measure (default `synthetic_columns()`); library: their design runs, read as the
+    data state their runout was read (built here when None, for the first data made).
+    measurement: how data are made of a truth, called as synthetic_measurement is (without
+    `runout`); None: synthetic_measurement reading the runout as the diagnosis does.
     Returns {"cases": [...], "hit_rate", "null_correct", "library_seconds"}; each case holds its
     Diagnosis as "result".
     """
@@ -326,18 +338,19 @@ def diagnose_hidden_cases(
     from calibration.diagnosis import diagnose  # here: diagnosis does not depend on this module
 
     columns = synthetic_columns() if columns is None else columns
-    observables = Observables(columns, settings.runout)
     settings = replace(settings, profile_noise=profile_noise)
     mechanisms = [m.mechanism for m in settings.models()[1:]]
-    if library is None:
-        library = settings.library(observables)
-    runner = DEMRunner(observables, settings.simulation)
+    runner = None
     if measurement is None:
         measurement = partial(synthetic_measurement, runout=settings.runout)
     rng = np.random.default_rng(seed)
     cases = []
     for k, truth in enumerate(truths):
         data, _ = measurement(truth, columns, mechanisms, settings.simulation, runout_noise, profile_noise, rng)
+        if runner is None:  # the runs are read as the data state their runout was read
+            observables = Observables(data, settings.runout)
+            library = settings.library(observables) if library is None else library
+            runner = DEMRunner(observables, settings.simulation)
         result = diagnose(data, settings, library=library, runner=runner, name=f"hidden_{k}")
         expected = truth.mechanism or "none"
         fitted = None
@@ -371,5 +384,5 @@ def diagnose_hidden_cases(
         "n_hidden": len(hidden),
         "hit_rate": sum(c["hit"] for c in hidden) / len(hidden) if hidden else None,
         "null_correct": all(c["hit"] for c in nulls) if nulls else None,
-        "library_seconds": float(sum(r.seconds.sum() for r in library.runs.values())),
+        "library_seconds": float(sum(r.seconds.sum() for r in library.runs.values())) if library is not None else 0.0,
     }

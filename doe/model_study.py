@@ -60,14 +60,15 @@ def model_doe(
 
     responses: the design table (doe.design columns; seed = the packing seed of the run) with mse
     (runout MSE against column.runout, NaN where the run failed), L_star_t<t> (simulated L* at the
-    measured t/t*), dem_wall_time_s, runout_method (JSON) and failure (reason, "" where it ran).
+    measured t/t*), dem_wall_time_s, runout_method (JSON: `runout` with the column's stated method
+    in place of its own, MeasuredColumn.runout_reading) and failure (reason, "" where it ran).
     summary (JSON-ready): design, model, n_runs (DEM runs made), n_fitted, failed {run_id: reason},
     failures (a sentence), centre_replicates, packing_seeds, and doe.regression.analyse's summary
     of the quadratic surface (pure_error, best_run, models.quadratic: coefficients, effects (type-III
     ANOVA), lack_of_fit, optimum in coded and natural units, expression), analysis_time_s.
     progress: callable(fraction of the runs done) or None.
     """
-    runout = RunoutMethod.from_config(runout)
+    runout = column.runout_reading(runout)  # the column's stated method, else the config's
     factors = model_factors(model)
     design = face_centred_ccd(factors, centre_replicates, CALIBRATION_SEED + seed)
     method = json.dumps(runout.to_config(), sort_keys=True)

@@ -44,7 +44,6 @@ from calibration.measured import MeasuredColumn, expected_final_runout, load_col
 from dem.atomic import StrPath, write_json, write_text
 from dem.plots import save_figure
 from dem.progress import progress_logger
-from dem.runout import RunoutMethod
 from pipeline.benchmarks import benchmark_seconds
 from pipeline.diagnosis import read_diagnosis
 
@@ -75,7 +74,7 @@ def run_model_bayesopt(
         model,
         column,
         SimulationSettings(size_scale=diagnosis_section["size_scale"]),
-        RunoutMethod.from_config(runout),
+        column.runout_reading(runout),
         dem,
         budget=section["budget"],
         n_initial=section["n_initial"],
@@ -152,7 +151,12 @@ def route_optimum(key: str, source: StrPath, model: Model) -> tuple[str, Model, 
     names = model.parameter_names
     if key == "model-inverse":
         best = dict(zip(data["names"], data["best_params"]))
-        extra = {"gns_objective": data["best_value"], "intervals": data["posterior"]["parameters"]}
+        extra = {
+            "gns_objective": data["best_value"],
+            "intervals": data["posterior"]["parameters"],
+            # does the GNS see each parameter (calibration.sensitivity; None: not checked)
+            "sensitivity": (data.get("sensitivity") or {}).get("parameters"),
+        }
         return f"{model.name}, GNS inverse design", model, [best[k] for k in names], 0, 0.0, extra
     if key == "model-bayesopt":
         extra = {"history": data["history"]}
@@ -201,7 +205,7 @@ def run_validation(
         column,
         theta,
         settings,
-        RunoutMethod.from_config(runout),
+        column.runout_reading(runout),
         dem,
         section["validation_packings"],
         runs,
@@ -248,7 +252,9 @@ def run_calibrated(
     diagnosis = read_diagnosis(diagnosis_path) if diagnosis_path else None
     model, why = read_model(model_path, diagnosis_section["channel_width"])
     settings = SimulationSettings(size_scale=diagnosis_section["size_scale"])
-    runout = RunoutMethod.from_config(runout)
+    for note in column.runout_defaults(runout):
+        log.info("%s: %s", name, note)
+    runout = column.runout_reading(runout)  # the column's stated method, else the config's
     n_packings = section["validation_packings"]
     routes = [json.loads(Path(path).read_text()) for path in validation_paths]
     answers = [r for r in routes if r["model"] == model.name]
@@ -300,6 +306,7 @@ def run_calibrated(
         "intervals": None if diagnosis is None else model_intervals(diagnosis, model),
         # ... and the GNS inverse design's (about its optimum, through the GNS, with its error as noise)
         "gns_intervals": None if gns is None else gns["extra"]["intervals"],
+        "gns_sensitivity": None if gns is None else gns["extra"].get("sensitivity"),
         "gns_vs_doe": gns_vs_doe,
         "transfer": None if transfer is None else transfer.to_dict(),
         "prediction": prediction.to_dict(),
@@ -308,6 +315,7 @@ def run_calibrated(
         "size_scale": settings.size_scale,
         "engine": (dem or {}).get("engine", "builtin"),
         "runout": runout.to_config(),
+        "runout_stated": column.runout_method is not None,  # False: the file states none, the config's
         "validation_packings": n_packings,
         "calibration_packing": CALIBRATION_SEED,
         "seconds": time.perf_counter() - started,
@@ -436,6 +444,13 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
                 f"measured scatter and the GNS's own runout error on its test split): {spans}.",
                 "",
             ]
+        for p in result.get("gns_sensitivity") or []:  # calibration.sensitivity: the GNS blind to a parameter
+            if p["resolved"] is False:
+                lines += [
+                    f"**The GNS does not see {p['name']}**: {p['why'].removeprefix('the GNS does not resolve it: ')}; "
+                    "the GNS route's value of it is a guess (figure: does the GNS see each parameter).",
+                    "",
+                ]
         lines += [
             "| route | parameters | DEM runs to calibrate | time to calibrate | validated MSE (packing mean) +- SE | "
             "minus the answer's, paired +- SE | MSE per packing | failed runs | validation time |",
@@ -491,9 +506,10 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
                     "error against the DEM shows in the gap to the validated MSE).",
                     "",
                 ]
+        stated = "as the file states" if result.get("runout_stated") else "the config's: the file states none"
         lines += [
             f"DEM: {result['engine']} engine, size_scale {result['size_scale']:g} (parameters fitted at one scale are "
-            f"effective values of that scale), runout read by {result['runout']['method']}; the Bayesian "
+            f"effective values of that scale), runout read by {result['runout']['method']} ({stated}); the Bayesian "
             f"optimisation ran on packing seed {result['calibration_packing']}, the validation on "
             f"{result['validation_packings']} others. The answer is the route of this model with the lower "
             "validated MSE (so the choice, not each route's score, has seen the validation packings); the "

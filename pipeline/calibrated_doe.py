@@ -14,7 +14,6 @@ from calibration.design_runs import SimulationSettings
 from calibration.measured import load_column
 from dem.atomic import StrPath, write_json
 from dem.progress import progress_logger
-from dem.runout import RunoutMethod
 from doe.model_study import DESIGN, SURFACE, model_doe
 from doe.plots import plot_surface_pairs
 from doe.study import write_responses
@@ -47,7 +46,7 @@ def run_model_doe(
     column = load_column(measured_path)
     model, why = read_model(model_path, diagnosis_section["channel_width"])
     settings = SimulationSettings(size_scale=diagnosis_section["size_scale"])
-    runout = RunoutMethod.from_config(runout)
+    runout = column.runout_reading(runout)  # the column's stated method, else the config's
     log.info("%s: DoE (%s) of the %s model %s", name, DESIGN, model.name, list(model.parameter_names))
     responses, summary, fit = model_doe(
         model,

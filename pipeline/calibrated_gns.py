@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from calibration.calibrated import DatasetCase, model_dataset_cases, read_model
 from calibration.design_runs import Model
 from calibration.inverse import InverseResult
+from calibration.inverse_plots import plot_sensitivity
 from dem.atomic import StrPath
 from dem.engines import simulate_case
 from dem.grid import assign_splits, case_from_row, case_id_of
@@ -134,6 +135,8 @@ def run_model_inverse(
     threads: int | None = None,
     packing_paths: Sequence[StrPath] = (),
     section: dict | None = None,
+    dataset_paths: Sequence[StrPath] = (),
+    out_sensitivity: StrPath | None = None,
 ) -> InverseResult:
     """The GNS inverse design over every parameter of the model (settings: the config's `inverse`
     section). The start run is the base model's (the inverse stage's start.h5): its mechanism is
@@ -141,7 +144,9 @@ def run_model_inverse(
     are a Latin hypercube over all the parameters. packing_paths: trajectories of the model's
     dataset (start_packing_cases) whose first frames start rollouts too: the objective is that of
     the mean L* over the start run's packing and theirs. section: the config's `calibration`
-    section (gns_optimiser, gns_budget, gns_n_initial; None: the paper's L-BFGS-B of `settings`)."""
+    section (gns_optimiser, gns_budget, gns_n_initial; None: the paper's L-BFGS-B of `settings`).
+    dataset_paths: the DEM runs of the model's GNS dataset: the GNS's response to each parameter is
+    checked against theirs (calibration.sensitivity), drawn to out_sensitivity."""
     model, _ = read_model(model_json, channel_width)
     start_values = {}
     if model.mechanism is not None:
@@ -160,6 +165,7 @@ def run_model_inverse(
         threads=threads,
         design_names=model.parameter_names,
         start_values=start_values,
+        dataset_paths=dataset_paths,
         optimiser=None
         if section is None
         else {
@@ -168,4 +174,6 @@ def run_model_inverse(
             "n_initial": section["gns_n_initial"],
         },
     )
+    if out_sensitivity is not None and result.sensitivity is not None:
+        plot_sensitivity(result.to_dict(), out_sensitivity, title=f"does the {model.name} GNS see each parameter?")
     return result

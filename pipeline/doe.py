@@ -74,7 +74,7 @@ def analyse(
     table = read_design(design_path)
     measured = load_column(measured_path)
     paths = {Path(p).stem: p for p in trajectory_paths}
-    runout = RunoutMethod.from_config(runout)
+    runout = measured.runout_reading(runout)  # the column's stated method, else the config's
     responses = collect_responses(table, paths, measured, runout)
     write_responses(responses_path, responses)
     fits, summary = run_analysis(responses, factors_from_config(doe), doe["models"])
@@ -113,7 +113,7 @@ def validate(
     log.info("validation %s: mu %.4f, e %.4f, %d grains", case.name, case.friction, case.restitution, case.n_particles)
     trajectory = simulate_case(case, dem, progress=progress_logger(f"collapse {case.name}", log))
     write_trajectory(out_path, trajectory)
-    mse = objective(trajectory, measured, RunoutMethod.from_config(runout))
+    mse = objective(trajectory, measured, measured.runout_reading(runout))
     log.info("MSE against %s: %.4f", measured.name, mse)
     return mse
 
@@ -302,12 +302,13 @@ def report_section(
     surface figure response_surface.png), centre_paths[k] (trajectory of the design centre, the
     "before" curve), validation_paths[name] {model: trajectory path}, runout_figures[k] (written
     here), benchmark_paths[name] (Snakemake benchmark files of this DoE's DEM jobs). runout: the
-    config's runout method, by which every L* here is read (responses read another way are refused).
+    config's runout method, by which every L* here is read unless a column states its own
+    (MeasuredColumn.runout_reading; responses read another way are refused).
     """
-    runout = RunoutMethod.from_config(runout)
-    parts = []
+    configured, parts = runout, []
     for k, name in enumerate(names):
         measured = load_column(measured_paths[k])
+        runout = measured.runout_reading(configured)
         summary = json.loads(Path(analysis_paths[k]).read_text())
         centre = read_trajectory(centre_paths[k])
         curves = {

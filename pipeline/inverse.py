@@ -79,7 +79,7 @@ def run_dem_point(
         measured, params, fields, name=name, progress=progress_logger(f"DEM run {name}", log), dem_config=dem
     )
     write_trajectory(out_path, trajectory)
-    summary = validation_summary(trajectory, measured, RunoutMethod.from_config(runout))
+    summary = validation_summary(trajectory, measured, measured.runout_reading(runout))
     log.info("%s: objective %.4g against %s", name, summary["mse"], measured.name)
     return summary
 
@@ -130,7 +130,7 @@ def run_bayesopt(
     `dem` (the config's dem section)."""
     measured = load_column(measured_path)
     fields = measured_case_fields(read_metadata(metadata_path), seed)
-    runout = RunoutMethod.from_config(runout)
+    runout = measured.runout_reading(runout)  # the column's stated method, else the config's
     progress = progress_logger(f"BO on DEM runs of {measured.name}", log)
     history, best, seconds = bayesopt_on_dem(
         measured, fields, bounds, runout, budget, n_initial, seed, dem_config=dem, progress=progress
@@ -171,6 +171,7 @@ def run_inverse_design(
     design_names: Sequence[str] = START_NAMES,
     start_values: dict | None = None,
     optimiser: dict | None = None,
+    dataset_paths: Sequence[StrPath] = (),
 ) -> InverseResult:
     """The inverse-design stage of one measured column: inverse.json and the two figures.
     start_path: the start run, or several packings of the column (GNSObjective's starts).
@@ -185,6 +186,8 @@ def run_inverse_design(
     not record (the start run of the base model has a mechanism at its off value), also the first
     start of a parameter beyond inverse.start. optimiser: {"optimiser": "lbfgsb" | "bayesopt",
     "budget", "n_initial"} (calibration.inverse.inverse_design's; None: the paper's L-BFGS-B).
+    dataset_paths: the DEM runs of the GNS's dataset, against which the GNS's response to each
+    design parameter is checked (calibration.sensitivity; none: no check).
     """
     if threads:
         torch.set_num_threads(threads)
@@ -195,8 +198,9 @@ def run_inverse_design(
     starts = [read_trajectory(path) for path in paths]
     for packing in starts:  # a start run of the base model records no mechanism parameter
         packing.attrs = {**(start_values or {}), **packing.attrs}
-    runout = RunoutMethod.from_config(runout)
-    model_error = model_error_from_evaluation(evaluation_path, runout)
+    # the GNS's test-split error was read by the config's method; the design reads the column's way
+    model_error = model_error_from_evaluation(evaluation_path, RunoutMethod.from_config(runout))
+    runout = measured.runout_reading(runout)
     first_start = dict(zip(START_NAMES, settings["start"]))
     result = inverse_design(
         simulator,
@@ -215,6 +219,7 @@ def run_inverse_design(
         seed=settings["seed"],
         design_names=design_names,
         runout=runout,
+        reference=dataset_runs(dataset_paths, design_names, measured, runout) if dataset_paths else None,
         **(optimiser or {}),
     )
     write_result(result, out_json)
@@ -233,6 +238,16 @@ def run_inverse_design(
         out_deposits,
     )
     return result
+
+
+def dataset_runs(
+    paths: Sequence[StrPath], names: Sequence[str], measured: MeasuredColumn, runout: RunoutMethod
+) -> tuple[np.ndarray, np.ndarray]:
+    """(parameters [n, P] in the order of names, L* [n, K] at the measured t/t*) of the DEM runs at
+    paths (a GNS's dataset), each read by `runout`."""
+    runs = [read_trajectory(path) for path in paths]
+    points = np.array([[float(run.attrs[name]) for name in names] for run in runs])
+    return points, np.array([runout.at(run, measured.t_over_tstar) for run in runs])
 
 
 def run_recovery(
@@ -311,12 +326,13 @@ def run_comparison(
     benchmarks: {"start" | "gns_dataset" | "gns_training" | "gns_validation" | "doe" | "bayesopt":
     [benchmark files], "doe_validation": {model: [files]}}; dem_runs: {"gns_dataset": n, "doe": n}.
     doe_validation: {model: trajectory path} of the DoE's validation runs (None: no DoE arm).
-    runout: the config's runout section; every validated L* is read by it, and the inverse design's
-    and the BO's results must have been scored by it too (else RunoutError).
+    runout: the config's runout section (the column's stated method replaces its own); every
+    validated L* is read by it, and the inverse design's and the BO's results must have been scored
+    by it too (else RunoutError).
     """
     measured = load_column(measured_path)
     inverse = read_result(inverse_path)
-    runout = RunoutMethod.from_config(runout)
+    runout = measured.runout_reading(runout)
     check_same_method(inverse.get("runout"), runout, f"inverse design {inverse_path}")
     seconds = lambda key: benchmark_seconds(benchmarks.get(key, []))[0]  # noqa: E731
     times = {

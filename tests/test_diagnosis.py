@@ -11,7 +11,6 @@ benchmarks/diagnosis_hidden.py runs the full-size version (size_scale 4, five hi
 import hashlib
 import json
 import math
-import shutil
 from dataclasses import fields, replace
 from pathlib import Path
 from types import SimpleNamespace
@@ -34,7 +33,6 @@ from calibration.scoring import EmulatorFit, box_bounded_covariance, fit_emulate
 from calibration.synthetic import (
     draw_truth,
     evidence_margins,
-    liggghts_measurement,
     synthetic_columns,
     synthetic_measurement,
     write_measured_csv,
@@ -457,36 +455,42 @@ LIBRARY_SOURCES = ("dem/*.py", "dem/engines/*.py") + tuple(
 )
 
 
-def library_key() -> str:
+def library_key(runout_method: str | None = None) -> str:
+    """The cache key of the CI library of columns stating `runout_method` (None: none, the config's)."""
     root = Path(__file__).parent.parent
+    columns = synthetic_columns(runout_method=runout_method)
     digest = hashlib.sha256(
-        json.dumps(
-            [{k: CI_SETTINGS.to_dict()[k] for k in LIBRARY_SETTINGS}, Observables(synthetic_columns()).signature()]
-        ).encode()
+        json.dumps([{k: CI_SETTINGS.to_dict()[k] for k in LIBRARY_SETTINGS}, Observables(columns).signature()]).encode()
     )
     for path in sorted(p for pattern in LIBRARY_SOURCES for p in root.glob(pattern)):
         digest.update(path.relative_to(root).as_posix().encode() + path.read_bytes())
     return digest.hexdigest()[:16]
 
 
-@pytest.fixture(scope="module")
-def ci_library():
-    """Design runs for the CI columns (34 short DEM runs, ~30 s), cached in tests/diagnosis_cache/
+def cached_library(prefix: str, runout_method: str | None = None) -> tuple[list[MeasuredColumn], Library, Path]:
+    """(columns, design runs, file) of the CI columns stating `runout_method` (None: none, read by
+    the config's method): 34 short DEM runs (~30 s), cached in tests/diagnosis_cache/<prefix>_<key>.npz
     under a hash of the engine's and the design's sources and CI_SETTINGS (rebuilt when it
-    changes), with every model's emulator fitted once for all hidden cases."""
-    columns = synthetic_columns()
-    path = CACHE / f"library_{library_key()}.npz"
+    changes), with every model's emulator fitted once for all the cases that use it."""
+    columns = synthetic_columns(runout_method=runout_method)
+    path = CACHE / f"{prefix}_{library_key(runout_method)}.npz"
     if path.exists():
         library = Library.load(path)
     else:
         library = CI_SETTINGS.library(Observables(columns, CI_SETTINGS.runout))
-        for stale in CACHE.glob("library_*.npz"):
+        for stale in CACHE.glob(f"{prefix}_*.npz"):
             stale.unlink()
         CACHE.mkdir(exist_ok=True)
         library.save(path)
     for k, model in enumerate(CI_SETTINGS.models()):  # as diagnose fits them; its copies share these
         library.emulator(model, CI_SETTINGS.seed + k)
     return columns, library, path
+
+
+@pytest.fixture(scope="module")
+def ci_library():
+    """The CI library of columns read by the config's runout method (`cached_library`)."""
+    return cached_library("library")
 
 
 def hidden_case(columns, name):
@@ -695,29 +699,6 @@ def test_sjkr_pull_off_force_is_the_minimum_of_hertz_plus_sjkr():
     assert pull_off(e_star, r_eff, k, lens_area)[0] == pytest.approx(30 * weight, rel=0.01)
     resting = 9 / 4 * math.pi**2 * k**2 * r_eff / e_star**2  # where Hertz balances SJKR
     assert resting == pytest.approx(MAX_OVERLAP * case.diameter, rel=1e-9)  # the load that sets E here
-
-
-LIGGGHTS_CASE = "cohesion"  # the mechanism of the CI's LIGGGHTS case (the benchmark runs all three and the null)
-
-
-def test_a_hidden_mechanism_in_liggghts_data_is_named(ci_library):
-    """One hidden case simulated by LIGGGHTS with a Hertz contact law, SJKR cohesion, a packing it
-    settles itself and the runout read as a lab would (calibration.synthetic.liggghts_measurement),
-    diagnosed unchanged with the CI library: the mechanism is named.
-    benchmarks/diagnosis_liggghts.py runs every mechanism the deck models, the null and thresholds."""
-    if shutil.which("liggghts") is None:
-        pytest.skip("liggghts not installed (Debian: apt-get install liggghts): no other solver to make the data")
-    columns, library, _ = ci_library
-    rng = np.random.default_rng(1700)  # fixed before any verdict was seen
-    truth = draw_truth(rng, MECHANISMS[LIGGGHTS_CASE])
-    data, _ = liggghts_measurement(
-        truth, columns, get_mechanisms(), CI_SETTINGS.simulation, RUNOUT_NOISE, PROFILE_NOISE, rng
-    )
-    assert all(c.grain_diameter == pytest.approx(5 * 425e-6) for c in data)
-    runner = DEMRunner(Observables(columns, CI_SETTINGS.runout), CI_SETTINGS.simulation)
-    result = diagnose(data, CI_SETTINGS, library=library, runner=runner, name="liggghts")
-    print(truth, result.cause, json.dumps(evidence_margins(result)))
-    assert result.cause == LIGGGHTS_CASE, (truth, result.verdict, result.checks)
 
 
 # -- the profile: read as stated, noise as stated, never outvoting the runout by its row count --------

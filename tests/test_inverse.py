@@ -15,7 +15,7 @@ from scipy.optimize import minimize
 from calibration.compare import case_like
 from calibration.gns_objective import GeometryWarning, GNSObjective, InverseDesignError, check_geometry
 from calibration.inverse import ROUGHNESS_PROBES, check_bounds, design_bounds, inverse_design, posterior_at
-from calibration.inverse_plots import plot_paths
+from calibration.inverse_plots import plot_paths, plot_sensitivity
 from calibration.lbfgsb import (
     FD_STEP,
     FTOL,
@@ -531,6 +531,38 @@ def test_inverse_design_recovers_a_target_made_by_the_surrogate_itself(tiny_data
         assert p["identifiable"] and p["low"] <= value <= p["high"] and p["high"] - p["low"] < 0.3
     assert result.seconds["online"] > 0 and len(result.starts[0].iterates) >= 2
     assert result.runout == runout.to_config() == result.to_dict()["runout"]  # states how it read L*
+
+
+def test_a_parameter_the_gns_does_not_resolve_against_its_dem_runs_is_flagged_not_identifiable(tiny_dataset, tmp_path):
+    """reference: "DEM runs" whose L* is the surrogate's own plus a strong response to e that the
+    surrogate lacks: e is flagged, which the posterior, linearised on the GNS, cannot know alone."""
+    simulator, start, measured, metadata, attrs, runout = surrogate_target(tiny_dataset)
+    bounds = design_bounds(None, ["friction", "restitution"], metadata["parameter_ranges"])
+    low, high = np.asarray(bounds).T
+    points = low + np.random.default_rng(7).uniform(size=(12, 2)) * (high - low)
+    own = GNSObjective(simulator, start, measured, runout=runout).runout_values(points)
+    e_response = ((points[:, 1] - low[1]) / (high[1] - low[1]))[:, None] * np.linspace(0.2, 1.0, own.shape[1])
+    result = inverse_design(
+        simulator,
+        start,
+        measured,
+        metadata,
+        attrs,
+        runout=runout,
+        optimiser="bayesopt",
+        budget=10,
+        n_initial=8,
+        reference=(points, own + e_response),
+    )
+    friction, restitution = result.sensitivity["parameters"]
+    assert friction["resolved"] is not False and restitution["resolved"] is False
+    assert restitution["dem"] == pytest.approx(restitution["gns"] + 1.0, abs=0.1)  # the added response, found
+    flags = {p["name"]: p for p in result.posterior["parameters"]}
+    assert not flags["restitution"]["identifiable"] and "does not resolve" in flags["restitution"]["why"]
+    assert "does not resolve" not in flags["friction"]["why"]
+    assert len(result.sensitivity["gns"]["last"]) >= 10 and len(result.sensitivity["dem"]["points"]) == 12
+    plot_sensitivity(result.to_dict(), tmp_path / "sensitivity.png")
+    assert (tmp_path / "sensitivity.png").stat().st_size > 10_000
 
 
 def test_bayesian_optimisation_of_the_gns_objective_finds_a_target_made_by_the_surrogate(tiny_dataset, tmp_path):

@@ -1,5 +1,7 @@
 """Measured-data CSV reader: the shipped curves, the schema and every bad-input check."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -10,7 +12,9 @@ from calibration.measured import (
     load_column,
     read_measured,
 )
+from calibration.synthetic import write_measured_csv
 from dem.case import CaseError
+from dem.runout import RunoutMethod
 
 HEADER = "column,material,aspect_ratio,L_i,kind,x,value,std\n"
 QUARTZ_RUNOUT = [0.3, 1.2, 2.7, 4.2, 5.2, 6.0, 6.0]
@@ -239,3 +243,51 @@ def test_a_material_of_your_own_is_one_material_per_column(tmp_path):
     rows[2] = rows[2].replace(",2500,", ",2400,")
     with pytest.raises(MeasuredDataError, match=r"line 4, column 'density': 2400 differs from 2500 on line 2"):
         read_measured(write(tmp_path, OWN_HEADER + "\n".join(rows) + "\n"))
+
+
+# -- how the runout was read (runout_method): stated per column, else the config's ---------------------------
+METHOD_HEADER = "column,material,aspect_ratio,L_i,kind,x,value,std,read_at,bin_width,runout_method\n"
+
+
+def test_runout_method_is_kept_and_resolved_over_the_config(tmp_path):
+    """A column states how its runout was read; its runs are read by that method with the config's other
+    runout settings. An old file states none: the config's method, said so."""
+    stated = load_column(write(tmp_path, METHOD_HEADER + runout_rows(extra=",,,connected_front_reached")))
+    configured = {"method": "dense_front_reached", "n_leading": 4}
+    assert stated.runout_method == "connected_front_reached" and stated.runout_defaults(configured) == []
+    assert stated.runout_reading(configured) == RunoutMethod("connected_front_reached", n_leading=4)
+    old = load_column("data/measured/quartz_a6.csv")
+    assert old.runout_method is None and old.runout_reading(configured) == RunoutMethod.from_config(configured)
+    assert old.runout_defaults(configured) == ["runout read by dense_front_reached (not stated: the config's `runout`)"]
+
+
+def test_a_written_column_keeps_its_runout_method(tmp_path):
+    """write_measured_csv (the synthetic and LIGGGHTS data's writer) states the reading; read back the same."""
+    column = replace(load_column("data/measured/quartz_a6.csv"), runout_method="connected_front")
+    write_measured_csv([column], tmp_path / "out.csv")
+    assert load_column(tmp_path / "out.csv").runout_method == "connected_front"
+
+
+@pytest.mark.parametrize(
+    "rows, where",
+    [
+        (runout_rows(extra=",,,dense"), r"line 2, column 'runout_method': 'dense' is not a runout method"),
+        (
+            runout_rows(extra=",,,dense_front") + profile_rows().replace("\n", ",dense_front\n"),
+            r"line 9, column 'runout_method': .*runout rows only",
+        ),
+        (
+            runout_rows(extra=",,,dense_front").replace("2.0,4.2,,,,dense_front", "2.0,4.2,,,,"),
+            r"line 5, column 'runout_method': missing here.*every runout row or on none",
+        ),
+        (
+            runout_rows(extra=",,,dense_front").replace("2.0,4.2,,,,dense_front", "2.0,4.2,,,,connected_front"),
+            r"line 5, column 'runout_method': 'connected_front' differs from 'dense_front' on line 2",
+        ),
+    ],
+)
+def test_a_bad_runout_method_names_file_line_and_column(tmp_path, rows, where):
+    path = write(tmp_path, METHOD_HEADER + rows)
+    with pytest.raises(MeasuredDataError, match=where) as info:
+        read_measured(path)
+    assert str(path) in str(info.value)

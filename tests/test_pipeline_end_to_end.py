@@ -380,6 +380,11 @@ def test_calibrated_model_routes_and_validations(results):
     gns = load(calibrated / "inverse.json")
     assert gns["names"] == names and finite(gns["best_params"], gns["best_value"])
     assert within(dict(zip(names, gns["best_params"])), names, bounds)
+    # 3 DEM runs cannot fit a plane in 3 parameters: the GNS's response is not checked, and says so
+    sensitivity = gns["sensitivity"]
+    assert sensitivity["parameters"] == [] and "not checked" in sensitivity["why"]
+    assert len(sensitivity["dem"]["last"]) == 3 and finite(sensitivity["gns"]["last"])
+    assert (calibrated / "inverse_sensitivity.png").stat().st_size > 10_000
     validations = {p.stem: load(p) for p in (calibrated / "validation").glob("*.json")}
     assert set(validations) == CALIBRATED_ROUTES
     for key, v in validations.items():

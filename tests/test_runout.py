@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import re
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +25,7 @@ from calibration.diagnosis import DiagnosisSettings
 from calibration.measured import MeasuredColumn
 from calibration.observables import LibraryError, Observables
 from calibration.residuals import DiagnosisError
+from calibration.synthetic import noisy_columns
 from dem.case import CollapseCase
 from dem.runout import (
     METHODS,
@@ -335,6 +337,34 @@ def test_run_library_read_by_another_method_is_refused():
     unrecorded = {k: v for k, v in connected.signature().items() if k != "runout"}
     with pytest.raises(LibraryError, match="not recorded"):
         Library(unrecorded, {"size_scale": 4.0}, {}).check(connected, [])
+
+
+def test_a_column_is_scored_by_the_runout_method_it_states():
+    """The same run scored for two columns that differ only in the reading they state: each by its own (the
+    config's when it states none, with the config's other settings either way), so the lab's connected front
+    and the model's dense front give different L*; the synthetic data state the reading they used, and a
+    library of runs read one way is refused for a column read another."""
+    frames = [scene(4, 6)] * 6  # a block 4 grains long with a single layer of 6 ahead: 0.5 t*
+    run = replace(trajectory(frames), attrs={**trajectory(frames).attrs, "diameter": D})
+    t = np.array([0.1, 0.3, 0.5])
+    plain = MeasuredColumn("q", "quartz", 1.0, 3 * D, t, np.ones(3), source="memory")
+    lab = replace(plain, runout_method="connected_front_reached")
+    configured = {"method": "dense_front_reached", "n_leading": 4}
+    model, read_as_lab = (Observables([c], configured).from_trajectories([run]) for c in (plain, lab))
+    np.testing.assert_allclose(model, runout_at(run, t, configured))
+    np.testing.assert_allclose(read_as_lab, runout_at(run, t, {**configured, "method": "connected_front_reached"}))
+    assert np.all(read_as_lab - model > 0.5)  # the layer ahead counts for the connected front only
+    # the data a measurement makes say how they were read; a column stating the config's method is read as one
+    # that states none, so its library stays the same
+    (made,), _ = noisy_columns(
+        Observables([plain], "connected_front_reached"), [run], 0.05, 5e-4, np.random.default_rng(0)
+    )
+    assert made.runout_method == "connected_front_reached"
+    same = replace(plain, runout_method="dense_front_reached")
+    assert Observables([same], configured).signature() == Observables([plain], configured).signature()
+    library = Library(Observables([plain], configured).signature(), {"size_scale": 4.0}, {})
+    with pytest.raises(LibraryError, match="columns read otherwise.*'q': 'connected_front_reached'"):
+        library.check(Observables([lab], configured), [])
 
 
 def test_diagnosis_settings_take_the_config_runout_section():

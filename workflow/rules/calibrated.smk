@@ -189,6 +189,8 @@ rule calibrated_inverse:
             case_id=pipeline.calibrated_gns.start_packing_cases(CALIBRATION),
         ),
         measured=lambda w: config["measured"][w.name],
+        # the dataset's DEM runs: does the GNS respond to each parameter as they do (calibration.sensitivity)
+        dataset=lambda w: [p for paths in dataset_trajectories(f"calibrated_{w.name}").values() for p in paths],
     output:
         result="results/calibrated/{name}/inverse.json",
         paths=report(
@@ -204,6 +206,13 @@ rule calibrated_inverse:
             category="7. Calibrated model",
             subcategory="{name}",
             labels={"result": "GNS deposits"},
+        ),
+        sensitivity=report(
+            "results/calibrated/{name}/inverse_sensitivity.png",
+            caption="../report/inverse_sensitivity.rst",
+            category="7. Calibrated model",
+            subcategory="{name}",
+            labels={"result": "does the GNS see each parameter"},
         ),
     log:
         "results/logs/calibrated/calibrated_inverse/{name}.log",
@@ -305,6 +314,7 @@ rule calibrated_section:
         predictions=expand("results/calibrated/{name}/prediction.png", name=CALIBRATED_NAMES),
         doe=expand("results/calibrated/{name}/doe_surface.png", name=CALIBRATED_NAMES),
         inverse=expand("results/calibrated/{name}/inverse_paths.png", name=MODEL_GNS_NAMES),
+        sensitivity=expand("results/calibrated/{name}/inverse_sensitivity.png", name=MODEL_GNS_NAMES),
         bayesopt=expand("results/calibrated/{name}/bayesopt.png", name=CALIBRATED_NAMES),
         gns=expand(
             "results/gns/calibrated_{name}/{figure}",

@@ -22,5 +22,7 @@ result = run_model_inverse(
     threads=snakemake.threads,
     packing_paths=i.packings,
     section=snakemake.params.calibration,
+    dataset_paths=i.dataset,
+    out_sensitivity=o.sensitivity,
 )
 logging.info("optimum %s, GNS objective %.4f", result.best_params, result.best_value)

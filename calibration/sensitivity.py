@@ -1,0 +1,99 @@
+"""Does the GNS see each parameter? Its runout's response to every design parameter against the
+DEM's, over the box the inverse design searches.
+
+A GNS can fit its training runs on average and still ignore one of its inputs. The calibrated quartz
+GNS (cohesion) rolled out L*(t/t* = 3.5) between 6.0 and 6.7 over its whole Bond-number range, where
+the DEM runs of its own dataset fall from about 8.3 to 4.4 (README, "The GNS route"). An inverse
+design through such a GNS moves that parameter on noise, and its posterior, linearised on the GNS,
+cannot know. The check, run with every inverse design that has its dataset's DEM runs:
+
+  - a linear fit of the last measured L* on the parameters, each scaled to [0, 1] over the bounds,
+    to the DEM runs of the GNS's dataset, and to the GNS's own points of the inverse design;
+  - per parameter, the two slopes (the change of L* across the box) with their standard errors;
+  - a parameter the DEM responds to (slope at least SIGNIFICANT standard errors) is resolved when
+    the GNS's slope has its sign and lies within a factor RESOLVED_FACTOR of it.
+
+The GNS's points sit where the optimiser looked (a Latin hypercube, then near its optimum), so its
+slope is of that region: a local view, enough to tell a parameter seen from one ignored.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+SIGNIFICANT = 3.0  # |slope| / its standard error above which the DEM responds to a parameter
+RESOLVED_FACTOR = 2.0  # the GNS's slope within [1/2, 2] of the DEM's: the GNS sees the parameter
+
+
+@dataclass
+class ParameterResponse:
+    """The response of the last measured L* to one parameter across its bounds (L*), by the DEM and
+    by the GNS, with standard errors; resolved: True, False, or None where the DEM hardly responds
+    (nothing to resolve); why: plain words when not True."""
+
+    name: str
+    dem: float
+    dem_se: float
+    gns: float
+    gns_se: float
+    resolved: bool | None
+    why: str
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def response_slopes(points: ArrayLike, values: ArrayLike, bounds: Sequence[Sequence[float]]) -> tuple:
+    """(slopes [P], standard errors [P]) of the least-squares plane values ~ a + sum_j s_j u_j, u_j =
+    (points_j - low_j) / (high_j - low_j): s_j is the change of the value across parameter j's
+    bounds. points [n, P], values [n]; n must exceed P + 1 (ValueError otherwise)."""
+    points, values = np.atleast_2d(np.asarray(points, float)), np.asarray(values, float)
+    low, high = np.asarray(bounds, float).T
+    n, p = points.shape
+    if n <= p + 1:
+        raise ValueError(f"{n} points cannot fit a plane in {p} parameters with a standard error")
+    design = np.column_stack([np.ones(n), (points - low) / (high - low)])
+    coefficients, _, rank, _ = np.linalg.lstsq(design, values, rcond=None)
+    if rank < p + 1:
+        raise ValueError(f"the {n} points do not span the {p} parameters")
+    residual = values - design @ coefficients
+    variance = residual @ residual / (n - p - 1)
+    se = np.sqrt(variance * np.diag(np.linalg.inv(design.T @ design)))
+    return coefficients[1:], se[1:]
+
+
+def parameter_sensitivity(
+    names: Sequence[str],
+    bounds: Sequence[Sequence[float]],
+    dem_points: ArrayLike,
+    dem_runout: ArrayLike,
+    gns_points: ArrayLike,
+    gns_runout: ArrayLike,
+) -> list[ParameterResponse]:
+    """Per parameter of `names`, the DEM's and the GNS's response of the last L* across `bounds`.
+
+    dem_points [n, P] and dem_runout [n, K]: the DEM runs of the GNS's dataset (parameters in the
+    order of names, L* at the measured t/t*); gns_points [m, P], gns_runout [m, K]: the points the
+    inverse design rolled out and their (mean over packings) L*."""
+    dem, dem_se = response_slopes(dem_points, np.asarray(dem_runout, float)[:, -1], bounds)
+    gns, gns_se = response_slopes(gns_points, np.asarray(gns_runout, float)[:, -1], bounds)
+    out = []
+    for j, name in enumerate(names):
+        said = (
+            f"across its bounds the GNS's L* moves by {gns[j]:+.2f} +- {gns_se[j]:.2f}, "
+            f"the DEM's by {dem[j]:+.2f} +- {dem_se[j]:.2f}"
+        )
+        if abs(dem[j]) < SIGNIFICANT * dem_se[j]:
+            resolved, why = None, f"the DEM hardly responds to it: {said}"
+        else:
+            ratio = gns[j] / dem[j]
+            resolved = bool(1 / RESOLVED_FACTOR <= ratio <= RESOLVED_FACTOR)
+            why = "" if resolved else f"the GNS does not resolve it: {said}"
+        out.append(
+            ParameterResponse(name, float(dem[j]), float(dem_se[j]), float(gns[j]), float(gns_se[j]), resolved, why)
+        )
+    return out

@@ -1,0 +1,60 @@
+"""Does the GNS see each parameter (calibration.sensitivity): the plane fit's slopes against known
+planes, and the verdicts a GNS blind to a parameter, a faithful one and a flat DEM must get."""
+
+import numpy as np
+import pytest
+from scipy.stats import qmc
+
+from calibration.sensitivity import parameter_sensitivity, response_slopes
+
+BOUNDS = [(0.3, 0.9), (0.3, 0.9), (28.0, 60.0)]  # mu, e and a Bond number: ranges of different size
+
+
+def plane(points, slopes, noise=0.0, seed=0):
+    """L* [n, 2] whose last column changes by slopes[j] across parameter j's bounds, plus noise."""
+    low, high = np.asarray(BOUNDS).T
+    last = 6.0 + ((points - low) / (high - low)) @ np.asarray(slopes, float)
+    last = last + np.random.default_rng(seed).normal(0.0, noise, len(points))
+    return np.column_stack([0.5 * last, last])
+
+
+def box_points(n, seed):
+    low, high = np.asarray(BOUNDS).T
+    return low + qmc.LatinHypercube(d=3, seed=seed).random(n) * (high - low)
+
+
+def test_slopes_are_the_change_across_the_bounds_with_an_honest_standard_error():
+    points = box_points(30, 1)
+    slopes, se = response_slopes(points, plane(points, [0.2, 1.5, -4.2])[:, -1], BOUNDS)
+    assert np.allclose(slopes, [0.2, 1.5, -4.2], atol=1e-9) and np.all(se < 1e-9)
+    # with noise 0.5, the truth lies within 3 standard errors (the error is the noise's, not zero)
+    noisy, se = response_slopes(points, plane(points, [0.2, 1.5, -4.2], noise=0.5, seed=3)[:, -1], BOUNDS)
+    assert np.all(np.abs(noisy - [0.2, 1.5, -4.2]) < 3 * se) and np.all((0.1 < se) & (se < 0.6))
+    with pytest.raises(ValueError, match="cannot fit a plane"):
+        response_slopes(points[:4], np.zeros(4), BOUNDS)
+    with pytest.raises(ValueError, match="do not span"):
+        response_slopes(np.repeat(points[:1], 6, axis=0), np.zeros(6), BOUNDS)
+
+
+def test_a_gns_blind_to_the_bond_number_is_caught_and_a_faithful_one_is_not():
+    """The session-12 case: the DEM's L* falls by 4.2 across the Bond number, the GNS's stays put;
+    mu moves neither (nothing to resolve); e moves both alike."""
+    dem_points, gns_points = box_points(30, 1), box_points(40, 2)
+    dem = plane(dem_points, [0.1, 1.5, -4.2], noise=0.5, seed=4)
+    blind = plane(gns_points, [0.0, 1.2, 0.1], noise=0.15, seed=5)
+    mu, e, bond = parameter_sensitivity(
+        ["friction", "restitution", "bond_number"], BOUNDS, dem_points, dem, gns_points, blind
+    )
+    assert mu.resolved is None and "hardly responds" in mu.why
+    assert e.resolved is True and e.why == ""
+    assert bond.resolved is False and "does not resolve" in bond.why and "-4." in bond.why
+    faithful = plane(gns_points, [0.0, 1.2, -3.5], noise=0.15, seed=5)
+    assert [r.resolved for r in parameter_sensitivity("abc", BOUNDS, dem_points, dem, gns_points, faithful)] == [
+        None,
+        True,
+        True,
+    ]
+    # the wrong sign, or more than twice the DEM's response, is not resolved either
+    for slope in (+4.2, -9.0):
+        wrong = plane(gns_points, [0.0, 1.2, slope], noise=0.15, seed=5)
+        assert parameter_sensitivity("abc", BOUNDS, dem_points, dem, gns_points, wrong)[2].resolved is False
