@@ -243,7 +243,7 @@ def plot_sensitivity(result: dict, path: str | os.PathLike, title: str = "") -> 
                 lw=1.2,
                 label=f"{slope:+.2f} +- {response[key + '_se']:.2f}",
             )
-        verdict = {True: "resolved", False: "NOT resolved", None: "DEM flat", "unchecked": "not checked"}[
+        verdict = {True: "resolved", False: "NOT resolved", None: "DEM flat or unsure", "unchecked": "not checked"}[
             response["resolved"]
         ]
         ax.set(xlim=bounds[j], xlabel=name, ylabel="L* at the last measured t/t*")

@@ -11,7 +11,9 @@ cannot know. The check, run with every inverse design that has its dataset's DEM
     to the DEM runs of the GNS's dataset, and to the GNS's own points of the inverse design;
   - per parameter, the two slopes (the change of L* across the box) with their standard errors;
   - a parameter the DEM responds to (slope at least SIGNIFICANT standard errors) is resolved when
-    the GNS's slope has its sign and lies within a factor RESOLVED_FACTOR of it.
+    the GNS's slope has its sign and lies within a factor RESOLVED_FACTOR of it, and not resolved
+    when it lies outside that band by more than SIGNIFICANT standard errors of the difference
+    (between the two: too uncertain to tell, None, as where the DEM hardly responds).
 
 The GNS's points sit where the optimiser looked (a Latin hypercube, then near its optimum), so its
 slope is of that region: a local view, enough to tell a parameter seen from one ignored.
@@ -33,7 +35,7 @@ RESOLVED_FACTOR = 2.0  # the GNS's slope within [1/2, 2] of the DEM's: the GNS s
 class ParameterResponse:
     """The response of the last measured L* to one parameter across its bounds (L*), by the DEM and
     by the GNS, with standard errors; resolved: True, False, or None where the DEM hardly responds
-    (nothing to resolve); why: plain words when not True."""
+    (nothing to resolve) or the fits are too uncertain to tell; why: plain words when not True."""
 
     name: str
     dem: float
@@ -89,10 +91,13 @@ def parameter_sensitivity(
         )
         if abs(dem[j]) < SIGNIFICANT * dem_se[j]:
             resolved, why = None, f"the DEM hardly responds to it: {said}"
+        elif 1 / RESOLVED_FACTOR <= gns[j] / dem[j] <= RESOLVED_FACTOR:
+            resolved, why = True, ""
+        elif abs(gns[j] - dem[j]) < SIGNIFICANT * np.hypot(gns_se[j], dem_se[j]):
+            # outside the band, but within the two fits' errors: a flag needs evidence too
+            resolved, why = None, f"too uncertain to tell: {said}"
         else:
-            ratio = gns[j] / dem[j]
-            resolved = bool(1 / RESOLVED_FACTOR <= ratio <= RESOLVED_FACTOR)
-            why = "" if resolved else f"the GNS does not resolve it: {said}"
+            resolved, why = False, f"the GNS does not resolve it: {said}"
         out.append(
             ParameterResponse(name, float(dem[j]), float(dem_se[j]), float(gns[j]), float(gns_se[j]), resolved, why)
         )

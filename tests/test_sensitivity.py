@@ -58,3 +58,8 @@ def test_a_gns_blind_to_the_bond_number_is_caught_and_a_faithful_one_is_not():
     for slope in (+4.2, -9.0):
         wrong = plane(gns_points, [0.0, 1.2, slope], noise=0.15, seed=5)
         assert parameter_sensitivity("abc", BOUNDS, dem_points, dem, gns_points, wrong)[2].resolved is False
+    # a GNS whose few, noisy points put its slope outside the band but within its error is not
+    # flagged: that needs evidence too
+    few = box_points(8, 6)
+    unsure = parameter_sensitivity("abc", BOUNDS, dem_points, dem, few, plane(few, [0.0, 1.2, 3.0], 2.0, 7))[2]
+    assert unsure.resolved is None and "too uncertain" in unsure.why and unsure.gns_se > 1.0
