@@ -37,7 +37,11 @@ class DecisionRule:
 
 # -- the decision ----------------------------------------------------------------------------------------
 def decide(
-    dem: Mapping[str, DEMScore], rule: DecisionRule, data_warnings: Sequence[str], emulator_best: str | None = None
+    dem: Mapping[str, DEMScore],
+    rule: DecisionRule,
+    data_warnings: Sequence[str],
+    emulator_best: str | None = None,
+    switched_on: Mapping[str, bool] | None = None,
 ) -> tuple[str, dict[str, bool], str]:
     """(cause, checks {name: bool}, verdict in words) from the DEM scores {model: DEMScore} (read:
     bic, heldout_chi2, n_heldout, p_value), which hold the base model and the candidates the
@@ -49,6 +53,9 @@ def decide(
     mechanism can be needed even when the noise is large enough to hide it from a chi^2 test.
     emulator_best: the candidate the emulators rank first; the DEM must agree (where the two
     disagree, one of them is wrong about the optimum, and the evidence is not decisive).
+    switched_on: {candidate: whether its fit switches its mechanism on} (calibration.diagnosis.
+    mechanism_on); a candidate fitted with its mechanism off is the base model at another (mu, e),
+    never a cause. None: not checked.
     """
     base = dem["base"]
     ranked = sorted((n for n in dem if n != "base"), key=lambda n: dem[n].bic)
@@ -63,6 +70,7 @@ def decide(
         "heldout_beats_base": b.heldout_chi2 <= (1 - rule.min_heldout_gain) * base.heldout_chi2,
         "heldout_no_worse_than_runner_up": r is None or b.heldout_chi2 - r.heldout_chi2 <= tie,
         "emulator_agrees": emulator_best is None or emulator_best == best,
+        "mechanism_on": switched_on is None or switched_on.get(best, True),
     }
     versus = f"runner-up {runner_up}: {base.bic - r.bic:.1f}" if r else "no runner-up"
     fits = "misfits beyond" if base.p_value < rule.misfit_p_value else "fits within"

@@ -22,7 +22,7 @@ from scipy.optimize import minimize_scalar
 from calibration.decision import DecisionRule, decide
 from calibration.dem_scoring import DEMScore
 from calibration.design_runs import DEMRunner, DesignRuns, Library, Model, SimulationSettings
-from calibration.diagnosis import LIBRARY_SETTINGS, DiagnosisSettings, diagnose
+from calibration.diagnosis import LIBRARY_SETTINGS, DiagnosisSettings, diagnose, mechanism_on
 from calibration.diagnosis_result import Diagnosis
 from calibration.emulator import GPEmulator, ParameterBox, latin_hypercube
 from calibration.measured import MeasuredColumn
@@ -259,6 +259,23 @@ def test_decision_names_a_cause_only_when_decisive():
     nothing = {"base": dem_entry(18, 20, p=2), "cohesion": dem_entry(17, 22), "gate_lift": dem_entry(18, 25)}
     cause, _, verdict = decide(nothing, rule, [], "cohesion")
     assert cause == "none" and "no candidate improves" in verdict
+    # a decisive fit with its mechanism off is the base model at another (mu, e): never a cause
+    cause, checks, verdict = decide(decisive, rule, [], "cohesion", {"cohesion": False, "rolling_resistance": True})
+    assert cause == "none" and not checks["mechanism_on"] and "mechanism_on" in verdict
+    assert decide(decisive, rule, [], "cohesion", {"cohesion": True})[0] == "cohesion"
+
+
+def test_a_mechanism_at_its_off_value_is_off():
+    """The LIGGGHTS case that named gate lift at gate slowness 0 (basal friction 0.23; README): each
+    candidate's off value, the basal friction's being the fitted mu."""
+    models = {m.name: Model(m) for m in get_mechanisms()}
+    fit = {"friction": 0.48, "restitution": 0.75}
+    assert not mechanism_on(models["gate_lift"], dict(fit, gate_slowness=0.0))
+    assert mechanism_on(models["gate_lift"], dict(fit, gate_slowness=0.2))  # 5% of its range
+    assert not mechanism_on(models["basal_friction"], dict(fit, friction_base=0.48 + 0.005))
+    assert mechanism_on(models["basal_friction"], dict(fit, friction_base=0.555))
+    assert not mechanism_on(models["cohesion"], dict(fit, bond_number=0.0))
+    assert not mechanism_on(Model(), fit)
 
 
 def test_benchmark_margins_never_mix_dem_and_emulator_bic():
