@@ -46,7 +46,7 @@ def main():
     from calibration.gns_objective import GNSObjective
     from calibration.inverse_plots import plot_sensitivity
     from calibration.measured import load_column
-    from calibration.sensitivity import parameter_sensitivity
+    from calibration.sensitivity import sensitivity_record
     from dem.runout import RunoutMethod
     from dem.trajectory import read_trajectory
     from gns.data import read_metadata
@@ -73,7 +73,7 @@ def main():
     gns_points = bounds[:, 0] + unit * (bounds[:, 1] - bounds[:, 0])
     gns = (gns_points, objective.runout_values(gns_points))
     seconds = time.perf_counter() - started
-    responses = parameter_sensitivity(names, bounds, *dem, *gns)
+    record, responses = sensitivity_record(names, bounds, dem, gns)
     summary = {
         "dataset": args.dataset,
         "model": model,
@@ -81,17 +81,13 @@ def main():
         "gns_points": args.points,
         "packings": args.packings,
         "rollout_seconds": round(seconds, 1),
+        "why": record["why"],
         "parameters": [
             {k: (round(v, 3) if isinstance(v, float) else v) for k, v in r.to_dict().items()} for r in responses
         ],
     }
     if args.figure:
-        sensitivity = {
-            "parameters": [r.to_dict() for r in responses],
-            "why": "",
-            **{key: {"points": p.tolist(), "last": L[:, -1].tolist()} for key, (p, L) in (("dem", dem), ("gns", gns))},
-        }
-        result = {"names": names, "bounds": bounds.tolist(), "measured": column.name, "sensitivity": sensitivity}
+        result = {"names": names, "bounds": bounds.tolist(), "measured": column.name, "sensitivity": record}
         plot_sensitivity(result, args.figure, title=f"does the GNS of {metadata['name']} see each parameter?")
     print(json.dumps(summary, indent=1))
 

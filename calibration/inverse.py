@@ -49,7 +49,7 @@ from calibration.lbfgsb import (
 from calibration.measured import MeasuredColumn
 from calibration.objective import runout_mse
 from calibration.optimise import OptimisationResult, PointFailed
-from calibration.sensitivity import parameter_sensitivity
+from calibration.sensitivity import sensitivity_record
 from calibration.uncertainty import LaplacePosterior, finite_difference_jacobian, laplace_posterior
 from dem.progress import progress_logger
 from dem.runout import RunoutMethod
@@ -352,31 +352,7 @@ def inverse_design(
     )
     sensitivity = None
     if reference is not None:
-        seen = objective.evaluated()
-        responses, why = [], ""
-        try:
-            responses = parameter_sensitivity(names, bounds, *reference, *seen)
-        except ValueError as exc:  # too few runs or points for a plane in every parameter
-            why = f"not checked: {exc}"
-            log.warning("the GNS's response to its parameters is %s", why)
-        sensitivity = {
-            "why": why,
-            "parameters": [r.to_dict() for r in responses],
-            **{
-                key: {"points": np.asarray(points).tolist(), "last": np.asarray(runout)[:, -1].tolist()}
-                for key, (points, runout) in (("dem", reference), ("gns", seen))
-            },
-        }
-        for r in responses:
-            log.info(
-                "%s: L* across the bounds GNS %+.2f +- %.2f, DEM %+.2f +- %.2f (resolved: %s)",
-                r.name,
-                r.gns,
-                r.gns_se,
-                r.dem,
-                r.dem_se,
-                r.resolved,
-            )
+        sensitivity, responses = sensitivity_record(names, bounds, reference, objective.evaluated())
         blind = {r.name: r.why for r in responses if r.resolved is False}
         for p in posterior.parameters:  # linearised on the GNS, the posterior cannot know this
             if p.name in blind:

@@ -21,11 +21,14 @@ slope is of that region: a local view, enough to tell a parameter seen from one 
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
+
+log = logging.getLogger(__name__)
 
 SIGNIFICANT = 3.0  # |slope| / its standard error above which the DEM responds to a parameter
 RESOLVED_FACTOR = 2.0  # the GNS's slope within [1/2, 2] of the DEM's: the GNS sees the parameter
@@ -102,3 +105,39 @@ def parameter_sensitivity(
             ParameterResponse(name, float(dem[j]), float(dem_se[j]), float(gns[j]), float(gns_se[j]), resolved, why)
         )
     return out
+
+
+def sensitivity_record(
+    names: Sequence[str], bounds: Sequence[Sequence[float]], dem: tuple, gns: tuple
+) -> tuple[dict, list[ParameterResponse]]:
+    """The check as an inverse design records it (InverseResult.sensitivity) and its responses.
+
+    dem, gns: (points [n, P], L* [n, K]) as parameter_sensitivity takes them. The record:
+    {"why": "" or why not checked, "parameters": [ParameterResponse.to_dict()], "dem" and "gns":
+    {"points" [n][P], "last" [n]}} (the points, for the figure). Too few runs or points for a
+    plane in every parameter: not checked (no responses), the record says why."""
+    responses, why = [], ""
+    try:
+        responses = parameter_sensitivity(names, bounds, *dem, *gns)
+    except ValueError as exc:
+        why = f"not checked: {exc}"
+        log.warning("the GNS's response to its parameters is %s", why)
+    for r in responses:
+        log.info(
+            "%s: L* across the bounds GNS %+.2f +- %.2f, DEM %+.2f +- %.2f (resolved: %s)",
+            r.name,
+            r.gns,
+            r.gns_se,
+            r.dem,
+            r.dem_se,
+            r.resolved,
+        )
+    record = {
+        "why": why,
+        "parameters": [r.to_dict() for r in responses],
+        **{
+            key: {"points": np.asarray(points).tolist(), "last": np.asarray(runout)[:, -1].tolist()}
+            for key, (points, runout) in (("dem", dem), ("gns", gns))
+        },
+    }
+    return record, responses
