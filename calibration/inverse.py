@@ -211,8 +211,11 @@ def posterior_at(
     for probe, a in zip(probes, angles):
         probe[:2] = np.clip(optimum[:2] + ROUGHNESS_RADIUS * np.array([np.cos(a), np.sin(a)]), low[:2], high[:2])
     runouts = objective.runout_values(np.vstack([optimum] + points + probes))
+    failed = [points[k] for k, r in enumerate(runouts[1 : 1 + len(points)]) if not np.all(np.isfinite(r))]
+    if failed:  # one-sided differences there (calibration.uncertainty.finite_difference_jacobian)
+        log.warning("posterior: the rollouts at %d of %d Jacobian steps failed: %s", len(failed), len(points), failed)
     replay = iter(runouts[1 : 1 + len(points)])
-    jacobian = finite_difference_jacobian(lambda theta: next(replay), optimum, bounds, step)
+    jacobian = finite_difference_jacobian(lambda theta: next(replay), optimum, bounds, step, centre=runouts[0])
     residuals = runouts[0] - objective.measured.runout
     posterior = laplace_posterior(
         objective.design_names,
@@ -222,13 +225,15 @@ def posterior_at(
         bounds,
         sigma=noise_level(objective.measured, model_error_std, start_packing_std),
     )
-    values = [runout_mse(r, objective.measured.runout) for r in runouts]
+    # None (JSON null) where a rollout failed
+    values = [runout_mse(r, objective.measured.runout) if np.all(np.isfinite(r)) else None for r in runouts]
     probe_values = values[1 + len(points) :]
+    finite = [v for v in probe_values + values[:1] if v is not None]
     roughness = {
         "radius": ROUGHNESS_RADIUS,
         "values": probe_values,
         "optimum_value": values[0],
-        "spread": float(np.max(probe_values + values[:1]) - np.min(probe_values + values[:1])),
+        "spread": float(max(finite) - min(finite)),
         "jacobian_step": np.broadcast_to(step, optimum.shape).tolist() if np.ndim(step) else step,
         "jacobian_step_values": values[1 : 1 + len(points)],
     }

@@ -55,12 +55,15 @@ class ParameterResponse:
 def response_slopes(points: ArrayLike, values: ArrayLike, bounds: Sequence[Sequence[float]]) -> tuple:
     """(slopes [P], standard errors [P]) of the least-squares plane values ~ a + sum_j s_j u_j, u_j =
     (points_j - low_j) / (high_j - low_j): s_j is the change of the value across parameter j's
-    bounds. points [n, P], values [n]; n must exceed P + 1 (ValueError otherwise)."""
+    bounds. points [n, P], values [n]; a point whose value is not finite (a rollout that failed) is
+    left out; the others must exceed P + 1 (ValueError otherwise)."""
     points, values = np.atleast_2d(np.asarray(points, float)), np.asarray(values, float)
+    finite = np.isfinite(values) & np.all(np.isfinite(points), axis=1)
+    points, values = points[finite], values[finite]
     low, high = np.asarray(bounds, float).T
     n, p = points.shape
     if n <= p + 1:
-        raise ValueError(f"{n} points cannot fit a plane in {p} parameters with a standard error")
+        raise ValueError(f"{n} points with a finite value cannot fit a plane in {p} parameters with a standard error")
     design = np.column_stack([np.ones(n), (points - low) / (high - low)])
     coefficients, _, rank, _ = np.linalg.lstsq(design, values, rcond=None)
     if rank < p + 1:
@@ -136,8 +139,13 @@ def sensitivity_record(
         "why": why,
         "parameters": [r.to_dict() for r in responses],
         **{
-            key: {"points": np.asarray(points).tolist(), "last": np.asarray(runout)[:, -1].tolist()}
+            key: {"points": np.asarray(points).tolist(), "last": [_or_none(v) for v in np.asarray(runout)[:, -1]]}
             for key, (points, runout) in (("dem", dem), ("gns", gns))
         },
     }
     return record, responses
+
+
+def _or_none(value: float) -> float | None:
+    """value, or None (JSON null) where a rollout failed."""
+    return float(value) if np.isfinite(value) else None

@@ -83,8 +83,12 @@ def laplace_posterior(
             f"shapes disagree: jacobian {jacobian.shape}, residuals {residuals.shape}, "
             f"optimum {optimum.shape}, names {len(names)}"
         )
-    if not (np.all(np.isfinite(jacobian)) and np.all(np.isfinite(residuals))):
-        raise ValueError("non-finite jacobian or residuals: no posterior")
+    if not np.all(np.isfinite(residuals)):
+        raise ValueError("non-finite residuals at the optimum: no posterior")
+    # a parameter whose slope could not be formed (the model failed both sides of the optimum):
+    # its column is zeroed, so the ridge below gives it a huge variance, and it is flagged
+    unknown = ~np.all(np.isfinite(jacobian), axis=0)
+    jacobian = np.where(unknown[None, :], 0.0, jacobian)
     if sigma is None:
         dof = max(n_points - n_params, 1)
         sigma = np.full(n_points, max(np.sqrt(np.sum(residuals**2) / dof), 1e-12))
@@ -108,7 +112,9 @@ def laplace_posterior(
         width = high_bound - low_bound
         half = Z95 * std[j]
         why = ""
-        if 2 * half > width:
+        if unknown[j]:
+            why = "the model failed a Jacobian step either side of the optimum: its slope is unknown"
+        elif 2 * half > width:
             why = (
                 f"its 95% interval ({2 * half:.3g} wide) is wider than the bounds ({width:.3g}): "
                 "the measured runout hardly changes with it"
@@ -132,9 +138,14 @@ def finite_difference_jacobian(
     theta: ArrayLike,
     bounds: Sequence[tuple[float, float]],
     step: float | ArrayLike = 1e-2,
+    centre: ArrayLike | None = None,
 ) -> np.ndarray:
     """[K, p] central differences of model(theta) -> [K], steps (a scalar or one per parameter [p])
-    kept inside the bounds."""
+    kept inside the bounds.
+
+    centre: model(theta) [K], when known. Then a side where the model gives a non-finite value (a
+    surrogate's rollout that failed) falls back to the one-sided difference from the centre, and a
+    column whose two sides both fail is NaN (laplace_posterior flags that parameter)."""
     theta = np.asarray(theta, float)
     steps = np.broadcast_to(np.asarray(step, float), theta.shape)
     columns = []
@@ -143,5 +154,11 @@ def finite_difference_jacobian(
         up, down = theta.copy(), theta.copy()
         up[j] = min(theta[j] + steps[j], high)
         down[j] = max(theta[j] - steps[j], low)
-        columns.append((np.asarray(model(up)) - np.asarray(model(down))) / (up[j] - down[j]))
+        above, below = np.asarray(model(up), float), np.asarray(model(down), float)
+        if centre is not None and not np.all(np.isfinite(above)):
+            above, up = np.asarray(centre, float), theta
+        if centre is not None and not np.all(np.isfinite(below)):
+            below, down = np.asarray(centre, float), theta
+        span = up[j] - down[j]
+        columns.append((above - below) / span if span > 0 else np.full(above.shape, np.nan))
     return np.stack(columns, axis=1)

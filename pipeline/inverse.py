@@ -420,12 +420,13 @@ def section(
         )
     rough = inverse.get("roughness")
     if rough:
+        listed = lambda values: ", ".join("failed" if v is None else f"{v:.3g}" for v in values)  # noqa: E731
         lines += [
             "",
             f"Roughness of the GNS objective: within {rough['radius']:g} of the optimum it spans "
-            f"{rough['spread']:.3g} ({', '.join(f'{v:.3g}' for v in rough['values'])} around "
+            f"{rough['spread']:.3g} ({listed(rough['values'])} around "
             f"{rough['optimum_value']:.3g}); the posterior's steps of {rough['jacobian_step']:g} give "
-            f"{', '.join(f'{v:.3g}' for v in rough['jacobian_step_values'])}. Where the spread is comparable, "
+            f"{listed(rough['jacobian_step_values'])}. Where the spread is comparable, "
             "the rollout is chaotic in (mu, e) at that scale (as the DEM is between packings): local "
             "gradients, exact or finite-difference, describe that noise rather than the trend.",
         ]

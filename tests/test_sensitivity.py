@@ -30,8 +30,15 @@ def test_slopes_are_the_change_across_the_bounds_with_an_honest_standard_error()
     # with noise 0.5, the truth lies within 3 standard errors (the error is the noise's, not zero)
     noisy, se = response_slopes(points, plane(points, [0.2, 1.5, -4.2], noise=0.5, seed=3)[:, -1], BOUNDS)
     assert np.all(np.abs(noisy - [0.2, 1.5, -4.2]) < 3 * se) and np.all((0.1 < se) & (se < 0.6))
+    # a point whose rollout failed (NaN) is left out, not allowed to turn every slope into NaN
+    failed = plane(points, [0.2, 1.5, -4.2])[:, -1]
+    failed[[3, 17]] = np.nan
+    slopes, se = response_slopes(points, failed, BOUNDS)
+    assert np.allclose(slopes, [0.2, 1.5, -4.2], atol=1e-9) and np.all(np.isfinite(se))
     with pytest.raises(ValueError, match="cannot fit a plane"):
         response_slopes(points[:4], np.zeros(4), BOUNDS)
+    with pytest.raises(ValueError, match="4 points with a finite value cannot fit"):
+        response_slopes(points[:6], np.r_[np.zeros(4), np.nan, np.nan], BOUNDS)
     with pytest.raises(ValueError, match="do not span"):
         response_slopes(np.repeat(points[:1], 6, axis=0), np.zeros(6), BOUNDS)
 

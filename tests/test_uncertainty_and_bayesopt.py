@@ -48,6 +48,34 @@ def test_a_parameter_the_data_cannot_see_is_flagged_not_given_false_precision():
     assert (restitution.low, restitution.high) == (0.3, 0.9)
 
 
+def test_a_failed_side_of_the_jacobian_falls_back_to_one_side_and_both_sides_flag_the_parameter():
+    """A surrogate whose rollout fails (NaN) a step above the optimum: the slope comes from the step
+    below and the centre (exact for a linear model); failed on both sides, the parameter is flagged
+    with why, and the posterior of the others is still formed (the DAG's calibrated_inverse once
+    stopped here with 'non-finite jacobian')."""
+    t = np.linspace(0.5, 3.5, 7)
+    theta, bounds = np.array([0.85, 0.6]), [(0.3, 0.9), (0.3, 0.9)]
+
+    def model(p, fails=lambda p: p[0] > 0.86):
+        return np.full(7, np.nan) if fails(p) else p[0] * t + 0.5 * p[1]
+
+    jac = finite_difference_jacobian(model, theta, bounds, step=0.02, centre=model(theta))
+    np.testing.assert_allclose(jac, np.stack([t, np.full(7, 0.5)], axis=1), rtol=1e-9)
+    assert np.isnan(finite_difference_jacobian(model, theta, bounds, step=0.02)).any()  # no centre: NaN
+
+    def both_sides_fail(p):
+        return model(p, fails=lambda p: abs(p[1] - 0.6) > 1e-9)
+
+    jac = finite_difference_jacobian(both_sides_fail, theta, bounds, step=0.02, centre=model(theta))
+    assert np.all(np.isnan(jac[:, 1])) and np.all(np.isfinite(jac[:, 0]))
+    post = laplace_posterior(["friction", "restitution"], theta, jac, np.full(7, 0.02), bounds, sigma=0.05)
+    friction, restitution = post.parameters
+    assert friction.identifiable and friction.std == pytest.approx(0.05 / np.sqrt(np.sum(t**2)), rel=1e-6)
+    assert not restitution.identifiable and "either side" in restitution.why
+    with pytest.raises(ValueError, match="non-finite residuals"):
+        laplace_posterior(["friction", "restitution"], theta, jac, np.full(7, np.nan), bounds, sigma=0.05)
+
+
 def test_bayesian_optimisation_finds_a_known_minimum_within_budget():
     target = np.array([0.42, 0.71])
 
