@@ -10,8 +10,11 @@ Node features follow the paper's eq. (4), x_i = [p_i, pdot_i^{t-C+1..t}, b_i, f_
                                  the dataset's parameter_ranges
   layout          [N, 2]         initial column length L_i and height H_i scaled to [0, 1] likewise
   size            [N, 1]         grain radius / mean grain radius - 1
-Edge features follow eq. (5): (p_sender - p_receiver) / connectivity radius and its norm, plus the
-gap between the two grain surfaces / connectivity radius [E, 4].
+Edge features follow eq. (5), each block [E, width]:
+  displacement    [E, 2]         (p_sender - p_receiver) / connectivity radius
+  distance        [E, 1]         its norm
+  gap             [E, 1]         the gap between the two grain surfaces / connectivity radius
+  parameters      [E, P]         the DEM parameters of the pair's graph, scaled as on the nodes
 
 Where this differs from the paper, and why:
   - no absolute position p_i: it would break translation invariance and lets the network
@@ -23,6 +26,11 @@ Where this differs from the paper, and why:
     whether a pair touches depends on both sizes, not on the centre distance alone; the gap
     (negative = overlap) states it directly instead of leaving the network to combine centre
     distance and both sizes, which took many more training steps.
+  - `parameters` on the edges too (not in the paper): a contact law is a pair force, and the edge
+    update is where the network forms it. Fed to the nodes only, a GNS of the cohesive model
+    (mu, e, Bond) rolled out the same runout at every Bond number (L*(3.5) 6.3 / 6.2 / 6.4 at Bond
+    28 / 44 / 60, DEM 8.3 / 6.5 / 4.4), however it was trained; with the parameters on the edges
+    too, the same training gave 8.3 / 7.1 / 6.3 (issue 15 note, benchmarks/gns_sensitivity.py).
   - degenerate ranges (a parameter fixed across the dataset) give a constant 0 feature.
 """
 
@@ -31,7 +39,7 @@ from __future__ import annotations
 import torch
 
 NODE_BLOCKS = ("velocity", "walls", "particle_type", "parameters", "layout", "size")
-EDGE_BLOCKS = ("displacement", "distance", "gap")
+EDGE_BLOCKS = ("displacement", "distance", "gap", "parameters")
 
 
 def node_layout(n_input_frames: int, type_embedding_size: int, n_parameters: int) -> list[tuple[str, int]]:
@@ -47,8 +55,10 @@ def node_layout(n_input_frames: int, type_embedding_size: int, n_parameters: int
     return [(name, widths[name]) for name in NODE_BLOCKS]
 
 
-def edge_layout() -> list[tuple[str, int]]:
-    return [("displacement", 2), ("distance", 1), ("gap", 1)]
+def edge_layout(n_parameters: int) -> list[tuple[str, int]]:
+    """[(block name, width)] of the edge features in the order they are concatenated."""
+    widths = {"displacement": 2, "distance": 1, "gap": 1, "parameters": n_parameters}
+    return [(name, widths[name]) for name in EDGE_BLOCKS]
 
 
 def velocity_features(
@@ -81,18 +91,18 @@ def size_features(radius: torch.Tensor, mean_radius: float) -> torch.Tensor:
     return (radius / mean_radius - 1.0)[:, None]
 
 
-def edge_features(
+def pair_geometry(
     position: torch.Tensor,
     grain_radius: torch.Tensor,
     senders: torch.Tensor,
     receivers: torch.Tensor,
     connectivity_radius_m: float,
-) -> torch.Tensor:
+) -> dict[str, torch.Tensor]:
     """position [N, 2] (m), grain_radius [N] (m), senders and receivers [E] int64 node indices ->
-    [E, 4]: displacement sender - receiver, its norm, and the surface gap |d| - r_s - r_r, all /
-    connectivity radius (m)."""
+    the edge blocks {displacement [E, 2], distance [E, 1], gap [E, 1]}: displacement sender -
+    receiver, its norm, and the surface gap |d| - r_s - r_r, all / connectivity radius (m)."""
     displacement = (position[senders] - position[receivers]) / connectivity_radius_m
     # the norm's gradient is undefined at 0; no self edges, but coincident grains must not give NaN
     distance = torch.sqrt(torch.sum(displacement**2, dim=-1, keepdim=True) + 1e-12)
     gap = distance - ((grain_radius[senders] + grain_radius[receivers]) / connectivity_radius_m)[:, None]
-    return torch.cat([displacement, distance, gap.to(distance.dtype)], dim=-1)
+    return {"displacement": displacement, "distance": distance, "gap": gap}

@@ -77,7 +77,7 @@ class SimulatorConfig:
             list(b)
             for b in features.node_layout(self.n_input_frames, self.type_embedding_size, len(self.parameter_names))
         ]
-        edge = [list(b) for b in features.edge_layout()]
+        edge = [list(b) for b in features.edge_layout(len(self.parameter_names))]
         if self.node_layout and [list(b) for b in self.node_layout] != layout:
             raise CheckpointError(
                 f"feature layout mismatch: checkpoint has node features {self.node_layout}, "
@@ -182,8 +182,8 @@ class LearnedSimulator(nn.Module):
     def preprocess(
         self, position_sequence: torch.Tensor, context: Context
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-        """position_sequence [N, C, 2] (m) -> (node features [N, F_v], edge features [E, 4],
-        senders [E], receivers [E]); blocks in config.node_layout order."""
+        """position_sequence [N, C, 2] (m) -> (node features [N, F_v], edge features [E, F_e],
+        senders [E], receivers [E]); blocks in config.node_layout and config.edge_layout order."""
         c = self.config
         if position_sequence.shape[1] != c.n_input_frames:
             raise ValueError(
@@ -197,16 +197,21 @@ class LearnedSimulator(nn.Module):
         position = position_sequence[:, -1]
         senders, receivers = radius_graph(position, c.connectivity_radius_m, context.graph_index, c.max_neighbours)
         per_node = context.graph_index
+        parameters = features.scaled(context.parameters, self.parameter_low, self.parameter_high)  # [G, P]
         blocks = {
             "velocity": features.velocity_features(position_sequence, self.velocity_mean, self.velocity_std),
             "walls": features.wall_features(position, self.bounds, c.connectivity_radius_m),
             "particle_type": self.type_embedding(context.particle_type),
-            "parameters": features.scaled(context.parameters, self.parameter_low, self.parameter_high)[per_node],
+            "parameters": parameters[per_node],
             "layout": features.scaled(context.layout, self.layout_low, self.layout_high)[per_node],
             "size": features.size_features(context.radius, c.mean_radius),
         }
         node_features = torch.cat([blocks[name].to(position.dtype) for name, _ in c.node_layout], dim=-1)
-        edge_features = features.edge_features(position, context.radius, senders, receivers, c.connectivity_radius_m)
+        edge_blocks = {
+            **features.pair_geometry(position, context.radius, senders, receivers, c.connectivity_radius_m),
+            "parameters": parameters[per_node[receivers]],  # a pair lies in one graph
+        }
+        edge_features = torch.cat([edge_blocks[name].to(position.dtype) for name, _ in c.edge_layout], dim=-1)
         return node_features, edge_features, senders, receivers
 
     def forward(self, position_sequence: torch.Tensor, context: Context) -> torch.Tensor:
@@ -324,26 +329,31 @@ def warm_start(simulator: LearnedSimulator, path: str | os.PathLike) -> dict:
     of the same architecture, whose DEM parameters may be fewer (e.g. the base model's (mu, e)
     when this one adds a mechanism's parameter).
 
-    Every weight of the same shape is copied. The node encoder's first layer is copied column block
-    by column block (config.node_layout), the parameters block by parameter name; the columns of a
-    parameter the other model lacks start at zero, so the warm-started GNS begins as the other one,
-    blind to the new parameter, and training only has to learn what it changes. Buffers (the
-    normalisation statistics, bounds, parameter ranges) stay this dataset's. Returns
-    {"from": path, "new_parameters": [...], "copied": n tensors}; CheckpointError when the
-    architectures differ."""
+    Every weight of the same shape is copied. The first layers of the node and edge encoders are
+    copied column block by column block (config.node_layout, config.edge_layout), the parameters
+    block by parameter name; the columns of a parameter the other model lacks start at zero, so the
+    warm-started GNS begins as the other one, blind to the new parameter, and training only has to
+    learn what it changes. Buffers (the normalisation statistics, bounds, parameter ranges) stay
+    this dataset's. Returns {"from": path, "new_parameters": [...], "copied": n tensors};
+    CheckpointError when the architectures differ."""
     source = load_simulator(path)
     old, new = source.config, simulator.config
     missing = [k for k in old.parameter_names if k not in new.parameter_names]
     if missing:
         raise CheckpointError(f"warm start from {path}: it takes parameters {missing} this model lacks")
     old_weights = dict(source.named_parameters())
-    first = "network.node_encoder.0.weight"  # [hidden, node features]: the only shape that may differ
+    # [hidden, features]: the only shapes that may differ, and the layouts of their columns
+    first_layers = {
+        "network.node_encoder.0.weight": (old.node_layout, new.node_layout),
+        "network.edge_encoder.0.weight": (old.edge_layout, new.edge_layout),
+    }
     copied = 0
     with torch.no_grad():
         for name, weight in simulator.named_parameters():
             other = old_weights.get(name)
-            if name == first and other is not None and other.shape[0] == weight.shape[0]:
-                weight.copy_(_node_columns(other, old, new, weight.shape[1], path))
+            if name in first_layers and other is not None and other.shape[0] == weight.shape[0]:
+                layouts = first_layers[name]
+                weight.copy_(_feature_columns(other, old, new, layouts, weight.shape[1], path))
             elif other is None or other.shape != weight.shape:
                 raise CheckpointError(
                     f"warm start from {path}: weight {name} is {None if other is None else tuple(other.shape)} "
@@ -356,25 +366,31 @@ def warm_start(simulator: LearnedSimulator, path: str | os.PathLike) -> dict:
     return {"from": str(path), "new_parameters": new_parameters, "copied": copied}
 
 
-def _node_columns(
-    weight: torch.Tensor, old: SimulatorConfig, new: SimulatorConfig, width: int, path: str | os.PathLike
+def _feature_columns(
+    weight: torch.Tensor,
+    old: SimulatorConfig,
+    new: SimulatorConfig,
+    layouts: tuple[list, list],
+    width: int,
+    path: str | os.PathLike,
 ) -> torch.Tensor:
-    """The node encoder's first-layer weight [hidden, F_old] laid out for `new`'s features [hidden,
-    F_new]: blocks by name, the parameters block by parameter name, a new parameter's column zero."""
+    """An encoder's first-layer weight [hidden, F_old] laid out for `new`'s features [hidden,
+    F_new]: blocks by name (layouts: old's and new's [(block, width)]), the parameters block by
+    parameter name, a new parameter's column zero."""
 
-    def columns(config: SimulatorConfig) -> dict:
+    def columns(config: SimulatorConfig, layout: list) -> dict:
         out, start = {}, 0
-        for block, size in config.node_layout:
+        for block, size in layout:
             names = config.parameter_names if block == "parameters" else range(size)
             out.update({(block, k): start + j for j, k in enumerate(names)})
             start += size
         return out
 
-    old_columns, new_columns = columns(old), columns(new)
+    old_columns, new_columns = columns(old, layouts[0]), columns(new, layouts[1])
     result = torch.zeros(weight.shape[0], width, dtype=weight.dtype)
     for key, j in new_columns.items():
         if key in old_columns:
             result[:, j] = weight[:, old_columns[key]]
         elif key[0] != "parameters":
-            raise CheckpointError(f"warm start from {path}: node feature {key} has no counterpart there")
+            raise CheckpointError(f"warm start from {path}: feature {key} has no counterpart there")
     return result

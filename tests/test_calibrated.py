@@ -305,12 +305,14 @@ def test_the_calibration_box_follows_the_diagnosis_and_stays_in_the_candidates_r
         read_model(tmp_path / "wide.json")
 
 
-def test_the_models_gns_is_a_fine_tuning_of_the_base_gns():
-    """The base GNS's settings, fewer steps from its weights, a lower start and the same schedule compressed."""
-    from pipeline.calibrated_gns import case_splits, warm_start_settings
+def test_the_models_gns_has_the_base_gns_settings_from_scratch_or_as_a_fine_tuning():
+    """The base GNS's settings with the model's steps: from scratch, the learning rate falls over
+    them; a warm start starts from the base's weights at a lower rate, the schedule compressed."""
+    from pipeline.calibrated_gns import case_splits, model_gns_settings
 
     base = {"latent_size": 32, "steps": 12000, "learning_rate_decay_steps": 10000, "pushforward_fraction": 0.5}
-    settings = warm_start_settings(base, 6000, "results/gns/q/train/model_best.pt", 3e-4)
+    assert model_gns_settings(base, 18000) == dict(base, steps=18000, learning_rate_decay_steps=18000)
+    settings = model_gns_settings(base, 6000, "results/gns/q/train/model_best.pt", 3e-4)
     assert settings == dict(
         base,
         steps=6000,

@@ -107,7 +107,8 @@ def test_features_follow_layout_and_noise_widens_statistics(metadata, dataset):
     sequence = torch.tensor(traj.positions[:6]).transpose(0, 1)
     nodes, edges, senders, receivers = sim.preprocess(sequence, ctx)
     assert nodes.shape == (traj.n_particles, sum(w for _, w in c.node_layout))
-    assert edges.shape == (len(senders), 4)
+    assert [name for name, _ in c.edge_layout] == ["displacement", "distance", "gap", "parameters"]
+    assert edges.shape == (len(senders), 6)
     gap = (edges[:, 2] - edges[:, 3]) * c.connectivity_radius_m  # centre distance - surface gap
     assert torch.allclose(gap, ctx.radius[senders] + ctx.radius[receivers])
     walls = nodes[:, 10:14]
@@ -117,6 +118,8 @@ def test_features_follow_layout_and_noise_widens_statistics(metadata, dataset):
     assert torch.allclose(
         params[:, 0], torch.tensor((traj.attrs["friction"] - low) / (high - low), dtype=torch.float32)
     )
+    # every edge carries its graph's scaled parameters, the same as its grains'
+    torch.testing.assert_close(edges[:, 4:6], params[receivers])
 
 
 def test_random_walk_noise_ends_with_requested_std():
@@ -319,13 +322,17 @@ def test_warm_start_begins_as_the_base_gns_blind_to_the_new_parameter(metadata, 
         )
         outputs.append(extended.predict_positions(initial.transpose(0, 1), extended_ctx))
         torch.testing.assert_close(outputs[-1], expected, rtol=0, atol=0)
-    first = extended.network.node_encoder[0].weight
-    column = [name for name, _ in extended.config.node_layout].index("parameters")
-    offset = sum(width for _, width in extended.config.node_layout[:column]) + 2
-    assert torch.all(first[:, offset] == 0)
+    # the Bond number's input columns, on the nodes and on the edges, start at zero and can learn
     loss = extended.predict_positions(initial.transpose(0, 1), extended_ctx).square().sum()
-    (gradient,) = torch.autograd.grad(loss, [first])
-    assert gradient[:, offset].abs().max() > 0
+    for first, layout in (
+        (extended.network.node_encoder[0].weight, extended.config.node_layout),
+        (extended.network.edge_encoder[0].weight, extended.config.edge_layout),
+    ):
+        column = [name for name, _ in layout].index("parameters")
+        offset = sum(width for _, width in layout[:column]) + 2
+        assert torch.all(first[:, offset] == 0)
+        (gradient,) = torch.autograd.grad(loss, [first], retain_graph=True)
+        assert gradient[:, offset].abs().max() > 0
 
     # a GNS whose parameters the source lacks cannot start a GNS without them
     torch.save(model_payload(extended), tmp_path / "extended.pt")

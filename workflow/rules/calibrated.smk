@@ -34,7 +34,7 @@ rule calibrated_model:
         "results/logs/calibrated/calibrated_model/{name}.log",
     benchmark:
         "results/benchmarks/calibrated/calibrated_model/{name}.tsv"
-    priority: 5
+    priority: lambda w: model_chain_priority(w.name)
     localrule: True
     conda:
         "../envs/pipeline.yaml"
@@ -128,7 +128,7 @@ rule calibrated_case:
         "results/logs/calibrated/calibrated_case/{name}/{case_id}.log",
     benchmark:
         "results/benchmarks/calibrated/calibrated_case/{name}/{case_id}.tsv"
-    priority: 5
+    priority: MODEL_CHAIN_PRIORITY
     conda:
         "../envs/pipeline.yaml"
     threads: config["dem"]["threads"]
@@ -157,7 +157,7 @@ rule calibrated_dataset:
         "results/logs/calibrated/calibrated_dataset/{name}.log",
     benchmark:
         "results/benchmarks/calibrated/calibrated_dataset/{name}.tsv"
-    priority: 10
+    priority: MODEL_CHAIN_PRIORITY
     conda:
         "../envs/pipeline.yaml"
     resources:
@@ -218,7 +218,7 @@ rule calibrated_inverse:
         "results/logs/calibrated/calibrated_inverse/{name}.log",
     benchmark:
         "results/benchmarks/calibrated/calibrated_inverse/{name}.tsv"
-    priority: 10
+    priority: MODEL_CHAIN_PRIORITY
     conda:
         "../envs/pipeline.yaml"
     threads: INVERSE["threads"]
@@ -247,7 +247,7 @@ rule calibrated_validate:
         "results/logs/calibrated/calibrated_validate/{name}/{route}.log",
     benchmark:
         "results/benchmarks/calibrated/calibrated_validate/{name}/{route}.tsv"
-    priority: lambda w: 10 if w.route == "model-inverse" else 0
+    priority: lambda w: MODEL_CHAIN_PRIORITY if w.route == "model-inverse" else 0
     conda:
         "../envs/pipeline.yaml"
     resources:

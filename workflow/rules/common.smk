@@ -89,20 +89,21 @@ def dataset_trajectories(dataset):
 
 def gns_settings(dataset):
     """Training settings of one dataset: the gns section with gns.per_dataset[dataset] laid over it
-    (gns.smk); a calibrated model's GNS dataset takes the settings of the base GNS of its column,
-    warm-started from it (gns_init) for calibration.gns_steps, the learning rate decaying in proportion."""
+    (gns.smk); a calibrated model's GNS dataset takes the settings of the base GNS of its column
+    for calibration.gns_steps, from scratch or warm-started from that GNS (gns_init)."""
     if dataset in MODEL_DATASETS:
         base = gns_settings(INVERSE_DATASET[MODEL_DATASETS[dataset]["name"]])
-        return pipeline.calibrated_gns.warm_start_settings(
-            base, CALIBRATION["gns_steps"], gns_init(dataset)[0], CALIBRATION["gns_learning_rate"]
+        init = gns_init(dataset)
+        return pipeline.calibrated_gns.model_gns_settings(
+            base, CALIBRATION["gns_steps"], init[0] if init else None, CALIBRATION["gns_learning_rate"]
         )
     return {**GNS_SETTINGS, **GNS.get("per_dataset", {}).get(dataset, {})}
 
 
 def gns_init(dataset):
     """[the GNS a dataset's training starts from]: the base GNS of the column of a calibrated
-    model's GNS dataset; [] for every other dataset (gns.smk)."""
-    if dataset not in MODEL_DATASETS:
+    model's GNS dataset with calibration.gns_warm_start; [] otherwise: from scratch (gns.smk)."""
+    if dataset not in MODEL_DATASETS or not CALIBRATION["gns_warm_start"]:
         return []
     return [inverse_gns(MODEL_DATASETS[dataset]["name"], "model")]
 
@@ -113,11 +114,24 @@ def dem_resources(wildcards, stage, threads, attempt):
 
 
 def critical_priority(dataset):
-    """Scheduling priority of a dataset's jobs. The DAG's longest path runs through the GNS of an
-    inverse-design column and the calibrated model's GNS that starts from it (DEM runs -> GNS
-    training -> warm-started GNS -> inverse design -> validation): first in the queue, so that the
-    many shorter jobs fill the other core around it (dem.smk, dataset.smk, gns.smk)."""
-    return 10 if dataset in INVERSE_DATASET.values() or dataset in MODEL_DATASETS else 0
+    """Scheduling priority of a dataset's jobs. The DAG's longest paths run through the GNS of an
+    inverse-design column and the calibrated model's GNS (DEM runs -> diagnosis -> the model's DEM
+    runs -> its GNS -> inverse design -> validation): first in the queue, so that the many shorter
+    jobs fill the other core around them (dem.smk, dataset.smk, gns.smk)."""
+    if dataset in MODEL_DATASETS:
+        return MODEL_CHAIN_PRIORITY
+    return 10 if dataset in INVERSE_DATASET.values() else 0
+
+
+# The longest path of all: a measured column's diagnosis decides the model whose GNS dataset is run
+# and trained from scratch (diagnosis.smk, calibrated.smk); it goes before the base GNS's jobs.
+MODEL_CHAIN_PRIORITY = 15
+
+
+def model_chain_priority(name):
+    """Priority of the diagnosis and model jobs of measured column `name`: first where its model
+    gets a GNS (MODEL_GNS_NAMES, calibrated.smk), else none."""
+    return MODEL_CHAIN_PRIORITY if name in MODEL_GNS_NAMES else 0
 
 
 def gns_test_cases(dataset):

@@ -20,7 +20,7 @@ rule diagnosis_library:
         "results/logs/diagnosis/diagnosis_library/{name}.log",
     benchmark:
         "results/benchmarks/diagnosis/diagnosis_library/{name}.tsv"
-    priority: lambda w: 5 if w.name in MODEL_GNS_NAMES else 0
+    priority: lambda w: model_chain_priority(w.name)
     conda:
         "../envs/pipeline.yaml"
     resources:
@@ -57,7 +57,7 @@ rule diagnosis:
         "results/logs/diagnosis/diagnosis/{name}.log",
     benchmark:
         "results/benchmarks/diagnosis/diagnosis/{name}.tsv"
-    priority: lambda w: 5 if w.name in MODEL_GNS_NAMES else 0
+    priority: lambda w: model_chain_priority(w.name)
     conda:
         "../envs/pipeline.yaml"
     resources:
