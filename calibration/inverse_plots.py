@@ -228,6 +228,8 @@ def plot_sensitivity(result: dict, path: str | os.PathLike, title: str = "") -> 
     for j, (ax, name, response) in enumerate(zip(axes[0], names, responses)):
         for key, colour, label in (("dem", "k", "DEM runs of the dataset"), ("gns", "tab:orange", "GNS points")):
             points, last = np.asarray(data[key]["points"], float), np.asarray(data[key]["last"], float)
+            ran = np.isfinite(last)  # a failed rollout (null) is no point, as in the fit
+            points, last = points[ran], last[ran]
             ax.plot(points[:, j], last, "o", color=colour, ms=3, alpha=0.7, label=label)
             centre, slope = np.mean(points[:, j]), response[key]
             if slope is None:
