@@ -211,7 +211,8 @@ def posterior_at(
     for probe, a in zip(probes, angles):
         probe[:2] = np.clip(optimum[:2] + ROUGHNESS_RADIUS * np.array([np.cos(a), np.sin(a)]), low[:2], high[:2])
     runouts = objective.runout_values(np.vstack([optimum] + points + probes))
-    failed = [points[k] for k, r in enumerate(runouts[1 : 1 + len(points)]) if not np.all(np.isfinite(r))]
+    ran = np.all(np.isfinite(runouts), axis=1)  # False where a rollout failed
+    failed = [point for point, ok in zip(points, ran[1:]) if not ok]
     if failed:  # one-sided differences there (calibration.uncertainty.finite_difference_jacobian)
         log.warning("posterior: the rollouts at %d of %d Jacobian steps failed: %s", len(failed), len(points), failed)
     replay = iter(runouts[1 : 1 + len(points)])
@@ -226,7 +227,7 @@ def posterior_at(
         sigma=noise_level(objective.measured, model_error_std, start_packing_std),
     )
     # None (JSON null) where a rollout failed
-    values = [runout_mse(r, objective.measured.runout) if np.all(np.isfinite(r)) else None for r in runouts]
+    values = [runout_mse(r, objective.measured.runout) if ok else None for r, ok in zip(runouts, ran)]
     probe_values = values[1 + len(points) :]
     finite = [v for v in probe_values + values[:1] if v is not None]
     roughness = {
