@@ -11,8 +11,9 @@ Targets: a seeded Latin hypercube over the inner 80% of the range the GNS is tra
 target is the mean of `packings` builtin-DEM runs of the model at its truth (packings no dataset or
 validation uses) plus measurement noise `noise` (L*, per point), stated with the std of such a mean
 (calibration.recovery.synthetic_measured). Each is recovered by calibration.inverse.inverse_design
-over every parameter of the model (as the DAG's rule calibrated_inverse), with the GNS's test-split
-runout error in the noise model. Per target and parameter it reports the estimate, the 95%
+over every parameter of the model as the DAG's rule calibrated_inverse runs it (the config's
+calibration.gns_optimiser, gns_budget and start_packings), with the GNS's test-split runout error in
+the noise model. Per target and parameter it reports the estimate, the 95%
 interval, whether the truth lies inside, and the interval's half-width beside the half-width a
 perfect model of the mean response would give: the Cramer-Rao bound 1.96 sqrt(diag((J^T C^-1 J)^-1))
 with C the target's own noise (no model error) and J the Jacobian of L* at the optimum (the GNS's:
@@ -30,6 +31,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -47,6 +49,8 @@ from dem.runout import RunoutMethod, runout_at  # noqa: E402
 from dem.trajectory import read_trajectory  # noqa: E402
 from gns.data import read_metadata, read_training_attrs  # noqa: E402
 from gns.simulator import load_simulator  # noqa: E402
+from pipeline.calibrated_gns import start_packing_cases  # noqa: E402
+from pipeline.config import validate_config  # noqa: E402
 
 Z95 = 1.959963984540054
 TRUTH_SEED0 = 7001  # packings of the targets: no dataset's, calibration's or validation's
@@ -62,7 +66,11 @@ def main() -> None:
     parser.add_argument("--noise", type=float, default=0.05, help="measurement noise of the targets (L*)")
     parser.add_argument("--size-scale", type=float, default=5.0, help="the model's size_scale (diagnosis.size_scale)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--config", type=Path, default=ROOT / "config/config.yaml", help="the DAG's config")
     args = parser.parse_args()
+    section = validate_config(yaml.safe_load(args.config.read_text()), ROOT / "workflow/schemas/config.schema.yaml")[
+        "calibration"
+    ]
 
     results = Path(args.results)
     dataset = f"calibrated_{args.name}"
@@ -74,6 +82,9 @@ def main() -> None:
     model_error = math.sqrt(evaluation["runout_mse"])
     start = read_trajectory(results / f"inverse/{args.name}/start.h5")
     start.attrs.setdefault(model.mechanism.parameter, model.mechanism.off_value(0.55, 0.73))
+    # the rule calibrated_inverse's starts: the start run and packings of the model's dataset
+    packings = start_packing_cases(section)
+    starts = [start] + [read_trajectory(results / f"dem/{dataset}/trajectories/{c}.h5") for c in packings]
     runout = RunoutMethod.from_config(evaluation["runout"])
     names = list(model.parameter_names)
     trained = np.array([metadata["parameter_ranges"][n] for n in names], float)
@@ -97,7 +108,7 @@ def main() -> None:
         )
         result = inverse_design(
             simulator,
-            start,
+            starts,
             target,
             metadata,
             read_training_attrs(metadata),
@@ -106,9 +117,12 @@ def main() -> None:
             model_error_std=model_error,
             runout=runout,
             seed=args.seed + k,
+            optimiser=section["gns_optimiser"],
+            budget=section["gns_budget"],
+            n_initial=section["gns_n_initial"],
         )
         posterior = result.posterior
-        objective = GNSObjective(simulator, start, target, names, runout=runout)
+        objective = GNSObjective(simulator, starts, target, names, runout=runout)
         steps = result.roughness["jacobian_step"]
         jacobian = finite_difference_jacobian(
             lambda theta, objective=objective: objective.runout_values(np.atleast_2d(theta))[0],
@@ -149,6 +163,8 @@ def main() -> None:
         "packings": args.packings,
         "noise": args.noise,
         "model_error_std": model_error,
+        "optimiser": section["gns_optimiser"],
+        "start_packings": len(starts),
         "packing_std": packing_std.tolist(),
         "truth_inside_95_all_parameters": int(sum(inside)),
         "truth_inside_95_by_parameter": {

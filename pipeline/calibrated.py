@@ -567,8 +567,10 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
 def own_runs_text(versus: dict) -> str:
     """The GNS route's own DEM runs in words, for calibrated.json's gns_vs_doe ("" when its file
     does not say): the rest are the base GNS's, shared with the paper's route."""
-    own = versus.get("gns_own_dem_runs")
-    return "" if own is None else f" ({own} of its own dataset, the rest the base GNS's it starts from)"
+    own, runs = versus.get("gns_own_dem_runs"), versus.get("gns_dem_runs")
+    if own is None or own == runs:  # trained from scratch: every run is its own
+        return ""
+    return f" ({own} of its own dataset, the rest the base GNS's it starts from)"
 
 
 def format_se(value: float | None) -> str:

@@ -32,7 +32,11 @@ log = logging.getLogger(__name__)
 
 
 def model_gns_settings(
-    base: dict, steps: int, init_from: str | None = None, learning_rate: float | None = None
+    base: dict,
+    steps: int,
+    init_from: str | None = None,
+    learning_rate: float | None = None,
+    latent_size: int | None = None,
 ) -> dict:
     """The `gns` settings of a calibrated model's GNS: those of the base GNS of the column (`base`,
     the config's gns section for that dataset) for `steps` steps.
@@ -43,11 +47,13 @@ def model_gns_settings(
     compressed in proportion (a fine-tuning: a start at the base's 1e-3 undid it, the validation
     runout MSE 2.7 -> 0.40 in 6000 steps against 0.39 after 1000 at 3e-4). A warm start costs a
     quarter of the steps but does not learn what cohesion does (the Bond number's slope of L* stayed
-    flat however it was fine-tuned), so the DAG trains from scratch."""
+    flat however it was fine-tuned), so the DAG trains from scratch. latent_size: the width from
+    scratch (None: the base's); a warm start keeps the base's (pipeline.config refuses another)."""
     from gns.settings import TrainSettings
 
     if init_from is None:
-        return {**base, "steps": steps, "learning_rate_decay_steps": steps}
+        width = {} if latent_size is None else {"latent_size": latent_size}
+        return {**base, **width, "steps": steps, "learning_rate_decay_steps": steps}
     filled = TrainSettings.from_config(base)
     decay = max(1, round(filled.learning_rate_decay_steps * steps / filled.steps))
     return {

@@ -468,7 +468,7 @@ def check_scale_ladder(config: dict) -> None:
 def check_calibration(config: dict) -> None:
     """calibration.model auto needs the diagnosis; a mechanism the chosen dem.engine cannot run (for
     auto: any diagnosis candidate) is refused before any job runs; so is a Bayesian optimisation
-    budget below its initial design."""
+    budget below its initial design, and a warm-started model GNS of another width than the base's."""
     section = config["calibration"]
     if not section["enabled"] or not config["measured"]:
         return
@@ -482,6 +482,13 @@ def check_calibration(config: dict) -> None:
         raise ConfigError(
             f"config key calibration.gns_budget: {section['gns_budget']} GNS points cannot hold the "
             f"{section['gns_n_initial']} of the initial design (calibration.gns_n_initial)"
+        )
+    width, base_width = section["gns_latent_size"], config["gns"].get("latent_size")
+    if section["gns_warm_start"] and width is not None and width != base_width:
+        raise ConfigError(
+            f"config key calibration.gns_latent_size: {width}, but calibration.gns_warm_start starts the model's GNS "
+            f"from the base GNS, {base_width} wide (gns.latent_size); set it to null or {base_width}, or train from "
+            "scratch"
         )
     model = section["model"]
     if model == "auto" and not config["diagnosis"]["enabled"]:

@@ -181,7 +181,10 @@ def config_with(model, engine="builtin", diagnosis_enabled=True):
             "gns_optimiser": "bayesopt",
             "gns_budget": 40,
             "gns_n_initial": 12,
+            "gns_warm_start": False,
+            "gns_latent_size": 48,
         },
+        "gns": {"latent_size": 32},
         "measured": {"quartz": "data/measured/quartz_a6.csv"},
         "diagnosis": {
             "enabled": diagnosis_enabled,
@@ -205,6 +208,12 @@ def test_a_model_the_engine_cannot_run_is_refused_before_any_job():
     short["calibration"]["gns_budget"] = 10
     with pytest.raises(ConfigError, match=r"calibration.gns_budget: 10 GNS points cannot hold the 12 of the initial"):
         check_calibration(short)
+    warm = config_with("cohesion")
+    warm["calibration"]["gns_warm_start"] = True  # a warm start keeps the base GNS's width
+    with pytest.raises(ConfigError, match=r"calibration.gns_latent_size: 48, but .* 32 wide .*set it to null or 32"):
+        check_calibration(warm)
+    warm["calibration"]["gns_latent_size"] = None
+    check_calibration(warm)
 
 
 def test_every_routes_optimum_is_read_as_its_stage_writes_it(tmp_path):
@@ -312,6 +321,8 @@ def test_the_models_gns_has_the_base_gns_settings_from_scratch_or_as_a_fine_tuni
 
     base = {"latent_size": 32, "steps": 12000, "learning_rate_decay_steps": 10000, "pushforward_fraction": 0.5}
     assert model_gns_settings(base, 18000) == dict(base, steps=18000, learning_rate_decay_steps=18000)
+    wider = model_gns_settings(base, 18000, latent_size=48)
+    assert wider == dict(base, latent_size=48, steps=18000, learning_rate_decay_steps=18000)
     settings = model_gns_settings(base, 6000, "results/gns/q/train/model_best.pt", 3e-4)
     assert settings == dict(
         base,
@@ -343,3 +354,13 @@ def test_the_bo_figure_draws_a_model_of_three_parameters(tmp_path):
     }
     plot_bayesopt(history, tmp_path / "bo.png", title="three parameters")
     assert (tmp_path / "bo.png").stat().st_size > 10_000
+
+
+def test_the_gns_routes_runs_are_split_in_words_only_when_it_borrows_the_base_gns():
+    """A model's GNS trained from scratch spends only its own dataset's runs; a warm-started one also
+    the base GNS's, and the report says which part is whose."""
+    from pipeline.calibrated import own_runs_text
+
+    assert own_runs_text({"gns_dem_runs": 30, "gns_own_dem_runs": 30}) == ""
+    assert own_runs_text({"gns_dem_runs": 60}) == ""
+    assert own_runs_text({"gns_dem_runs": 60, "gns_own_dem_runs": 30}).startswith(" (30 of its own dataset")
