@@ -359,8 +359,10 @@ def inverse_design(
     sensitivity = None
     if reference is not None:
         sensitivity, responses = sensitivity_record(names, bounds, reference, objective.evaluated())
-        blind = {r.name: r.why for r in responses if r.resolved is False}
-        for p in posterior.parameters:  # linearised on the GNS, the posterior cannot know this
+        # the GNS blind to a parameter, or responding to one the DEM hardly does: linearised on the
+        # GNS, the posterior cannot know either
+        blind = {r.name: r.why for r in responses if r.resolved is False or r.gns_only}
+        for p in posterior.parameters:
             if p.name in blind:
                 p.identifiable, p.why = False, "; ".join(w for w in (p.why, blind[p.name]) if w)
     t2 = time.perf_counter()

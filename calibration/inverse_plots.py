@@ -248,6 +248,8 @@ def plot_sensitivity(result: dict, path: str | os.PathLike, title: str = "") -> 
         verdict = {True: "resolved", False: "NOT resolved", None: "DEM flat or unsure", "unchecked": "not checked"}[
             response["resolved"]
         ]
+        if response.get("gns_only"):
+            verdict = "DEM flat, GNS responds"
         ax.set(xlim=bounds[j], xlabel=name, ylabel="L* at the last measured t/t*")
         ax.set_title(f"{name}: {verdict}", fontsize=9)
         ax.legend(fontsize=6)

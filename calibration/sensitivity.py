@@ -13,7 +13,12 @@ cannot know. The check, run with every inverse design that has its dataset's DEM
   - a parameter the DEM responds to (slope at least SIGNIFICANT standard errors) is resolved when
     the GNS's slope has its sign and lies within a factor RESOLVED_FACTOR of it, and not resolved
     when it lies outside that band by more than SIGNIFICANT standard errors of the difference
-    (between the two: too uncertain to tell, None, as where the DEM hardly responds).
+    (between the two: too uncertain to tell, None, as where the DEM hardly responds);
+  - a parameter the DEM hardly responds to but the GNS does (its slope at least SIGNIFICANT of its
+    own standard errors) is `gns_only`: the GNS's posterior interval of it rests on a response the
+    DEM runs do not show, so the inverse design flags it not identifiable. (The calibrated quartz
+    GNS of 2026-11-30: L* +1.14 +- 0.12 across mu, the DEM +0.07 +- 0.35; 2.9 standard errors of
+    the difference, short of a `resolved: False`, yet its mu interval was the GNS's alone.)
 
 The GNS's points sit where the optimiser looked (a Latin hypercube, then near its optimum), so its
 slope is of that region: a local view, enough to tell a parameter seen from one ignored.
@@ -38,7 +43,8 @@ RESOLVED_FACTOR = 2.0  # the GNS's slope within [1/2, 2] of the DEM's: the GNS s
 class ParameterResponse:
     """The response of the last measured L* to one parameter across its bounds (L*), by the DEM and
     by the GNS, with standard errors; resolved: True, False, or None where the DEM hardly responds
-    (nothing to resolve) or the fits are too uncertain to tell; why: plain words when not True."""
+    (nothing to resolve) or the fits are too uncertain to tell; gns_only: the DEM hardly responds
+    but the GNS does; why: plain words when not True."""
 
     name: str
     dem: float
@@ -47,6 +53,7 @@ class ParameterResponse:
     gns_se: float
     resolved: bool | None
     why: str
+    gns_only: bool = False
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -95,8 +102,11 @@ def parameter_sensitivity(
             f"across its bounds the GNS's L* moves by {gns[j]:+.2f} +- {gns_se[j]:.2f}, "
             f"the DEM's by {dem[j]:+.2f} +- {dem_se[j]:.2f}"
         )
+        gns_only = False
         if abs(dem[j]) < SIGNIFICANT * dem_se[j]:
-            resolved, why = None, f"the DEM hardly responds to it: {said}"
+            resolved = None
+            gns_only = bool(abs(gns[j]) >= SIGNIFICANT * gns_se[j])
+            why = f"the DEM hardly responds to it{', the GNS does' if gns_only else ''}: {said}"
         elif 1 / RESOLVED_FACTOR <= gns[j] / dem[j] <= RESOLVED_FACTOR:
             resolved, why = True, ""
         elif abs(gns[j] - dem[j]) < SIGNIFICANT * np.hypot(gns_se[j], dem_se[j]):
@@ -105,7 +115,9 @@ def parameter_sensitivity(
         else:
             resolved, why = False, f"the GNS does not resolve it: {said}"
         out.append(
-            ParameterResponse(name, float(dem[j]), float(dem_se[j]), float(gns[j]), float(gns_se[j]), resolved, why)
+            ParameterResponse(
+                name, float(dem[j]), float(dem_se[j]), float(gns[j]), float(gns_se[j]), resolved, why, gns_only
+            )
         )
     return out
 

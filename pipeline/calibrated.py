@@ -451,6 +451,14 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
                     "the GNS route's value of it is a guess (figure: does the GNS see each parameter).",
                     "",
                 ]
+            elif p.get("gns_only"):
+                lines += [
+                    f"**The GNS responds to {p['name']}, the DEM hardly does**: "
+                    f"{p['why'].removeprefix('the DEM hardly responds to it, the GNS does: ')}; the GNS route's "
+                    "interval of it rests on the GNS alone (flagged not identifiable; figure: does the GNS see each "
+                    "parameter).",
+                    "",
+                ]
         lines += [
             "| route | parameters | DEM runs to calibrate | time to calibrate | validated MSE (packing mean) +- SE | "
             "minus the answer's, paired +- SE | MSE per packing | failed runs | validation time |",

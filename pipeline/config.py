@@ -490,6 +490,11 @@ def check_calibration(config: dict) -> None:
             f"from the base GNS, {base_width} wide (gns.latent_size); set it to null or {base_width}, or train from "
             "scratch"
         )
+    if section["gns_warm_start"] and section["gns_learning_rate_decay_steps"] is not None:
+        raise ConfigError(
+            "config key calibration.gns_learning_rate_decay_steps: sets the schedule of a model GNS trained from "
+            "scratch, but calibration.gns_warm_start fine-tunes the base GNS on its own schedule; set it to null"
+        )
     model = section["model"]
     if model == "auto" and not config["diagnosis"]["enabled"]:
         raise ConfigError(

@@ -183,6 +183,7 @@ def config_with(model, engine="builtin", diagnosis_enabled=True):
             "gns_n_initial": 12,
             "gns_warm_start": False,
             "gns_latent_size": 48,
+            "gns_learning_rate_decay_steps": None,
         },
         "gns": {"latent_size": 32},
         "measured": {"quartz": "data/measured/quartz_a6.csv"},
@@ -214,6 +215,9 @@ def test_a_model_the_engine_cannot_run_is_refused_before_any_job():
         check_calibration(warm)
     warm["calibration"]["gns_latent_size"] = None
     check_calibration(warm)
+    warm["calibration"]["gns_learning_rate_decay_steps"] = 12000  # a warm start keeps the base's schedule
+    with pytest.raises(ConfigError, match=r"gns_learning_rate_decay_steps: sets the schedule .*from scratch"):
+        check_calibration(warm)
 
 
 def test_every_routes_optimum_is_read_as_its_stage_writes_it(tmp_path):
@@ -323,6 +327,8 @@ def test_the_models_gns_has_the_base_gns_settings_from_scratch_or_as_a_fine_tuni
     assert model_gns_settings(base, 18000) == dict(base, steps=18000, learning_rate_decay_steps=18000)
     wider = model_gns_settings(base, 18000, latent_size=48)
     assert wider == dict(base, latent_size=48, steps=18000, learning_rate_decay_steps=18000)
+    # stopped early on a longer run's schedule (calibration.gns_learning_rate_decay_steps)
+    assert model_gns_settings(base, 9000, decay_steps=12000) == dict(base, steps=9000, learning_rate_decay_steps=12000)
     settings = model_gns_settings(base, 6000, "results/gns/q/train/model_best.pt", 3e-4)
     assert settings == dict(
         base,

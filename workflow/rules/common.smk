@@ -100,6 +100,7 @@ def gns_settings(dataset):
             init[0] if init else None,
             CALIBRATION["gns_learning_rate"],
             CALIBRATION["gns_latent_size"],
+            CALIBRATION["gns_learning_rate_decay_steps"],
         )
     return {**GNS_SETTINGS, **GNS.get("per_dataset", {}).get(dataset, {})}
 
