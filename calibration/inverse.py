@@ -49,7 +49,7 @@ from calibration.lbfgsb import (
 from calibration.measured import MeasuredColumn
 from calibration.objective import runout_mse
 from calibration.optimise import OptimisationResult, PointFailed
-from calibration.sensitivity import sensitivity_record
+from calibration.sensitivity import finite_or_none, sensitivity_record
 from calibration.uncertainty import LaplacePosterior, finite_difference_jacobian, laplace_posterior
 from dem.progress import progress_logger
 from dem.runout import RunoutMethod
@@ -391,7 +391,7 @@ def inverse_design(
         best_params=list(optimum.params),
         best_value=optimum.value,
         best_runout=best_runout.tolist(),
-        start_runout=[None if not np.isfinite(v) else float(v) for v in start_runout],
+        start_runout=[finite_or_none(v) for v in start_runout],
         posterior=posterior.to_dict(),
         geometry=geometry,
         seconds={

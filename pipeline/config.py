@@ -353,7 +353,7 @@ def check_cross_keys(config: dict, cases: dict[str, dict]) -> dict[str, str]:
     check_doe(config)
     resolved = check_inverse(config, cases)
     check_diagnosis(config)
-    check_calibration(config)
+    check_calibration(config, resolved)
     check_scale_ladder(config)
     return resolved
 
@@ -465,10 +465,12 @@ def check_scale_ladder(config: dict) -> None:
     _guard(section["L_i"], section["material"], coarsest, config, f"scale_ladder.size_scales ({coarsest:g})")
 
 
-def check_calibration(config: dict) -> None:
+def check_calibration(config: dict, inverse_datasets: dict[str, str] | None = None) -> None:
     """calibration.model auto needs the diagnosis; a mechanism the chosen dem.engine cannot run (for
     auto: any diagnosis candidate) is refused before any job runs; so is a Bayesian optimisation
-    budget below its initial design, and a warm-started model GNS of another width than the base's."""
+    budget below its initial design, and a warm-started model GNS of another width than the base's
+    (the base GNS of each column: inverse_datasets, {measured name: dataset}, as check_inverse
+    resolves them, with its gns.per_dataset; None: the gns section's width)."""
     section = config["calibration"]
     if not section["enabled"] or not config["measured"]:
         return
@@ -483,13 +485,17 @@ def check_calibration(config: dict) -> None:
             f"config key calibration.gns_budget: {section['gns_budget']} GNS points cannot hold the "
             f"{section['gns_n_initial']} of the initial design (calibration.gns_n_initial)"
         )
-    width, base_width = section["gns_latent_size"], config["gns"].get("latent_size")
-    if section["gns_warm_start"] and width is not None and width != base_width:
-        raise ConfigError(
-            f"config key calibration.gns_latent_size: {width}, but calibration.gns_warm_start starts the model's GNS "
-            f"from the base GNS, {base_width} wide (gns.latent_size); set it to null or {base_width}, or train from "
-            "scratch"
-        )
+    width, gns = section["gns_latent_size"], config["gns"]
+    warm_started = (inverse_datasets or {None: None}).values() if section["gns_warm_start"] and width else ()
+    for dataset in warm_started:
+        base_width = gns.get("per_dataset", {}).get(dataset, {}).get("latent_size", gns.get("latent_size"))
+        if width != base_width:
+            base = f"the base GNS of {dataset}" if dataset else "the base GNS"
+            raise ConfigError(
+                f"config key calibration.gns_latent_size: {width}, but calibration.gns_warm_start starts the model's "
+                f"GNS from {base}, {base_width} wide (gns.latent_size or its gns.per_dataset); set it to null or "
+                f"{base_width}, or train from scratch"
+            )
     if section["gns_warm_start"] and section["gns_learning_rate_decay_steps"] is not None:
         raise ConfigError(
             "config key calibration.gns_learning_rate_decay_steps: sets the schedule of a model GNS trained from "

@@ -213,6 +213,11 @@ def test_a_model_the_engine_cannot_run_is_refused_before_any_job():
     warm["calibration"]["gns_warm_start"] = True  # a warm start keeps the base GNS's width
     with pytest.raises(ConfigError, match=r"calibration.gns_latent_size: 48, but .* 32 wide .*set it to null or 32"):
         check_calibration(warm)
+    # the width of the base GNS of the column, gns.per_dataset included
+    warm["gns"]["per_dataset"] = {"quartz_multiple": {"latent_size": 48}}
+    check_calibration(warm, {"quartz": "quartz_multiple"})
+    with pytest.raises(ConfigError, match=r"from the base GNS of other, 32 wide"):
+        check_calibration(warm, {"quartz": "other"})
     warm["calibration"]["gns_latent_size"] = None
     check_calibration(warm)
     warm["calibration"]["gns_learning_rate_decay_steps"] = 12000  # a warm start keeps the base's schedule

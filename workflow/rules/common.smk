@@ -224,17 +224,20 @@ def calibrated_cost(name, route):
             return {"files": files + [f"results/benchmarks/inverse/inverse_design/{name}.tsv"], "dem_runs": runs}
         # a model's GNS warm-started from the base GNS also costs that GNS's dataset and training; from
         # scratch (the default) it borrows only the base route's start run (its first frames)
-        if not CALIBRATION["gns_warm_start"]:
-            files, runs = base["start"], 0
+        borrowed_files, borrowed_runs = (files, runs) if CALIBRATION["gns_warm_start"] else (base["start"], 0)
         dataset = f"calibrated_{name}"
         cases = [row["case_id"] for row in dataset_cases(dataset)]
-        files += [f"results/benchmarks/calibrated/calibrated_case/{name}/{c}.tsv" for c in cases] + [
+        own_files = [f"results/benchmarks/calibrated/calibrated_case/{name}/{c}.tsv" for c in cases] + [
             f"results/benchmarks/calibrated/calibrated_dataset/{name}.tsv",
             f"results/benchmarks/gns/gns_train/{dataset}.tsv",
             f"results/benchmarks/calibrated/calibrated_inverse/{name}.tsv",
         ]
         # the base GNS's runs are shared with the paper's route (and any column of its geometry): its own apart
-        return {"files": files, "dem_runs": runs + len(cases), "own_dem_runs": len(cases)}
+        return {
+            "files": borrowed_files + own_files,
+            "dem_runs": borrowed_runs + len(cases),
+            "own_dem_runs": len(cases),
+        }
     if route.startswith("base-doe-"):
         doe = inverse_benchmarks(name)["doe"] if name in INVERSE_NAMES else []
         return {"files": doe, "dem_runs": None}
