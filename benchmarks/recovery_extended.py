@@ -43,7 +43,7 @@ from calibration.gns_objective import GNSObjective  # noqa: E402
 from calibration.inverse import inverse_design  # noqa: E402
 from calibration.measured import load_column  # noqa: E402
 from calibration.recovery import packing_scatter, synthetic_measured  # noqa: E402
-from calibration.uncertainty import finite_difference_jacobian  # noqa: E402
+from calibration.uncertainty import Z95, finite_difference_jacobian  # noqa: E402
 from dem.engines import simulate_case  # noqa: E402
 from dem.runout import RunoutMethod, runout_at  # noqa: E402
 from dem.trajectory import read_trajectory  # noqa: E402
@@ -52,7 +52,6 @@ from gns.simulator import load_simulator  # noqa: E402
 from pipeline.calibrated_gns import start_packing_cases  # noqa: E402
 from pipeline.config import validate_config  # noqa: E402
 
-Z95 = 1.959963984540054
 TRUTH_SEED0 = 7001  # packings of the targets: no dataset's, calibration's or validation's
 
 

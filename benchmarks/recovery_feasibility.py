@@ -35,6 +35,7 @@ import yaml  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from calibration.uncertainty import Z95  # noqa: E402
 from dem.collapse import simulate_collapse  # noqa: E402
 from dem.grid import case_from_row, sample_dataset  # noqa: E402
 from dem.runout import RunoutMethod, runout_at  # noqa: E402
@@ -50,7 +51,6 @@ MEASUREMENT_NOISE = 0.05  # L*, per point
 K_PACKINGS = (1, 2, 4, 8, 16)
 MU_TOLERANCE = 0.03
 RUNOUT = RunoutMethod()  # the project's default runout method (config key runout)
-Z95 = 1.959963984540054
 
 
 def template_case(config_path: Path, dataset: str):

@@ -35,11 +35,12 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from calibration.uncertainty import Z95  # a slope outside the DEM's +- Z95 SE: a response it does not show
+
 log = logging.getLogger(__name__)
 
 SIGNIFICANT = 3.0  # |slope| / its standard error above which the DEM responds to a parameter
 RESOLVED_FACTOR = 2.0  # the GNS's slope within [1/2, 2] of the DEM's: the GNS sees the parameter
-Z95 = 1.959963984540054  # a slope outside the DEM's slope +- Z95 standard errors: a response the DEM does not show
 
 
 @dataclass
