@@ -44,7 +44,12 @@ def soft_top_k_mean(values: torch.Tensor, k: int, temperature: float) -> torch.T
     c0 = brentq(excess, low, high, xtol=1e-12 * max(1.0, abs(high)))
     w0 = expit((v - c0) / temperature)
     slope = torch.as_tensor(w0 * (1.0 - w0), dtype=values.dtype, device=values.device)
-    threshold = c0 + torch.sum(slope * (values - values.detach())) / max(float(slope.sum()), 1e-300)
+    # A leader far ahead of the rest (~100 widths; a dense clump ahead of the copper column) leaves every
+    # slope under float32's range: the guard must be of the tensor's dtype (1e-300 is 0 in float32, and
+    # 0 / 0 made the GNS objective NaN); then c carries no gradient and the result is the hard top-k.
+    threshold = c0 + torch.sum(slope * (values - values.detach())) / max(
+        float(slope.sum()), torch.finfo(values.dtype).tiny
+    )
     weights = torch.sigmoid((values - threshold) / temperature)
     return torch.sum(weights * values) / torch.sum(weights)
 
