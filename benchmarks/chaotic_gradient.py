@@ -50,7 +50,7 @@ from calibration.inverse import PAPER_WIDTH, design_bounds  # noqa: E402
 from calibration.measured import load_column  # noqa: E402
 from dem.runout import RunoutMethod  # noqa: E402
 from dem.trajectory import read_trajectory  # noqa: E402
-from gns.data import read_metadata  # noqa: E402
+from gns.dataset import read_metadata  # noqa: E402
 from gns.simulator import load_simulator  # noqa: E402
 from pipeline.calibrated_gns import start_packing_cases  # noqa: E402
 from pipeline.config import validate_config  # noqa: E402

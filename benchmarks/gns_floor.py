@@ -65,7 +65,7 @@ def main():
 
     from dem.runout_study import chaos_floor, perturbed_reruns
     from dem.trajectory import read_trajectory
-    from gns.data import read_metadata, split_paths
+    from gns.dataset import read_metadata, split_paths
     from gns.rollout import rollout_trajectory
     from gns.simulator import load_simulator
 

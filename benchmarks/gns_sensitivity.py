@@ -49,9 +49,9 @@ def main():
     from calibration.sensitivity import sensitivity_record
     from dem.runout import RunoutMethod
     from dem.trajectory import read_trajectory
-    from gns.data import read_metadata
+    from gns.dataset import read_metadata
     from gns.simulator import load_simulator
-    from pipeline.inverse import dataset_runs
+    from pipeline.inverse_design import dataset_runs
 
     torch.set_num_threads(args.threads)
     metadata = read_metadata(args.dataset)

@@ -190,7 +190,7 @@ def case_speed(args) -> dict:
     from dem.packing import settle_column
     from dem.runout_study import case_of
     from dem.trajectory import Trajectory, read_attrs, read_trajectory
-    from gns.data import read_metadata
+    from gns.dataset import read_metadata
     from gns.settings import TrainSettings
     from gns.simulator import load_simulator
     from gns.train import Trainer

@@ -46,9 +46,12 @@ from calibration.recovery import (
 )
 from dem.collapse import simulate_collapse  # noqa: E402
 from dem.runout import RunoutMethod  # noqa: E402
-from gns.data import read_metadata, read_training_attrs  # noqa: E402
+from gns.dataset import (
+    read_metadata,  # noqa: E402
+    read_training_attrs,  # noqa: E402
+)
 from gns.simulator import load_simulator  # noqa: E402
-from pipeline.inverse import model_error_from_evaluation  # noqa: E402
+from pipeline.inverse_design import model_error_from_evaluation  # noqa: E402
 
 TARGET_ONLINE_S = 120.0
 

@@ -47,7 +47,10 @@ from calibration.uncertainty import Z95, finite_difference_jacobian  # noqa: E40
 from dem.engines import simulate_case  # noqa: E402
 from dem.runout import RunoutMethod, runout_at  # noqa: E402
 from dem.trajectory import read_trajectory  # noqa: E402
-from gns.data import read_metadata, read_training_attrs  # noqa: E402
+from gns.dataset import (
+    read_metadata,  # noqa: E402
+    read_training_attrs,  # noqa: E402
+)
 from gns.simulator import load_simulator  # noqa: E402
 from pipeline.calibrated_gns import start_packing_cases  # noqa: E402
 from pipeline.config import validate_config  # noqa: E402

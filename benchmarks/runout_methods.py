@@ -91,7 +91,7 @@ def gns_rollouts(trajectories: dict, models: dict, results: Path, threads: int) 
     """{label: GNS rollout} of the cases whose dataset has a trained model under `results`."""
     import torch
 
-    from gns.data import read_metadata
+    from gns.dataset import read_metadata
     from gns.rollout import rollout_trajectory
     from gns.simulator import load_simulator
 

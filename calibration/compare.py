@@ -33,7 +33,7 @@ from dem.case import CollapseCase, Material
 from dem.engines import FAILURES, failure_reason
 from dem.runout import RunoutMethod, runout_at
 from dem.trajectory import Trajectory
-from gns.data import read_training_attrs
+from gns.dataset import read_training_attrs
 
 log = logging.getLogger(__name__)
 BO_MAX_RUNS = 20

@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
-from sklearn.exceptions import ConvergenceWarning
-from sklearn.gaussian_process import GaussianProcessRegressor
-from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
 from threadpoolctl import threadpool_limits
+
+if TYPE_CHECKING:
+    from sklearn.gaussian_process import GaussianProcessRegressor
 
 SKLEARN_BOUNDS = (1e-5, 1e5)  # scikit-learn's default bounds of every hyperparameter
 
@@ -42,6 +43,11 @@ def fit_gp(
     jitter added to the kernel's diagonal. n_restarts: further searches from random starts (seeded
     by `seed`). Hyperparameters at their bounds are accepted without a warning.
     """
+    # imported here: ~1 s of start-up that the many jobs importing this module without fitting skip
+    from sklearn.exceptions import ConvergenceWarning
+    from sklearn.gaussian_process import GaussianProcessRegressor
+    from sklearn.gaussian_process.kernels import ConstantKernel, Matern, WhiteKernel
+
     kernel = ConstantKernel(amplitude, amplitude_bounds) * Matern(length_scale, length_bounds, nu=2.5) + WhiteKernel(
         noise, noise_bounds
     )

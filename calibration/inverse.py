@@ -26,16 +26,16 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from calibration.bayesopt import BOSettings, bayesian_optimisation
-from calibration.gns_objective import DESIGN_NAMES, GNSObjective, InverseDesignError, check_geometry
+from calibration.geometry import InverseDesignError, check_geometry
+from calibration.gns_objective import DESIGN_NAMES, GNSObjective
+from calibration.inverse_result import InverseResult
 from calibration.lbfgsb import (
     FD_STEP,
     FTOL,
@@ -111,66 +111,6 @@ def design_bounds(
 
 
 # -- the whole inverse design --------------------------------------------------------------------------
-@dataclass
-class InverseResult:
-    """Everything an inverse design produced (JSON via to_dict)."""
-
-    measured: str
-    names: list
-    bounds: list
-    gradient: str
-    starts: list  # [StartResult]
-    best_params: list
-    best_value: float
-    best_runout: list  # GNS L* at the measured t/t* at the optimum
-    start_runout: list  # GNS L* at the first start
-    posterior: dict
-    geometry: dict
-    seconds: dict  # optimisation, posterior, total (online), landscape
-    n_batches: int
-    landscape: dict | None = None  # {"axes": [[...], [...]], "values": [[...]]} GNS objective grid
-    model_error_std: float | None = None  # GNS runout error (L*) joined to the noise model
-    roughness: dict | None = None  # objective near the optimum (see posterior_at)
-    start_packing_std: list | None = None  # packing scatter of L* [K] joined to the noise model
-    runout: dict | None = None  # the runout method (dem.runout.RunoutMethod.to_config) every L* was read by
-    # points whose rollout failed or was not finite: [{params, reason, seconds, start, iteration}]
-    failed_points: list = field(default_factory=list)
-    optimiser: str = "lbfgsb"  # OPTIMISERS
-    # the GNS's response of the last L* to each design parameter against its dataset's DEM runs:
-    # {"parameters": [ParameterResponse.to_dict()], "why": "" or why not checked (too few runs),
-    # "dem" and "gns": {"points" [n][P], "last" [n]}}; None without those runs (calibration.sensitivity)
-    sensitivity: dict | None = None
-
-    def to_dict(self) -> dict:
-        data = {
-            k: getattr(self, k)
-            for k in (
-                "measured",
-                "names",
-                "bounds",
-                "gradient",
-                "best_params",
-                "best_value",
-                "best_runout",
-                "start_runout",
-                "posterior",
-                "geometry",
-                "seconds",
-                "n_batches",
-                "landscape",
-                "model_error_std",
-                "roughness",
-                "start_packing_std",
-                "runout",
-                "failed_points",
-                "optimiser",
-                "sensitivity",
-            )
-        }
-        data["starts"] = [s.to_dict() for s in self.starts]
-        return data
-
-
 def noise_level(
     measured: MeasuredColumn, model_error_std: float | None, start_packing_std: ArrayLike | None = None
 ) -> np.ndarray | None:
@@ -458,20 +398,3 @@ def bayesopt_on_gns(
         )
     ]
     return optimum
-
-
-# -- outputs ----------------------------------------------------------------------------------------
-def write_result(result: InverseResult, path: str | os.PathLike) -> None:
-    """inverse.json (atomically)."""
-
-    from dem.atomic import write_json
-
-    write_json(path, result.to_dict())
-
-
-def read_result(path: str | os.PathLike) -> dict:
-    """The inverse.json at path, as written by write_result."""
-    import json
-    from pathlib import Path
-
-    return json.loads(Path(path).read_text())

@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, DTypeLike
 from scipy.optimize import OptimizeResult, minimize
 
-from calibration.gns_objective import InverseDesignError
+from calibration.geometry import InverseDesignError
 from calibration.optimise import BatchObjective, OptimisationHistory, OptimisationResult, Progress
 
 PAPER_START = (0.55, 0.73)  # the paper's starting point (Fig. 2, loss 0.66)

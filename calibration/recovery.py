@@ -35,7 +35,7 @@ from calibration.measured import MeasuredColumn, own_material_fields
 from dem.case import Material
 from dem.runout import RunoutMethod, runout_at
 from dem.trajectory import Trajectory
-from gns.data import read_training_attrs
+from gns.dataset import read_training_attrs
 
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike

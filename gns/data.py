@@ -16,46 +16,8 @@ import numpy as np
 import torch
 
 from dem.trajectory import check_finite, open_trajectory, read_attrs
-from gns.dataset import DatasetError, load_dataset_metadata
-from gns.simulator import LAYOUT_KEYS, Context
-
-STATISTICS = ("velocity_mean", "velocity_std", "acceleration_mean", "acceleration_std")
-
-
-def read_metadata(path: str | os.PathLike) -> dict:
-    """A dataset's metadata (gns.dataset's JSON), checked for what the GNS needs."""
-    metadata = load_dataset_metadata(path)
-    missing = [
-        k
-        for k in STATISTICS + ("parameter_ranges", "dt_frame", "bounds", "material_diameter", "splits")
-        if k not in metadata
-    ]
-    if missing:
-        raise DatasetError(f"{path}: dataset metadata lacks {missing}; rebuild it with gns.dataset.build_dataset")
-    for key in STATISTICS:
-        if len(metadata[key]) != 2 or not np.all(np.isfinite(metadata[key])):
-            raise DatasetError(f"{path}: {key} must be two finite numbers, got {metadata[key]}")
-    absent = [k for k in LAYOUT_KEYS if k not in metadata["parameter_ranges"]]
-    if absent:
-        raise DatasetError(f"{path}: parameter_ranges lacks {absent} (the initial layout is a model input)")
-    return metadata
-
-
-def split_paths(metadata: dict, split: str) -> list[str]:
-    """Trajectory files of one split ("train", "valid", "test"); an empty split is an error."""
-    paths = metadata["splits"].get(split) or []
-    if not paths:
-        raise DatasetError(
-            f"dataset {metadata.get('name', '?')}: the {split} split is empty; "
-            "the GNS needs train, valid and test cases"
-        )
-    return list(paths)
-
-
-def read_training_attrs(metadata: dict) -> list[dict]:
-    """Attributes of a dataset's training trajectories (metadata from read_metadata), without
-    loading their positions."""
-    return [read_attrs(path) for path in split_paths(metadata, "train")]
+from gns.dataset import LAYOUT_KEYS, DatasetError
+from gns.simulator import Context
 
 
 @dataclass

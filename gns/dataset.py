@@ -29,13 +29,15 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from dem.atomic import write_json
-from dem.trajectory import TrajectoryError, read_trajectory
+from dem.trajectory import TrajectoryError, read_attrs, read_trajectory
 
 if TYPE_CHECKING:
     from dem.runout import RunoutMethod
 
 SPLITS = ("train", "valid", "test")
 DEM_PARAMETERS = ("friction", "restitution")  # the paper's model; an extended model's dataset adds its own
+LAYOUT_KEYS = ("L_i", "H_i")  # the initial layout of a case: a GNS input beside the DEM parameters
+STATISTICS = ("velocity_mean", "velocity_std", "acceleration_mean", "acceleration_std")
 LAYOUT = ("L_i", "H_i", "aspect_ratio")
 REQUIRED_KEYS = (
     "name",
@@ -205,6 +207,42 @@ def load_dataset_metadata(path: str | os.PathLike) -> dict:
 def dataset_paths(metadata: dict) -> list[tuple[str, str]]:
     """[(split, trajectory path)] in split order."""
     return [(s, p) for s in SPLITS for p in metadata["splits"][s]]
+
+
+def read_metadata(path: str | os.PathLike) -> dict:
+    """A dataset's metadata (gns.dataset's JSON), checked for what the GNS needs."""
+    metadata = load_dataset_metadata(path)
+    missing = [
+        k
+        for k in STATISTICS + ("parameter_ranges", "dt_frame", "bounds", "material_diameter", "splits")
+        if k not in metadata
+    ]
+    if missing:
+        raise DatasetError(f"{path}: dataset metadata lacks {missing}; rebuild it with gns.dataset.build_dataset")
+    for key in STATISTICS:
+        if len(metadata[key]) != 2 or not np.all(np.isfinite(metadata[key])):
+            raise DatasetError(f"{path}: {key} must be two finite numbers, got {metadata[key]}")
+    absent = [k for k in LAYOUT_KEYS if k not in metadata["parameter_ranges"]]
+    if absent:
+        raise DatasetError(f"{path}: parameter_ranges lacks {absent} (the initial layout is a model input)")
+    return metadata
+
+
+def split_paths(metadata: dict, split: str) -> list[str]:
+    """Trajectory files of one split ("train", "valid", "test"); an empty split is an error."""
+    paths = metadata["splits"].get(split) or []
+    if not paths:
+        raise DatasetError(
+            f"dataset {metadata.get('name', '?')}: the {split} split is empty; "
+            "the GNS needs train, valid and test cases"
+        )
+    return list(paths)
+
+
+def read_training_attrs(metadata: dict) -> list[dict]:
+    """Attributes of a dataset's training trajectories (metadata from read_metadata), without
+    loading their positions."""
+    return [read_attrs(path) for path in split_paths(metadata, "train")]
 
 
 def plot_dataset(metadata: dict, path: str | os.PathLike, runout: RunoutMethod | dict | str) -> dict:

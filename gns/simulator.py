@@ -21,10 +21,10 @@ from torch import nn
 
 from dem.fields import from_mapping
 from gns import features
+from gns.dataset import LAYOUT_KEYS
 from gns.graph import radius_graph
 from gns.network import EncodeProcessDecode
 
-LAYOUT_KEYS = ("L_i", "H_i")
 # entries of a dataset's parameter_ranges that are not DEM parameters: the layout, and the
 # aspect ratio H_i / L_i that the layout already gives
 NOT_PARAMETERS = LAYOUT_KEYS + ("aspect_ratio",)

@@ -40,7 +40,8 @@ from dem.atomic import atomic_path
 from dem.progress import progress_logger
 from dem.runout import RunoutError, RunoutMethod
 from dem.trajectory import read_trajectory
-from gns.data import Batch, TrajectoryWindows, read_metadata, split_paths
+from gns.data import Batch, TrajectoryWindows
+from gns.dataset import read_metadata, split_paths
 from gns.graph import graph_summary, radius_graph
 from gns.settings import TrainSettings, simulator_config
 from gns.simulator import CheckpointError, LearnedSimulator, SimulatorConfig, model_payload, warm_start

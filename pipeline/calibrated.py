@@ -39,7 +39,7 @@ from calibration.calibrated import (
 from calibration.compare import plot_bayesopt
 from calibration.design_runs import Model, SimulationSettings
 from calibration.diagnosis_result import Diagnosis
-from calibration.inverse import read_result
+from calibration.inverse_result import read_result
 from calibration.measured import MeasuredColumn, expected_final_runout, load_column
 from dem.atomic import StrPath, write_json, write_text
 from dem.plots import save_figure

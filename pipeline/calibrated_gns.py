@@ -7,9 +7,10 @@ inverse design over all of the model's parameters with its Laplace posterior.
   - `run_model_case` (rule calibrated_case): one DEM case of the dataset -> trajectory HDF5 that
     records every parameter of the model (a mechanism's as its own attribute, e.g. bond_number);
   - `build_model_dataset` (rule calibrated_dataset): the dataset's metadata JSON;
-  - `run_model_inverse` (rule calibrated_inverse): inverse.json and its figures.
+  - the inverse design (rule calibrated_inverse): pipeline/calibrated_inverse.py, apart so that the
+    DEM jobs here load no torch.
 
-The methods are calibration/calibrated.py's (the design) and calibration/inverse.py's.
+The methods are calibration/calibrated.py's (the design).
 """
 
 from __future__ import annotations
@@ -19,14 +20,11 @@ from collections.abc import Sequence
 
 from calibration.calibrated import DatasetCase, model_dataset_cases, read_model
 from calibration.design_runs import Model
-from calibration.inverse import InverseResult
-from calibration.inverse_plots import plot_sensitivity
 from dem.atomic import StrPath
 from dem.engines import simulate_case
 from dem.grid import assign_splits, case_from_row, case_id_of
 from dem.trajectory import Trajectory, write_trajectory
 from pipeline.dataset import build
-from pipeline.inverse import run_inverse_design
 
 log = logging.getLogger(__name__)
 
@@ -134,64 +132,3 @@ def build_model_dataset(
     model, why = read_model(model_json, channel_width)
     log.info("dataset %s of the %s model (%s)", name, model.name, why)
     return build(splits, out_path, name, model.parameter_names)
-
-
-def run_model_inverse(
-    model_json: StrPath,
-    gns_model_path: StrPath,
-    metadata_path: StrPath,
-    start_path: StrPath,
-    measured_path: StrPath,
-    out_json: StrPath,
-    out_paths: StrPath,
-    out_deposits: StrPath,
-    settings: dict,
-    channel_width: float,
-    *,
-    runout: dict | None,
-    evaluation_path: StrPath | None = None,
-    threads: int | None = None,
-    packing_paths: Sequence[StrPath] = (),
-    section: dict | None = None,
-    dataset_paths: Sequence[StrPath] = (),
-    out_sensitivity: StrPath | None = None,
-) -> InverseResult:
-    """The GNS inverse design over every parameter of the model (settings: the config's `inverse`
-    section). The start run is the base model's (the inverse stage's start.h5): its mechanism is
-    off, and so it is at the first start (the paper's (mu, e), inverse.start); the other starts
-    are a Latin hypercube over all the parameters. packing_paths: trajectories of the model's
-    dataset (start_packing_cases) whose first frames start rollouts too: the objective is that of
-    the mean L* over the start run's packing and theirs. section: the config's `calibration`
-    section (gns_optimiser, gns_budget, gns_n_initial; None: the paper's L-BFGS-B of `settings`).
-    dataset_paths: the DEM runs of the model's GNS dataset: the GNS's response to each parameter is
-    checked against theirs (calibration.sensitivity), drawn to out_sensitivity."""
-    model, _ = read_model(model_json, channel_width)
-    start_values = {}
-    if model.mechanism is not None:
-        start_values[model.mechanism.parameter] = model.mechanism.off_value(*settings["start"])
-    result = run_inverse_design(
-        gns_model_path,
-        metadata_path,
-        [start_path, *packing_paths],
-        measured_path,
-        out_json,
-        out_paths,
-        out_deposits,
-        settings,
-        runout=runout,
-        evaluation_path=evaluation_path,
-        threads=threads,
-        design_names=model.parameter_names,
-        start_values=start_values,
-        dataset_paths=dataset_paths,
-        optimiser=None
-        if section is None
-        else {
-            "optimiser": section["gns_optimiser"],
-            "budget": section["gns_budget"],
-            "n_initial": section["gns_n_initial"],
-        },
-    )
-    if out_sensitivity is not None and result.sensitivity is not None:
-        plot_sensitivity(result.to_dict(), out_sensitivity, title=f"does the {model.name} GNS see each parameter?")
-    return result

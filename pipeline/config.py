@@ -22,7 +22,7 @@ from pathlib import Path
 import jsonschema
 import yaml
 
-from calibration.gns_objective import InverseDesignError, check_geometry_of_dataset, nearest_dataset
+from calibration.geometry import InverseDesignError, check_geometry_of_dataset, nearest_dataset
 from calibration.measured import MeasuredColumn, MeasuredDataError, MeasuredDataWarning, load_column, read_measured
 from calibration.mechanisms import get_mechanisms
 from dem.case import (

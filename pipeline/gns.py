@@ -60,7 +60,7 @@ def rollout(
     threads: torch threads (None: leave torch's setting)."""
     import torch
 
-    from gns.data import read_metadata
+    from gns.dataset import read_metadata
     from gns.rollout import rollout_trajectory
     from gns.simulator import load_simulator
 

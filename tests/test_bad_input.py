@@ -34,8 +34,8 @@ from dem.runout import RunoutMethod
 from dem.trajectory import TrajectoryError, read_attrs, read_trajectory, write_trajectory
 from doe.design import FACTORS, full_factorial
 from doe.study import ResponsesError, collect_responses, fitted_runs, read_responses, run_analysis, write_responses
-from gns.data import TrajectoryWindows, read_metadata
-from gns.dataset import DatasetError, build_dataset
+from gns.data import TrajectoryWindows
+from gns.dataset import DatasetError, build_dataset, read_metadata
 from gns.rollout import rollout_trajectory
 from gns.settings import TrainSettings, simulator_config
 from gns.simulator import LearnedSimulator

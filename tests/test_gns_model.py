@@ -9,7 +9,8 @@ import pytest
 import torch
 
 from dem.trajectory import read_trajectory
-from gns.data import TrajectoryWindows, read_metadata
+from gns.data import TrajectoryWindows
+from gns.dataset import read_metadata
 from gns.graph import NeighbourCapWarning, radius_graph
 from gns.network import EncodeProcessDecode
 from gns.rollout import RolloutError, context_from_trajectory, rollout

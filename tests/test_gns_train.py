@@ -19,8 +19,8 @@ import torch
 
 from dem.runout import RunoutMethod
 from dem.trajectory import read_trajectory
-from gns.data import TrajectoryWindows, read_metadata
-from gns.dataset import DatasetError
+from gns.data import TrajectoryWindows
+from gns.dataset import DatasetError, read_metadata
 from gns.evaluate import evaluate_rollouts, rollout_runout_mse
 from gns.settings import TrainSettings
 from gns.simulator import CheckpointError, load_simulator

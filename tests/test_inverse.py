@@ -13,7 +13,8 @@ import torch
 from scipy.optimize import minimize
 
 from calibration.compare import case_like
-from calibration.gns_objective import GeometryWarning, GNSObjective, InverseDesignError, check_geometry
+from calibration.geometry import GeometryWarning, InverseDesignError, check_geometry
+from calibration.gns_objective import GNSObjective
 from calibration.inverse import ROUGHNESS_PROBES, check_bounds, design_bounds, inverse_design, posterior_at
 from calibration.inverse_plots import plot_paths, plot_sensitivity
 from calibration.lbfgsb import (
@@ -33,8 +34,7 @@ from calibration.recovery import observation_times, packing_scatter, recover_cas
 from dem.collapse import simulate_collapse
 from dem.runout import METHODS, RunoutMethod, runout_at, runout_curve
 from dem.trajectory import read_attrs, read_trajectory, write_trajectory
-from gns.data import read_metadata, read_training_attrs
-from gns.dataset import build_dataset
+from gns.dataset import build_dataset, read_metadata, read_training_attrs
 from gns.evaluate import position_mse, rollout_runout_mse
 from gns.rollout import rollout_trajectory
 from gns.runout import SOFT_TEMPERATURE, soft_runout_at, soft_top_k_mean

@@ -42,7 +42,7 @@ from dem.trajectory import Trajectory, read_trajectory, write_trajectory
 from doe.study import read_responses
 from gns.runout import soft_front_position
 from pipeline.config import ConfigError, validate_config
-from pipeline.inverse import model_error_from_evaluation
+from pipeline.inverse_design import model_error_from_evaluation
 
 ROOT = Path(__file__).resolve().parents[1]
 SCHEMA = ROOT / "workflow" / "schemas" / "config.schema.yaml"

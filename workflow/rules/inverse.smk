@@ -1,4 +1,5 @@
-# Inverse-design stage (pipeline/inverse.py; methods in calibration/inverse.py, compare.py, recovery.py; issue 7). For every measured
+# Inverse-design stage (pipeline/inverse.py, its GNS jobs pipeline/inverse_design.py; methods in calibration/inverse.py,
+# compare.py, recovery.py; issue 7). For every measured
 # column named in inverse.measured: a DEM run at the start point (its first frames start every GNS
 # rollout; its objective is the uncalibrated value), the GNS inverse design (L-BFGS-B, multi-start,
 # posterior), a DEM validation run at the GNS optimum, Bayesian optimisation directly on DEM runs,

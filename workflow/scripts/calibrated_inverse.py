@@ -2,7 +2,7 @@
 
 import logging
 
-from pipeline.calibrated_gns import run_model_inverse
+from pipeline.calibrated_inverse import run_model_inverse
 
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
 i, o = snakemake.input, snakemake.output

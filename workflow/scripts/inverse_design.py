@@ -2,7 +2,7 @@
 
 import logging
 
-from pipeline.inverse import run_inverse_design
+from pipeline.inverse_design import run_inverse_design
 
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
 i, o = snakemake.input, snakemake.output

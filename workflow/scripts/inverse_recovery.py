@@ -2,7 +2,7 @@
 
 import logging
 
-from pipeline.inverse import run_recovery
+from pipeline.inverse_design import run_recovery
 
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
 s, i, o = snakemake.params.settings, snakemake.input, snakemake.output
