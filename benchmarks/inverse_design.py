@@ -46,10 +46,7 @@ from calibration.recovery import (
 )
 from dem.collapse import simulate_collapse  # noqa: E402
 from dem.runout import RunoutMethod  # noqa: E402
-from gns.dataset import (
-    read_metadata,  # noqa: E402
-    read_training_attrs,  # noqa: E402
-)
+from gns.dataset import read_metadata, read_training_attrs  # noqa: E402
 from gns.simulator import load_simulator  # noqa: E402
 from pipeline.inverse_design import model_error_from_evaluation  # noqa: E402
 

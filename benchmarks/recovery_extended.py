@@ -17,8 +17,11 @@ the noise model. Per target and parameter it reports the estimate, the 95%
 interval, whether the truth lies inside, and the interval's half-width beside the half-width a
 perfect model of the mean response would give: the Cramer-Rao bound 1.96 sqrt(diag((J^T C^-1 J)^-1))
 with C the target's own noise (no model error) and J the Jacobian of L* at the optimum (the GNS's:
-the best estimate of the mean response's slopes at hand). Targets of issue 15: the truth inside in
-at least 4 of 5; half-widths within 2x of the bound.
+the best estimate of the mean response's slopes at hand). As in the DAG, the GNS's response to each
+parameter is checked against its dataset's DEM runs (calibration.sensitivity): a parameter it does
+not resolve, or resolves where the DEM is flat, has its bounds as interval, and as bound too (the
+DEM's flat mean response could not narrow it either); the row lists them (untrusted). Targets of
+issue 15: the truth inside in at least 4 of 5; half-widths within 2x of the bound.
 """
 
 from __future__ import annotations
@@ -47,13 +50,11 @@ from calibration.uncertainty import Z95, finite_difference_jacobian  # noqa: E40
 from dem.engines import simulate_case  # noqa: E402
 from dem.runout import RunoutMethod, runout_at  # noqa: E402
 from dem.trajectory import read_trajectory  # noqa: E402
-from gns.dataset import (
-    read_metadata,  # noqa: E402
-    read_training_attrs,  # noqa: E402
-)
+from gns.dataset import dataset_paths, read_metadata, read_training_attrs  # noqa: E402
 from gns.simulator import load_simulator  # noqa: E402
 from pipeline.calibrated_gns import start_packing_cases  # noqa: E402
 from pipeline.config import validate_config  # noqa: E402
+from pipeline.inverse_design import dataset_runs  # noqa: E402
 
 TRUTH_SEED0 = 7001  # packings of the targets: no dataset's, calibration's or validation's
 
@@ -93,6 +94,8 @@ def main() -> None:
     inner = trained.mean(axis=1, keepdims=True) + 0.8 * (trained - trained.mean(axis=1, keepdims=True))
     truths = latin_hypercube(ParameterBox(inner, (False,) * len(names)), args.targets, args.seed)
     settings = SimulationSettings(size_scale=args.size_scale)
+    # the GNS's response to each parameter is checked against its dataset's DEM runs, as in the DAG
+    reference = dataset_runs([path for _, path in dataset_paths(metadata)], names, column, runout)
 
     started = time.perf_counter()
     runs = []
@@ -122,8 +125,12 @@ def main() -> None:
             optimiser=section["gns_optimiser"],
             budget=section["gns_budget"],
             n_initial=section["gns_n_initial"],
+            reference=reference,
         )
         posterior = result.posterior
+        # a parameter whose GNS slope the check rejects: its interval is its bounds, and so is the
+        # interval a perfect model of the flat mean response could give
+        untrusted = {r["name"] for r in result.sensitivity["parameters"] if r["resolved"] is False or r["gns_only"]}
         objective = GNSObjective(simulator, starts, target, names, runout=runout)
         steps = result.roughness["jacobian_step"]
         jacobian = finite_difference_jacobian(
@@ -149,7 +156,11 @@ def main() -> None:
                     }
                     for j, p in enumerate(posterior["parameters"])
                 ],
-                "bound_half_width": cramer_rao(jacobian, target.runout_std),
+                "bound_half_width": [
+                    0.5 * (high - low) if n in untrusted else bound
+                    for n, (low, high), bound in zip(names, result.bounds, cramer_rao(jacobian, target.runout_std))
+                ],
+                "untrusted": sorted(untrusted),
             }
         )
         print(f"target {k}: estimate {np.round(result.best_params, 3).tolist()}", file=sys.stderr, flush=True)

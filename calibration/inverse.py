@@ -135,12 +135,14 @@ def posterior_at(
     model_error_std: float | None = None,
     step: float | ArrayLike = JACOBIAN_STEP,
     start_packing_std: ArrayLike | None = None,
+    untrusted: dict[str, str] | None = None,
 ) -> tuple[LaplacePosterior, np.ndarray, dict]:
     """Laplace posterior (calibration.uncertainty) at `optimum` from a central-difference Jacobian of
     the GNS's L*, and a roughness probe: the objective ROUGHNESS_RADIUS away in ROUGHNESS_PROBES
-    directions. All
-    rollouts run as one batch. Returns (LaplacePosterior, L* [K] at the optimum, roughness dict:
-    radius, values, optimum value and their spread, to set against the posterior's step)."""
+    directions. untrusted: {name: why} of parameters whose GNS slope is no evidence (laplace_posterior's:
+    their intervals are their bounds). All rollouts run as one batch (none at a point rolled out
+    before). Returns (LaplacePosterior, L* [K] at the optimum, roughness dict: radius, values,
+    optimum value and their spread, to set against the posterior's step)."""
     optimum = np.asarray(optimum, float)
     points = []
     finite_difference_jacobian(lambda theta: points.append(np.array(theta)) or np.zeros(1), optimum, bounds, step)
@@ -165,6 +167,7 @@ def posterior_at(
         residuals,
         bounds,
         sigma=noise_level(objective.measured, model_error_std, start_packing_std),
+        untrusted=untrusted,
     )
     # None (JSON null) where a rollout failed
     values = [runout_mse(r, objective.measured.runout) if ok else None for r, ok in zip(runouts, ran)]
@@ -232,7 +235,8 @@ def inverse_design(
     runout: how L* is read (dem.runout.RunoutMethod; None: its default).
     reference: the DEM runs of the GNS's dataset, (parameters [n, P] in the order of design_names,
     L* [n, K] at the measured t/t*): the GNS's response to each parameter is checked against theirs
-    (calibration.sensitivity), and a parameter the GNS does not resolve is flagged not identifiable.
+    (calibration.sensitivity); a parameter the GNS does not resolve, or resolves where the DEM is
+    flat, is flagged not identifiable and its interval is its bounds (laplace_posterior's untrusted).
     Returns an InverseResult; seconds["online"] is the wall time of the
     optimisation and the posterior (the landscape, a figure, is timed apart).
     """
@@ -288,23 +292,21 @@ def inverse_design(
     else:
         raise InverseDesignError(f"optimiser must be one of {OPTIMISERS}, got {optimiser!r}")
     t1 = time.perf_counter()
+    step = JACOBIAN_STEP * (scale if np.any(scale != 1) else 1.0)
     posterior, best_runout, roughness = posterior_at(
-        objective,
-        optimum.params,
-        bounds,
-        model_error_std,
-        JACOBIAN_STEP * (scale if np.any(scale != 1) else 1.0),
-        start_packing_std,
+        objective, optimum.params, bounds, model_error_std, step, start_packing_std
     )
     sensitivity = None
     if reference is not None:
         sensitivity, responses = sensitivity_record(names, bounds, reference, objective.evaluated())
-        # the GNS blind to a parameter, or responding to one the DEM hardly does: linearised on the
-        # GNS, the posterior cannot know either
-        blind = {r.name: r.why for r in responses if r.resolved is False or r.gns_only}
-        for p in posterior.parameters:
-            if p.name in blind:
-                p.identifiable, p.why = False, "; ".join(w for w in (p.why, blind[p.name]) if w)
+        # the GNS blind to a parameter, or responding to one the DEM hardly does: its GNS slope is no
+        # evidence, so the posterior leaves it out (that parameter's interval is its bounds; the
+        # others' no longer lean on it); the same rollouts, read again from the objective's cache
+        untrusted = {r.name: r.why for r in responses if r.resolved is False or r.gns_only}
+        if untrusted:
+            posterior, best_runout, roughness = posterior_at(
+                objective, optimum.params, bounds, model_error_std, step, start_packing_std, untrusted
+            )
     t2 = time.perf_counter()
     online = dict(objective.timing)  # where the online time went: rollouts, forward, backward
     try:  # NaN (JSON null) where the first start's rollout failed

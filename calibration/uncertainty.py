@@ -12,7 +12,7 @@ move with it) is flagged `identifiable = False`: its optimum is then a guess, no
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -68,11 +68,15 @@ def laplace_posterior(
     residuals: ArrayLike,
     bounds: Sequence[tuple[float, float]],
     sigma: ArrayLike | float | None = None,
+    untrusted: Mapping[str, str] | None = None,
 ) -> LaplacePosterior:
     """Gaussian posterior around `optimum` [p].
 
     jacobian [K, p]: d(simulated L*_k)/d(theta_j) at the optimum; residuals [K] = simulated - measured;
     bounds [(low, high)] * p; sigma: [K] or scalar measured noise std, or None to estimate it.
+    untrusted: {name: why} of parameters whose slope is no evidence (a surrogate's response that the
+    simulator it stands for does not show): their columns are left out as an unknown slope's are, so
+    their intervals are their bounds and the others' do not lean on them; `why` says so.
     """
     jacobian = np.atleast_2d(np.asarray(jacobian, float))
     residuals = np.asarray(residuals, float)
@@ -88,7 +92,9 @@ def laplace_posterior(
     # a parameter whose slope could not be formed (the model failed both sides of the optimum):
     # its column is zeroed, so the ridge below gives it a huge variance, and it is flagged
     unknown = ~np.all(np.isfinite(jacobian), axis=0)
-    jacobian = np.where(unknown[None, :], 0.0, jacobian)
+    untrusted = dict(untrusted or {})
+    left_out = unknown | np.array([name in untrusted for name in names])
+    jacobian = np.where(left_out[None, :], 0.0, jacobian)
     if sigma is None:
         dof = max(n_points - n_params, 1)
         sigma = np.full(n_points, max(np.sqrt(np.sum(residuals**2) / dof), 1e-12))
@@ -114,6 +120,8 @@ def laplace_posterior(
         why = ""
         if unknown[j]:
             why = "the model failed a Jacobian step either side of the optimum: its slope is unknown"
+        elif name in untrusted:
+            why = untrusted[name]
         elif 2 * half > width:
             why = (
                 f"its 95% interval ({2 * half:.3g} wide) is wider than the bounds ({width:.3g}): "

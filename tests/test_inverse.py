@@ -583,6 +583,8 @@ def test_a_parameter_the_gns_does_not_resolve_against_its_dem_runs_is_flagged_no
     assert restitution["dem"] == pytest.approx(restitution["gns"] + 1.0, abs=0.1)  # the added response, found
     flags = {p["name"]: p for p in result.posterior["parameters"]}
     assert not flags["restitution"]["identifiable"] and "does not resolve" in flags["restitution"]["why"]
+    # its GNS slope is no evidence: the posterior leaves it out, so its interval is its bounds
+    assert [flags["restitution"]["low"], flags["restitution"]["high"]] == list(bounds[1])
     assert "does not resolve" not in flags["friction"]["why"]
     assert len(result.sensitivity["gns"]["last"]) >= 10 and len(result.sensitivity["dem"]["points"]) == 12
     plot_sensitivity(result.to_dict(), tmp_path / "sensitivity.png")

@@ -76,6 +76,25 @@ def test_a_failed_side_of_the_jacobian_falls_back_to_one_side_and_both_sides_fla
         laplace_posterior(["friction", "restitution"], theta, jac, np.full(7, np.nan), bounds, sigma=0.05)
 
 
+def test_an_untrusted_slope_is_left_out_of_the_posterior():
+    """A surrogate's slope in restitution that the simulator it stands for does not show (the DAG's
+    gns_only check): restitution's interval is its bounds, flagged with the reason, and friction's is
+    what the data give with restitution's column left out, not one narrowed by the spurious slope."""
+    t = np.linspace(0.5, 3.5, 7)
+    theta, bounds = np.array([0.6, 0.6]), [(0.3, 0.9), (0.3, 0.9)]
+    jac = np.stack([t, 0.8 * t + 0.3], axis=1)  # strongly correlated with friction's
+    trusted = laplace_posterior(["friction", "restitution"], theta, jac, np.full(7, 0.02), bounds, sigma=0.05)
+    why = "the DEM hardly responds to it, the GNS does"
+    post = laplace_posterior(
+        ["friction", "restitution"], theta, jac, np.full(7, 0.02), bounds, sigma=0.05, untrusted={"restitution": why}
+    )
+    friction, restitution = post.parameters
+    assert trusted.parameters[1].identifiable and (trusted.parameters[1].low, trusted.parameters[1].high) != (0.3, 0.9)
+    assert not restitution.identifiable and restitution.why == why and (restitution.low, restitution.high) == (0.3, 0.9)
+    assert friction.identifiable and friction.std == pytest.approx(0.05 / np.sqrt(np.sum(t**2)), rel=1e-6)
+    assert friction.std < trusted.parameters[0].std  # no longer traded off against restitution
+
+
 def test_bayesian_optimisation_finds_a_known_minimum_within_budget():
     target = np.array([0.42, 0.71])
 
