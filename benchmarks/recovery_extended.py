@@ -46,6 +46,7 @@ from calibration.gns_objective import GNSObjective  # noqa: E402
 from calibration.inverse import inverse_design  # noqa: E402
 from calibration.measured import load_column  # noqa: E402
 from calibration.recovery import packing_scatter, synthetic_measured  # noqa: E402
+from calibration.sensitivity import untrusted_slopes  # noqa: E402
 from calibration.uncertainty import Z95, finite_difference_jacobian  # noqa: E402
 from dem.engines import simulate_case  # noqa: E402
 from dem.runout import RunoutMethod, runout_at  # noqa: E402
@@ -130,7 +131,7 @@ def main() -> None:
         posterior = result.posterior
         # a parameter whose GNS slope the check rejects: its interval is its bounds, and so is the
         # interval a perfect model of the flat mean response could give
-        untrusted = {r["name"] for r in result.sensitivity["parameters"] if r["resolved"] is False or r["gns_only"]}
+        untrusted = untrusted_slopes(result.sensitivity)
         objective = GNSObjective(simulator, starts, target, names, runout=runout)
         steps = result.roughness["jacobian_step"]
         jacobian = finite_difference_jacobian(

@@ -49,7 +49,7 @@ from calibration.lbfgsb import (
 from calibration.measured import MeasuredColumn
 from calibration.objective import runout_mse
 from calibration.optimise import OptimisationResult, PointFailed
-from calibration.sensitivity import finite_or_none, sensitivity_record
+from calibration.sensitivity import finite_or_none, sensitivity_record, untrusted_slopes
 from calibration.uncertainty import LaplacePosterior, finite_difference_jacobian, laplace_posterior
 from dem.progress import progress_logger
 from dem.runout import RunoutMethod
@@ -298,11 +298,11 @@ def inverse_design(
     )
     sensitivity = None
     if reference is not None:
-        sensitivity, responses = sensitivity_record(names, bounds, reference, objective.evaluated())
+        sensitivity, _ = sensitivity_record(names, bounds, reference, objective.evaluated())
         # the GNS blind to a parameter, or responding to one the DEM hardly does: its GNS slope is no
         # evidence, so the posterior leaves it out (that parameter's interval is its bounds; the
         # others' no longer lean on it); the same rollouts, read again from the objective's cache
-        untrusted = {r.name: r.why for r in responses if r.resolved is False or r.gns_only}
+        untrusted = untrusted_slopes(sensitivity)
         if untrusted:
             posterior, best_runout, roughness = posterior_at(
                 objective, optimum.params, bounds, model_error_std, step, start_packing_std, untrusted

@@ -162,6 +162,14 @@ def sensitivity_record(
     return record, responses
 
 
+def untrusted_slopes(record: dict | None) -> dict[str, str]:
+    """{name: why} of the parameters whose GNS slope the check rejects, from a sensitivity_record
+    record (None: none checked): those the GNS does not resolve, and those it responds to where the
+    DEM is flat (gns_only). Their slope is no evidence (calibration.uncertainty's untrusted)."""
+    parameters = (record or {}).get("parameters", [])
+    return {p["name"]: p["why"] for p in parameters if p["resolved"] is False or p["gns_only"]}
+
+
 def finite_or_none(value: float) -> float | None:
     """value, or None (JSON null) where a rollout failed: the records' one way to write a missing L*."""
     return float(value) if np.isfinite(value) else None

@@ -210,7 +210,7 @@ def dataset_paths(metadata: dict) -> list[tuple[str, str]]:
 
 
 def read_metadata(path: str | os.PathLike) -> dict:
-    """A dataset's metadata (gns.dataset's JSON), checked for what the GNS needs."""
+    """A dataset's metadata (load_dataset_metadata's JSON), checked for what the GNS needs."""
     metadata = load_dataset_metadata(path)
     missing = [
         k

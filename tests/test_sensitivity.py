@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy.stats import qmc
 
-from calibration.sensitivity import parameter_sensitivity, response_slopes
+from calibration.sensitivity import parameter_sensitivity, response_slopes, sensitivity_record, untrusted_slopes
 
 BOUNDS = [(0.3, 0.9), (0.3, 0.9), (28.0, 60.0)]  # mu, e and a Bond number: ranges of different size
 
@@ -85,6 +85,9 @@ def test_a_gns_that_responds_where_the_dem_is_flat_is_gns_only():
     assert abs(mu.gns - mu.dem) < 3 * np.hypot(mu.gns_se, mu.dem_se)  # the difference alone is no flag
     assert mu.resolved is None and mu.gns_only and "the GNS does" in mu.why
     assert not e.gns_only and not bond.gns_only
+    # the posterior leaves mu's slope out (calibration.inverse), e and the Bond number's in
+    record, _ = sensitivity_record("abc", BOUNDS, (dem_points, dem), (gns_points, gns))
+    assert untrusted_slopes(record) == {"a": mu.why} and untrusted_slopes(None) == {}
     # a GNS as flat as the DEM is not gns_only, nor one inside the DEM slope's 95% interval (the DEM
     # too uncertain to call that response, but showing it)
     for slope in (0.0, 0.8):
