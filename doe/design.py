@@ -10,7 +10,9 @@ Factors are coded x = (value - centre) / half_range, in [-1, 1] (paper: (mu - 0.
 
 For three or more factors (a calibrated model with a mechanism parameter) a full factorial of 7
 levels is 343+ runs; the face-centred central composite design (`face_centred_ccd`) fits the same
-quadratic surface from 2^k corners, 2k face centres and the replicated centre (k = 3: 15 + r runs).
+quadratic surface from 2^k corners, 2k face centres and the replicated centre (k = 3: 15 + r runs);
+`three_level_factorial` adds the 3^k - 2^k - 2k - 1 points it lacks (k = 3: the 12 edge midpoints),
+so the same DEM runs give both designs (k = 3: 27 + r runs, the GNS route's cost at r = 3).
 """
 
 from __future__ import annotations
@@ -149,6 +151,30 @@ def face_centred_ccd(factors: Sequence[Factor], centre_replicates: int = 3, seed
     table["replicate"] = replicate
     width = len(str(len(table) - 1))
     table.insert(0, "run_id", [f"run_{j:0{width}d}" for j in range(len(table))])
+    return table
+
+
+def three_level_factorial(factors: Sequence[Factor], centre_replicates: int = 3, seed: int = 0) -> pd.DataFrame:
+    """The 3-level full factorial over `factors` (3^k points and `centre_replicates` centre runs),
+    one row per DEM run, in the columns of `face_centred_ccd` plus `ccd`: the face-centred CCD's
+    rows first, exactly as `face_centred_ccd` gives them (ccd True), then the 3^k points it lacks
+    (ccd False; run ids continue, packing `seed`), so the CCD is a subset of the same runs.
+    """
+    ccd = face_centred_ccd(factors, centre_replicates, seed)
+    factors = tuple(factors)
+    coded_columns = [f"x_{f.name}" for f in factors]
+    in_ccd = {tuple(point) for point in ccd[coded_columns].to_numpy()}
+    points = [p for p in itertools.product((-1.0, 0.0, 1.0), repeat=len(factors)) if p not in in_ccd]
+    rest = np.array(points, float).reshape(len(points), len(factors))  # k = 2: none
+    extra = pd.DataFrame({f.name: np.round(f.decode(rest[:, i]), 12) for i, f in enumerate(factors)})
+    for i, f in enumerate(factors):
+        extra[f"x_{f.name}"] = rest[:, i]
+    extra["seed"], extra["replicate"] = int(seed), 0
+    table = pd.concat([ccd.drop(columns="run_id"), extra], ignore_index=True)
+    width = max(len(str(len(table) - 1)), len(str(len(ccd) - 1)))
+    run_ids = ccd["run_id"].tolist() + [f"run_{j:0{width}d}" for j in range(len(ccd), len(table))]
+    table.insert(0, "run_id", run_ids)
+    table["ccd"] = [True] * len(ccd) + [False] * len(extra)
     return table
 
 

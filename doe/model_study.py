@@ -1,7 +1,9 @@
 """The DoE route for the calibrated model (calibration/calibrated.py): a face-centred central
 composite design over the model's parameter box (mu, e and the mechanism parameter, when it has
 one), one DEM run of the measured column per design point, and the quadratic response surface of
-the runout MSE with its ANOVA, lack-of-fit test and bounded optimum.
+the runout MSE with its ANOVA, lack-of-fit test and bounded optimum. Optionally the 3-level full
+factorial too, from the same runs plus the grid points the CCD lacks (k = 3: 30 runs, the GNS
+route's cost): the DoE at the GNS's price, each design's surface fitted to its own runs.
 
 Packings: every non-replicate run starts from one packing (CALIBRATION_SEED + seed, the packing the
 other calibration routes run on), so differences between design points are due to the parameters
@@ -28,13 +30,14 @@ from calibration.measured import MeasuredColumn
 from calibration.objective import runout_mse
 from dem.engines import FAILURES, failure_reason
 from dem.runout import RunoutMethod
-from doe.design import Factor, face_centred_ccd
+from doe.design import Factor, face_centred_ccd, three_level_factorial
 from doe.regression import RegressionError, SurfaceFit, analyse, prediction_expression
 from doe.study import FAILURE_COLUMN, RUNOUT_METHOD_COLUMN, RUNOUT_PREFIX, failures, fitted_runs
 
 log = logging.getLogger(__name__)
 
-DESIGN = "face-centred CCD"
+CCD = "face-centred CCD"
+FULL_FACTORIAL = "3-level full factorial"  # the CCD's runs and the rest of the 3^k grid
 SURFACE = "quadratic"
 
 
@@ -54,23 +57,30 @@ def model_doe(
     centre_replicates: int = 3,
     seed: int = 0,
     progress: Callable[[float], None] | None = None,
-) -> tuple[pd.DataFrame, dict, SurfaceFit]:
-    """DoE calibration of `model` on one measured column: (responses, summary, the fitted quadratic
-    surface).
+    full_factorial: bool = False,
+) -> tuple[pd.DataFrame, dict[str, tuple[dict, SurfaceFit]]]:
+    """DoE calibration of `model` on one measured column: (responses, {design: (summary, its fitted
+    quadratic surface)}) for the face-centred CCD (CCD) and, with full_factorial, the 3-level full
+    factorial (FULL_FACTORIAL): one DEM campaign (doe.design.three_level_factorial, whose first runs
+    are the CCD's), each design's surface fitted to its own runs.
 
-    responses: the design table (doe.design columns; seed = the packing seed of the run) with mse
-    (runout MSE against column.runout, NaN where the run failed), L_star_t<t> (simulated L* at the
-    measured t/t*), dem_wall_time_s, runout_method (JSON: `runout` with the column's stated method
-    in place of its own, MeasuredColumn.runout_reading) and failure (reason, "" where it ran).
-    summary (JSON-ready): design, model, n_runs (DEM runs made), n_fitted, failed {run_id: reason},
-    failures (a sentence), centre_replicates, packing_seeds, and doe.regression.analyse's summary
-    of the quadratic surface (pure_error, best_run, models.quadratic: coefficients, effects (type-III
+    responses: the design table (doe.design columns; seed = the packing seed of the run; ccd = the
+    run belongs to the CCD) with mse (runout MSE against column.runout, NaN where the run failed),
+    L_star_t<t> (simulated L* at the measured t/t*), dem_wall_time_s, runout_method (JSON: `runout`
+    with the column's stated method in place of its own, MeasuredColumn.runout_reading) and failure
+    (reason, "" where it ran). summary (JSON-ready), per design: design, model, n_runs (its DEM
+    runs), n_fitted, failed {run_id: reason}, failures (a sentence), centre_replicates,
+    packing_seeds, dem_seconds (its runs' wall time), and doe.regression.analyse's summary of the
+    quadratic surface (pure_error, best_run, models.quadratic: coefficients, effects (type-III
     ANOVA), lack_of_fit, optimum in coded and natural units, expression), analysis_time_s.
     progress: callable(fraction of the runs done) or None.
     """
     runout = column.runout_reading(runout)  # the column's stated method, else the config's
     factors = model_factors(model)
-    design = face_centred_ccd(factors, centre_replicates, CALIBRATION_SEED + seed)
+    if full_factorial:
+        design = three_level_factorial(factors, centre_replicates, CALIBRATION_SEED + seed)
+    else:
+        design = face_centred_ccd(factors, centre_replicates, CALIBRATION_SEED + seed).assign(ccd=True)
     method = json.dumps(runout.to_config(), sort_keys=True)
     records = []
     for done, row in enumerate(design.itertuples(index=False), start=1):
@@ -95,24 +105,41 @@ def model_doe(
         if progress is not None:
             progress(done / len(design))
     responses = design.merge(pd.DataFrame(records), on="run_id")
+    designs = {CCD: responses[responses["ccd"]], **({FULL_FACTORIAL: responses} if full_factorial else {})}
+    return responses, {
+        label: design_surface(runs, factors, model, label, column.name, centre_replicates)
+        for label, runs in designs.items()
+    }
+
+
+def design_surface(
+    responses: pd.DataFrame,
+    factors: tuple[Factor, ...],
+    model: Model,
+    design: str,
+    column_name: str,
+    centre_replicates: int,
+) -> tuple[dict, SurfaceFit]:
+    """(summary, fitted quadratic surface) of one design's runs (model_doe's responses rows)."""
     failed, sentence = failures(responses)
     started = time.perf_counter()
     try:
         fits, analysis = analyse(fitted_runs(responses), factors, "mse", models=(SURFACE,))
     except RegressionError as exc:
-        raise RegressionError(f"{model.name} DoE on {column.name}: {exc} ({sentence})") from exc
+        raise RegressionError(f"{model.name} DoE ({design}) on {column_name}: {exc} ({sentence})") from exc
     analysis["models"][SURFACE]["expression"] = prediction_expression(fits[SURFACE])
     analysis.pop("n_runs")  # the runs fitted: n_fitted below, beside the runs made
     summary = {
-        "design": DESIGN,
+        "design": design,
         "model": model.name,
-        "n_runs": int(len(design)),
+        "n_runs": int(len(responses)),
         "n_fitted": int(len(responses) - len(failed)),
         "failed": failed,
         "failures": sentence,
         "centre_replicates": centre_replicates,
-        "packing_seeds": sorted({int(s) for s in design["seed"]}),
+        "packing_seeds": sorted({int(s) for s in responses["seed"]}),
+        "dem_seconds": float(responses["dem_wall_time_s"].sum()),
         **analysis,
         "analysis_time_s": time.perf_counter() - started,
     }
-    return responses, summary, fits[SURFACE]
+    return summary, fits[SURFACE]

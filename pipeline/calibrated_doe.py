@@ -1,7 +1,10 @@
 """The DoE route of the calibrated model (workflow rule calibrated_doe): for one measured column,
 the face-centred central composite design over the calibrated model's parameters, one DEM run per
-point, the quadratic response surface and its optimum (doe/model_study.py)
--> results/calibrated/<name>/doe.json, doe_responses.csv and doe_surface.png (names are the rule's).
+point, the quadratic response surface and its optimum (doe/model_study.py); with the config's
+calibration.doe_full_factorial, also the 3-level full factorial from the same runs and the grid
+points the CCD lacks (k = 3: 30 runs, the GNS route's cost) -> results/calibrated/<name>/doe.json,
+doe_responses.csv, doe_surface.png and doe_full_factorial.json, doe_full_factorial_surface.png (names
+are the rule's).
 """
 
 from __future__ import annotations
@@ -10,11 +13,12 @@ import logging
 import time
 
 from calibration.calibrated import read_model
-from calibration.design_runs import SimulationSettings
+from calibration.design_runs import Model, SimulationSettings
 from calibration.measured import load_column
 from dem.atomic import StrPath, write_json
 from dem.progress import progress_logger
-from doe.model_study import DESIGN, SURFACE, model_doe
+from dem.runout import RunoutMethod
+from doe.model_study import CCD, FULL_FACTORIAL, SURFACE, model_doe
 from doe.plots import plot_surface_pairs
 from doe.study import write_responses
 
@@ -33,22 +37,27 @@ def run_model_doe(
     runout: dict | None,
     dem: dict | None,
     name: str = "",
+    out_full_factorial: tuple[StrPath, StrPath] | None = None,
 ) -> dict:
     """DoE calibration of the calibrated model of one measured column (workflow rule calibrated_doe).
 
     model_path: model.json (calibration.calibrated.model_record); section: the config's
     `calibration` section (doe_centre_replicates, default 3); diagnosis_section: the config's
     `diagnosis` section (its size_scale and channel width are the calibrated model's); runout, dem:
-    the config's runout and dem sections. Writes the result JSON (route, parameters, optimum in
-    natural units, dem_runs, seconds and the DoE summary), the responses table and the figure.
+    the config's runout and dem sections. Writes the CCD's result JSON (route, parameters, optimum in
+    natural units, dem_runs, seconds: its runs' wall time and its fit's, and the DoE summary), the
+    responses table of every run (ccd: the run is the CCD's) and the CCD's figure; out_full_factorial
+    (result JSON, figure): the 3-level full factorial's too, from the same runs and its own. Returns
+    the CCD's result.
     """
     started = time.perf_counter()
     column = load_column(measured_path)
     model, why = read_model(model_path, diagnosis_section["channel_width"])
     settings = SimulationSettings(size_scale=diagnosis_section["size_scale"])
     runout = column.runout_reading(runout)  # the column's stated method, else the config's
-    log.info("%s: DoE (%s) of the %s model %s", name, DESIGN, model.name, list(model.parameter_names))
-    responses, summary, fit = model_doe(
+    designs = f"{CCD}{f' and {FULL_FACTORIAL}' if out_full_factorial else ''}"
+    log.info("%s: DoE (%s) of the %s model %s", name, designs, model.name, list(model.parameter_names))
+    responses, studies = model_doe(
         model,
         column,
         settings,
@@ -56,13 +65,40 @@ def run_model_doe(
         dem,
         centre_replicates=section.get("doe_centre_replicates", 3),
         progress=progress_logger(f"DoE of {model.name} on DEM runs of {name}", log),
+        full_factorial=out_full_factorial is not None,
     )
+    write_responses(out_responses, responses)
+    outputs = {CCD: (out_json, out_figure), **({FULL_FACTORIAL: out_full_factorial} if out_full_factorial else {})}
+    results = {}
+    for design, (path, figure) in outputs.items():
+        summary, fit = studies[design]
+        results[design] = design_result(name, measured_path, column.name, model, why, settings, runout, dem, summary)
+        write_json(path, results[design])
+        runs = responses if design == FULL_FACTORIAL else responses[responses["ccd"]]
+        plot_surface_pairs(fit, runs, figure, title=f"{name}: {model.name} model, DoE ({design})")
+        log.info("%s: DoE (%s) optimum %s (%s)", name, design, results[design]["optimum"], summary["failures"])
+    log.info("%s: DoE stage done in %.0f s", name, time.perf_counter() - started)
+    return results[CCD]
+
+
+def design_result(
+    name: str,
+    measured_path: StrPath,
+    column_name: str,
+    model: Model,
+    why: str,
+    settings: SimulationSettings,
+    runout: RunoutMethod,
+    dem: dict | None,
+    summary: dict,
+) -> dict:
+    """The result JSON of one design (model_doe's summary of it): what the calibrated stage reads."""
     optimum = summary["models"][SURFACE]["optimum"]["natural"]
-    result = {
+    return {
         "name": name,
         "measured": str(measured_path),
-        "column": column.name,
-        "route": f"{model.name}, DoE ({DESIGN}, {SURFACE})",
+        "column": column_name,
+        "route": f"{model.name}, DoE ({summary['design']}, {SURFACE})",
         "why": why,
         "parameters": list(model.parameter_names),
         "bounds": model.bounds.tolist(),
@@ -72,10 +108,6 @@ def run_model_doe(
         "engine": (dem or {}).get("engine", "builtin"),
         "runout": runout.to_config(),
         **summary,
-        "seconds": time.perf_counter() - started,
+        # the design's own cost: its runs (a CCD within the full factorial does not pay for the rest)
+        "seconds": summary["dem_seconds"] + summary["analysis_time_s"],
     }
-    write_json(out_json, result)
-    write_responses(out_responses, responses)
-    plot_surface_pairs(fit, responses, out_figure, title=f"{name}: {model.name} model, DoE ({DESIGN})")
-    log.info("%s: DoE optimum %s (%s)", name, optimum, summary["failures"])
-    return result

@@ -1,6 +1,7 @@
-"""DoE of the calibrated model: the face-centred central composite design, the k-factor response
-surfaces (known coefficients, optimum inside and on a bound, ANOVA and lack of fit), the k-factor
-figure, and the route on real DEM runs of a tiny column (77 grains) with one failing run."""
+"""DoE of the calibrated model: the face-centred central composite design and the 3-level full
+factorial around it, the k-factor response surfaces (known coefficients, optimum inside and on a
+bound, ANOVA and lack of fit), the k-factor figure, both designs from one campaign on a known
+response, and the route on real DEM runs of a tiny column (77 grains) with one failing run."""
 
 import json
 
@@ -12,7 +13,16 @@ from calibration.design_runs import Model
 from calibration.mechanisms import get_mechanisms
 from calibration.objective import runout_mse
 from dem.integrate import SimulationError
-from doe.design import FACTORS, DesignError, Factor, centre_run_id, face_centred_ccd, full_factorial
+from doe.design import (
+    FACTORS,
+    DesignError,
+    Factor,
+    centre_run_id,
+    face_centred_ccd,
+    full_factorial,
+    three_level_factorial,
+)
+from doe.model_study import CCD, FULL_FACTORIAL
 from doe.plots import plot_surface_pairs
 from doe.regression import (
     RegressionError,
@@ -63,6 +73,25 @@ def test_face_centred_ccd_has_corners_faces_and_replicated_centre():
         face_centred_ccd([THREE[0], THREE[0]])
     with pytest.raises(DesignError, match="centre_replicates"):
         face_centred_ccd(THREE, centre_replicates=-1)
+
+
+def test_the_three_level_factorial_is_the_ccd_and_the_grid_points_it_lacks():
+    design = three_level_factorial(THREE, centre_replicates=3, seed=7)
+    assert len(design) == 27 + 3 and design["run_id"].is_unique
+    ccd = face_centred_ccd(THREE, centre_replicates=3, seed=7)
+    # the CCD's rows first, exactly (same run ids, values, packing seeds): its runs are shared
+    assert design[design.ccd].drop(columns="ccd").reset_index(drop=True).equals(ccd)
+    assert design["ccd"].tolist() == [True] * 18 + [False] * 12
+    coded = design[X].to_numpy()
+    assert len({tuple(row) for row in coded}) == 27  # every grid point, the centre repeated
+    rest = design[~design.ccd]
+    assert ((rest[X] == 0).sum(axis=1) == 1).all()  # k = 3: the 12 edge midpoints
+    assert set(rest["seed"]) == {7} and set(rest["replicate"]) == {0}  # on the CCD's common packing
+    assert design["run_id"].tolist()[18] == "run_18"
+    for f in THREE:
+        np.testing.assert_allclose(design[f"x_{f.name}"], f.code(design[f.name]), atol=1e-12)
+    square = three_level_factorial(FACTORS, 1)  # k = 2: the CCD already is the 3 x 3 grid
+    assert square.ccd.all() and len(square) == 10
 
 
 def test_quadratic_fit_recovers_a_known_three_factor_surface_and_its_optimum():
@@ -148,9 +177,9 @@ def test_model_doe_on_dem_runs_records_a_failed_run_and_fits_without_it(monkeypa
     monkeypatch.setattr(doe.model_study, "model_runout", sometimes_blows_up)
     model = Model(get_mechanisms(["cohesion"])[0])
     done = []
-    responses, summary, fit = model_doe(
-        model, COLUMN, SETTINGS, RUNOUT, None, centre_replicates=1, progress=done.append
-    )
+    responses, studies = model_doe(model, COLUMN, SETTINGS, RUNOUT, None, centre_replicates=1, progress=done.append)
+    assert list(studies) == [CCD]
+    summary, fit = studies[CCD]
     assert fit.optimum() == summary["models"]["quadratic"]["optimum"]  # the surface the summary reports
     assert len(responses) == 16 and done[-1] == 1.0 and len(done) == 16
     assert seeds == [CALIBRATION_SEED] * 15 + [CALIBRATION_SEED + 1]  # common packing, the replicate another
@@ -175,6 +204,42 @@ def test_model_doe_on_dem_runs_records_a_failed_run_and_fits_without_it(monkeypa
     assert (tmp_path / "surface.png").stat().st_size > 10_000
 
 
+def test_both_designs_come_from_one_campaign_and_fit_their_own_runs(monkeypatch):
+    """A known quadratic response in place of the DEM: the full factorial runs 27 + 2 points, the
+    CCD's 15 + 2 among them, each design's surface is fitted to its own runs only."""
+    import doe.model_study
+    from doe.model_study import model_doe
+
+    factors = THREE
+    centre = np.array([0.3, -0.4, 0.5])  # coded optimum of the response
+    calls = []
+
+    def quadratic_runout(model, column, theta, settings, seed, runout, dem_config):
+        calls.append((tuple(theta), seed))
+        x = np.array([f.code(v) for f, v in zip(factors, theta)])
+        # an MSE of (x - centre)^2 on a curve: the measured curve shifted by that much at every time
+        return np.asarray(COLUMN.runout) + np.sqrt(np.sum((x - centre) ** 2))
+
+    monkeypatch.setattr(doe.model_study, "model_runout", quadratic_runout)
+    monkeypatch.setattr(doe.model_study, "model_factors", lambda model: factors)
+    model = Model(get_mechanisms(["cohesion"])[0])
+    responses, studies = model_doe(model, COLUMN, SETTINGS, RUNOUT, None, centre_replicates=2, full_factorial=True)
+    assert list(studies) == [CCD, FULL_FACTORIAL] and len(calls) == len(responses) == 29
+    assert len(set(calls)) == 29  # one campaign: no point run twice on one packing
+    ccd, full = studies[CCD][0], studies[FULL_FACTORIAL][0]
+    assert (ccd["n_runs"], full["n_runs"]) == (17, 29) and responses["ccd"].sum() == 17
+    assert ccd["dem_seconds"] < full["dem_seconds"]
+    assert ccd["design"] == CCD and full["design"] == FULL_FACTORIAL
+    for summary in (ccd, full):  # an exact quadratic: both surfaces find its optimum
+        optimum = summary["models"]["quadratic"]["optimum"]
+        assert [optimum["coded"][f.name] for f in factors] == pytest.approx(centre, abs=1e-6)
+    # the CCD-only campaign: the same CCD runs and surface
+    calls.clear()
+    alone, alone_studies = model_doe(model, COLUMN, SETTINGS, RUNOUT, None, centre_replicates=2)
+    assert len(calls) == 17 and list(alone_studies) == [CCD]
+    assert alone_studies[CCD][0]["models"] == ccd["models"]
+
+
 def test_the_stage_writes_the_doe_result_responses_and_figure(tmp_path):
     """Base model (mu, e): the 3 x 3 design + 1 centre replicate = 10 real DEM runs."""
     from doe.study import read_responses
@@ -192,6 +257,7 @@ def test_the_stage_writes_the_doe_result_responses_and_figure(tmp_path):
         csv, model_json, out / "doe.json", out / "doe_responses.csv", out / "doe_surface.png",
         {"doe_centre_replicates": 1}, {"size_scale": 4.0, "channel_width": 0.01},
         runout=RUNOUT.to_config(), dem=None, name="tiny",
+        out_full_factorial=(out / "doe_full_factorial.json", out / "doe_full_factorial_surface.png"),
     )  # fmt: skip
     written = json.loads((out / "doe.json").read_text())
     assert written["route"] == "base, DoE (face-centred CCD, quadratic)"
@@ -202,3 +268,8 @@ def test_the_stage_writes_the_doe_result_responses_and_figure(tmp_path):
     responses = read_responses(out / "doe_responses.csv", RUNOUT)
     assert len(responses) == 10 and responses["mse"].notna().all()
     assert (out / "doe_surface.png").stat().st_size > 10_000
+    # two parameters: the CCD already is the 3 x 3 grid, so the full factorial is the same runs and fit
+    full = json.loads((out / "doe_full_factorial.json").read_text())
+    assert full["route"] == "base, DoE (3-level full factorial, quadratic)" and full["dem_runs"] == 10
+    assert full["optimum"] == written["optimum"] and full["models"] == written["models"]
+    assert (out / "doe_full_factorial_surface.png").stat().st_size > 10_000

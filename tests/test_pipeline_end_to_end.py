@@ -79,7 +79,7 @@ EXPECTED_JOBS = {
     "calibrated_case": 3,
     "calibrated_dataset": 1,
     "calibrated_inverse": 1,
-    "calibrated_validate": 9,
+    "calibrated_validate": 10,
     "calibrated": 1,
     "calibrated_section": 1,
     "scale_ladder": 1,
@@ -97,6 +97,7 @@ CALIBRATED_ROUTES = {
     "base-doe-quadratic",
     "model-inverse",
     "model-doe",
+    "model-doe-ff",
     "model-bayesopt",
 }
 REPORT_SECTIONS = [  # in report order: the answer first
@@ -402,7 +403,13 @@ def test_calibrated_answer_transfer_and_prediction(results):
     assert answer["answer"] == best["route"] and answer["validation_packings"] == 3
     for r in routes.values():
         assert finite(r["versus_answer"]["mse_difference"], r["versus_answer"]["se"]), r["key"]
-    assert finite(answer["gns_vs_doe"]["mse_difference"], answer["gns_vs_doe"]["se"])
+    # the GNS route against each DoE: the CCD (8 + 6 + 1 + 1 runs) and the full factorial (27 + 1)
+    versus = {v["doe_key"]: v for v in answer["gns_vs_doe"]}
+    assert set(versus) == {"model-doe", "model-doe-ff"}
+    assert versus["model-doe"]["doe_dem_runs"] == 16 and versus["model-doe-ff"]["doe_dem_runs"] == 28
+    for v in versus.values():
+        assert finite(v["mse_difference"], v["se"]) and v["gns_dem_runs"] == routes["model-inverse"]["dem_runs"]
+        assert v["mse_difference"] == pytest.approx(routes["model-inverse"]["mse"] - routes[v["doe_key"]]["mse"])
     transfer = answer["transfer"]  # finer_size_scale 3
     assert finite(transfer["mse"], transfer["curves"]) and transfer["failed"] == {}
     prediction = answer["prediction"]

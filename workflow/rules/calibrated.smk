@@ -46,8 +46,9 @@ rule calibrated_model:
         "../scripts/calibrated_model.py"
 
 
-# The DoE route: a face-centred central composite design over the model's parameters in DEM, the
-# quadratic response surface and its ANOVA (doe/).
+# The DoE routes: a face-centred central composite design over the model's parameters in DEM, the
+# quadratic response surface and its ANOVA (doe/); and the 3-level full factorial from the same runs
+# and the grid points the CCD lacks (three parameters: 30 runs, the GNS route's cost).
 rule calibrated_doe:
     input:
         measured=lambda w: config["measured"][w.name],
@@ -67,6 +68,14 @@ rule calibrated_doe:
             category="7. Calibrated model",
             subcategory="{name}",
             labels={"result": "DoE response surface"},
+        ),
+        full_factorial="results/calibrated/{name}/doe_full_factorial.json",
+        full_factorial_figure=report(
+            "results/calibrated/{name}/doe_full_factorial_surface.png",
+            caption="../report/doe_surface.rst",
+            category="7. Calibrated model",
+            subcategory="{name}",
+            labels={"result": "DoE response surface, 3-level full factorial"},
         ),
     log:
         "results/logs/calibrated/calibrated_doe/{name}.log",

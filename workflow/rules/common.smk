@@ -206,6 +206,7 @@ def calibrated_routes(name):
     if name in MODEL_GNS_NAMES:
         routes["model-inverse"] = f"results/calibrated/{name}/inverse.json"
     routes["model-doe"] = f"results/calibrated/{name}/doe.json"
+    routes["model-doe-ff"] = f"results/calibrated/{name}/doe_full_factorial.json"
     routes["model-bayesopt"] = f"results/calibrated/{name}/bayesopt.json"
     return routes
 
@@ -214,8 +215,8 @@ def calibrated_cost(name, route):
     """{"files": benchmark files of the jobs route `route` of measured column `name` ran, "dem_runs":
     the DEM runs it spent (None: its own file says), for the model's GNS route "own_dem_runs": those
     of its own dataset}: the cost the report shows beside each route."""
-    if route in ("model-doe", "model-bayesopt"):
-        return {"files": [f"results/benchmarks/calibrated/calibrated_{route[6:]}/{name}.tsv"], "dem_runs": None}
+    if route == "model-bayesopt":
+        return {"files": [f"results/benchmarks/calibrated/calibrated_bayesopt/{name}.tsv"], "dem_runs": None}
     if route in ("base-inverse", "model-inverse"):
         base = inverse_benchmarks(name)  # the paper's GNS route: its dataset, training and start run
         files = base["gns_dataset"] + base["gns_training"] + base["start"]
@@ -243,4 +244,6 @@ def calibrated_cost(name, route):
         return {"files": doe, "dem_runs": None}
     if route == "base-bayesopt":
         return {"files": inverse_benchmarks(name)["bayesopt"], "dem_runs": None}
-    return {"files": [], "dem_runs": None}  # the diagnosis' fits: the diagnosis job's time, its file's runs
+    # the diagnosis fits (the diagnosis job's time) and the model's DoE routes (each its own runs' time:
+    # one job runs both designs): what their files say
+    return {"files": [], "dem_runs": None}

@@ -1,4 +1,5 @@
-"""The DoE route of the calibrated model of one measured column: its result JSON, responses and figure."""
+"""The DoE routes of the calibrated model of one measured column (the face-centred CCD and the 3-level
+full factorial from one DEM campaign): their result JSONs, the responses and the figures."""
 
 import logging
 
@@ -16,5 +17,6 @@ result = run_model_doe(
     runout=snakemake.params.runout,
     dem=snakemake.params.dem,
     name=snakemake.wildcards.name,
+    out_full_factorial=(snakemake.output.full_factorial, snakemake.output.full_factorial_figure),
 )
 logging.info("%s: %s, optimum %s", result["name"], result["route"], result["optimum"])
