@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from dem.atomic import StrPath, write_text
-from pipeline.calibrated import format_se, format_span
+from pipeline.calibrated import answer_score, format_se, format_span
 
 CELL = "padding: 2px 10px 2px 0; text-align: left; vertical-align: top"
 FIRST_SENTENCE = re.compile(r"(?<=[.:])\s+(?=[A-Z])")
@@ -35,9 +35,16 @@ def answer_html(result: dict, figure: StrPath | None = None) -> str:
     """The answer page of one measured column from its calibrated.json `result`, with the PNG at
     `figure` (calibrated.png) embedded under it when given."""
     answer = answer_route(result)
+    score = answer_score(result)
     e = html.escape
     why = FIRST_SENTENCE.split(result["why"].strip(), maxsplit=1)[0]
-    n_ran = len(answer["seeds"]) - len(answer["failed"])
+    chosen = (
+        ""
+        if score["shared"] is None
+        else f" It was chosen on these {score['n_ran']} among the routes within 2 SE of the lowest score on the "
+        f"{score['shared']} packings every route ran (there {score['shared_mse']:.3g}): the lowest of several "
+        "few-packing scores flatters itself."
+    )
     parts = [
         '<div style="font-family: sans-serif; font-size: 14px; line-height: 1.45; max-width: 60em">',
         f'<h3 style="margin: 0.3em 0">{e(result["name"])}: the {e(result["model"])} model</h3>',
@@ -45,9 +52,9 @@ def answer_html(result: dict, figure: StrPath | None = None) -> str:
         f"<p><b>Which parameters</b> (route: {e(answer['route'])}):</p>",
         _parameter_table(result, answer),
         f"<p><b>How well.</b> DEM runs at these parameters reproduce the measured runout "
-        f"({e(result['column'])}) with MSE <b>{answer['mse']:.3g}</b> &plusmn; {format_se(answer.get('mse_se'))} "
-        f"(jackknife SE) on the mean L* of {n_ran} packings the calibration never saw; each packing "
-        f"alone {format_span(answer['mse_each'])}.{_transfer(result, answer)}</p>",
+        f"({e(result['column'])}) with MSE <b>{score['mse']:.3g}</b> &plusmn; {format_se(score['mse_se'])} "
+        f"(jackknife SE) on the mean L* of {score['n_ran']} packings the calibration never saw; each packing "
+        f"alone {format_span(score['mse_each'])}.{chosen}{_transfer(result, score['mse'])}</p>",
         f"<p><b>What it cost.</b> This route: {_runs(answer)} DEM runs and "
         f"{_duration(answer['calibration_seconds'])} to calibrate ({result['engine']} engine, size_scale "
         f"{result['size_scale']:g}). Every route, validated on the same packings:</p>",
@@ -109,12 +116,12 @@ def _interval(p: dict | None) -> str:
     return f"[{p['low']:.3g}, {p['high']:.3g}]" + ("" if p["identifiable"] else " not identifiable")
 
 
-def _transfer(result: dict, answer: dict) -> str:
+def _transfer(result: dict, answer_mse: float) -> str:
     transfer = result.get("transfer")
     if not transfer or not math.isfinite(transfer["mse"]):
         return ""
     return f" One size_scale finer the same parameters score MSE {transfer['mse']:.3g}" + (
-        ": the answer transfers." if transfer["mse"] <= 2 * answer["mse"] else ": recalibrate at the scale you run."
+        ": the answer transfers." if transfer["mse"] <= 2 * answer_mse else ": recalibrate at the scale you run."
     )
 
 

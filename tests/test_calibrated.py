@@ -9,6 +9,7 @@ import pytest
 from calibration.calibrated import (
     CalibrationError,
     calibration_box,
+    contenders,
     model_dataset_cases,
     model_record,
     model_runout,
@@ -114,7 +115,7 @@ def test_the_stage_writes_its_answer_figure_and_report_section(tmp_path):
         "column,material,aspect_ratio,L_i,kind,x,value,std\n"
         + "".join(f"tiny,quartz,2,0.01,runout,{t},{v},\n" for t, v in zip(COLUMN.t_over_tstar, COLUMN.runout))
     )
-    section = {"model": "base", "budget": 4, "n_initial": 2, "validation_packings": 2, "seed": 0}
+    section = {"model": "base", "budget": 4, "n_initial": 2, "validation_packings": 2, "answer_packings": 3, "seed": 0}
     section.update(finer_size_scale=3.5, predict_aspect_ratios=[1.0, 2.0])
     out = tmp_path / "calibrated"
     record = choose_model(None, out / "model.json", "base", 0.01, name="tiny")
@@ -149,7 +150,15 @@ def test_the_stage_writes_its_answer_figure_and_report_section(tmp_path):
         runout=RUNOUT.to_config(), dem=None, name="tiny",
     )  # fmt: skip
     assert result["model"] == "base" and [r["key"] for r in result["routes"]] == ["model-bayesopt", "model-doe"]
-    assert result["answer"] == min(result["routes"], key=lambda r: r["mse"])["route"]
+    # the runoff: two packings give no SE, so neither route is told apart: both run on a third
+    scored = {r["key"]: r for r in result["runoff"]}
+    assert set(scored) == {"model-bayesopt", "model-doe"} and result["answer_packings"] == 3
+    for r in result["routes"]:
+        more = scored[r["key"]]
+        assert more["seeds"] == [5001, 5002, 5003] and more["curves"][:2] == r["curves"]
+        assert more["shared_packings"] == 2 and more["parameters"] == r["parameters"]
+        assert more["mse"] == pytest.approx(runout_mse(np.mean(more["curves"], axis=0), COLUMN.runout))
+    assert result["answer"] == min(result["runoff"], key=lambda r: r["mse"])["route"]
     route = next(r for r in result["routes"] if r["route"] == result["answer"])
     bo_route = result["routes"][0]
     assert bo_route["parameters"] == bo["optimum"]
@@ -165,12 +174,32 @@ def test_the_stage_writes_its_answer_figure_and_report_section(tmp_path):
     run_section([out / "calibrated.json"], [out / "calibrated.png"], tmp_path / "report" / "calibrated.md")
     text = (tmp_path / "report" / "calibrated.md").read_text()
     assert "### tiny: base model" in text and "](../calibrated/calibrated.png)" in text
-    assert f"validated runout MSE **{route['mse']:.3g}**" in text and "**Scale transfer.**" in text
+    assert f"validated runout MSE **{scored[route['key']]['mse']:.3g}**" in text and "**Scale transfer.**" in text
+    assert "How the answer was chosen" in text and "on the mean of 3 packings" in text
     assert "| final L* | " in text and "](../calibrated/prediction.png)" in text
     assert (
         "base, DoE (face-centred CCD, quadratic): 10 DEM runs (every DEM run ran); quadratic response surface" in text
     )
     assert "](../calibrated/doe_surface.png)" in text and "](../calibrated/bayesopt.png)" in text
+
+
+def test_the_routes_not_told_apart_from_the_best_are_the_contenders():
+    rng = np.random.default_rng(3)
+    chaos = rng.normal(0, 0.3, (6, 4))  # one packing's scatter, shared by every route on that packing
+
+    def route(name, offset, own=0.05):
+        curves = COLUMN.runout + offset + chaos + rng.normal(0, own, (6, 4))
+        return {"route": name, "curves": curves.tolist()}
+
+    best, close, far = route("best", 0.0), route("close", 0.05), route("far", 1.0)
+    measured = COLUMN.runout
+    difference, se = mse_jackknife(far["curves"], measured, best["curves"])
+    assert difference > 2 * se  # told apart; close's difference (either sign) is within the scatter
+    assert [r["route"] for r in contenders([far, close, best], measured, best)] == ["best", "close"]
+    assert contenders([best], measured, best) == [best]
+    # two packings give no standard error: nothing is told apart
+    two = [{"route": r["route"], "curves": r["curves"][:2]} for r in (best, far)]
+    assert len(contenders(two, measured, two[0])) == 2
 
 
 def config_with(model, engine="builtin", diagnosis_enabled=True):
