@@ -593,16 +593,18 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
             f"DEM: {result['engine']} engine, size_scale {result['size_scale']:g} (parameters fitted at one scale are "
             f"effective values of that scale), runout read by {result['runout']['method']} ({stated}); the Bayesian "
             f"optimisation ran on packing seed {result['calibration_packing']}, the validation on "
-            f"{result['validation_packings']} others. The answer is the route of this model with the lower "
-            "validated MSE (so the choice, not each route's score, has seen the validation packings); the "
-            "diagnosis fit's time is the diagnosis job's, its design runs' DEM time aside.",
+            f"{result['validation_packings']} others. The answer is the route of this model with the lowest "
+            f"validated MSE on {result.get('answer_packings', result['validation_packings'])} packings (so the "
+            "choice, not each route's score, has seen the validation packings); the diagnosis fit's time is the "
+            "diagnosis job's, its design runs' DEM time aside.",
             "",
             f"![calibrated model of {result['name']}]({figure})",
             "",
         ]
         for extra_figure, what in (
             ("bayesopt.png", "Bayesian optimisation"),
-            ("doe_surface.png", "DoE response surface"),
+            ("doe_surface.png", "DoE response surface (face-centred CCD)"),
+            ("doe_full_factorial_surface.png", "DoE response surface (3-level full factorial)"),
             ("inverse_paths.png", "GNS inverse design"),
         ):
             if (Path(result["figure"]).parent / extra_figure).exists():
@@ -617,13 +619,13 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
         if transfer is not None:
             verdict = (
                 "the answer transfers."
-                if transfer["mse"] <= 2 * answer["mse"]
+                if transfer["mse"] <= 2 * score["mse"]
                 else "the parameters are effective values of their scale: recalibrate at the scale you run."
             )
             lines += [
                 f"**Scale transfer.** The same parameters one size_scale finer ({transfer['route']}): validated "
                 f"MSE **{transfer['mse']:.3g}** (each packing {format_span(transfer['mse_each'])}) against "
-                f"{answer['mse']:.3g} at size_scale {result['size_scale']:g}: {verdict}",
+                f"{score['mse']:.3g} at size_scale {result['size_scale']:g}: {verdict}",
                 "",
             ]
         p = result["prediction"]

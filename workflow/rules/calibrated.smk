@@ -322,6 +322,7 @@ rule calibrated_section:
         figures=expand("results/calibrated/{name}/calibrated.png", name=CALIBRATED_NAMES),
         predictions=expand("results/calibrated/{name}/prediction.png", name=CALIBRATED_NAMES),
         doe=expand("results/calibrated/{name}/doe_surface.png", name=CALIBRATED_NAMES),
+        doe_full_factorial=expand("results/calibrated/{name}/doe_full_factorial_surface.png", name=CALIBRATED_NAMES),
         inverse=expand("results/calibrated/{name}/inverse_paths.png", name=MODEL_GNS_NAMES),
         sensitivity=expand("results/calibrated/{name}/inverse_sensitivity.png", name=MODEL_GNS_NAMES),
         bayesopt=expand("results/calibrated/{name}/bayesopt.png", name=CALIBRATED_NAMES),
