@@ -298,15 +298,21 @@ def run_calibrated(
             zip(("mse_difference", "se"), mse_jackknife(route["curves"], column.runout, best["curves"]))
         )
     # the paper's claim, against each DoE route: the GNS route no worse than a DoE at no more DEM runs
+    # (on the runoff's packings where both ran there, else on the validation's)
+    runoff_curves = {r["key"]: r["curves"] for r in scored}
     gns_vs_doe = []
     for doe in [r for r in routes if r["key"].startswith("model-doe")] if gns is not None else []:
-        difference, se = mse_jackknife(gns["curves"], column.runout, doe["curves"])
+        mine, theirs = gns["curves"], doe["curves"]
+        if gns["key"] in runoff_curves and doe["key"] in runoff_curves:
+            mine, theirs = runoff_curves[gns["key"]], runoff_curves[doe["key"]]
+        difference, se = mse_jackknife(mine, column.runout, theirs)
         gns_vs_doe.append(
             {
                 "doe_key": doe["key"],
                 "doe_route": doe["route"],
                 "mse_difference": difference,
                 "se": se,
+                "packings": len(mine),
                 "gns_dem_runs": gns["dem_runs"],
                 "gns_own_dem_runs": gns.get("own_dem_runs"),  # without the base GNS's (shared with the paper's route)
                 "doe_dem_runs": doe["dem_runs"],
@@ -567,7 +573,8 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
             cost = "no more" if versus["gns_dem_runs"] <= versus["doe_dem_runs"] else "more"
             lines += [
                 f"**GNS against {versus['doe_route']}** (the paper's claim): validated MSE of the GNS route minus "
-                f"the DoE route's {versus['mse_difference']:+.3g} +- {format_se(versus['se'])} (paired), with "
+                f"the DoE route's {versus['mse_difference']:+.3g} +- {format_se(versus['se'])} (paired, on "
+                f"{versus.get('packings', result['validation_packings'])} packings), with "
                 f"{versus['gns_dem_runs']} DEM runs{own_runs_text(versus)} against {versus['doe_dem_runs']} "
                 f"({cost} DEM runs): {verdict}.",
                 "",
