@@ -426,7 +426,7 @@ def plot_runoff(result: dict, ax) -> None:
         tick.set_fontweight("bold" if r["route"] == result["answer"] else "normal")
     ax.set(xlabel="validated runout MSE", title="choosing the answer")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="best")
 
 
 def plot_prediction(result: dict, column: MeasuredColumn, path: StrPath) -> None:
