@@ -338,13 +338,14 @@ def validate(
 def contenders(routes: Sequence[dict], measured: ArrayLike, best: dict, z: float = 2.0) -> list[dict]:
     """The routes (Validation dicts on the same packings) not told apart from `best`: their MSE minus
     best's, paired packing by packing (mse_jackknife), within z standard errors; with no error (fewer
-    than 3 packings ran) every route is one. `best` comes first."""
+    than 3 packings both ran) every route that ran is one; a route with no packing in common with
+    best's is none. `best` comes first."""
     close = [best]
     for route in routes:
         if route is best:
             continue
         difference, se = mse_jackknife(route["curves"], measured, best["curves"])
-        if se is None or not math.isfinite(difference) or difference <= z * se:
+        if math.isfinite(difference) and (se is None or difference <= z * se):
             close.append(route)
     return close
 
@@ -361,8 +362,9 @@ def runoff(
 ) -> list[dict]:
     """Each route (a Validation dict of `model` with its parameters and curves on the first packings)
     run on the validation packings after its own up to n_packings in all and scored on all of them:
-    [{key, route, parameters, seeds, curves, failed, mse, mse_se, mse_each, shared_packings}] in the order given
-    (failed: {seed: reason}; curves None where a run failed). progress: callable(fraction done)."""
+    [{key, route, parameters, seeds, curves, failed, mse, mse_se, mse_each, shared_packings}] in the
+    order given (failed: {seed: reason}; curves None where a run failed). progress: callable(fraction
+    done)."""
     out = []
     for j, route in enumerate(routes):
         shared = len(route["seeds"])

@@ -197,6 +197,8 @@ def test_the_routes_not_told_apart_from_the_best_are_the_contenders():
     assert difference > 2 * se  # told apart; close's difference (either sign) is within the scatter
     assert [r["route"] for r in contenders([far, close, best], measured, best)] == ["best", "close"]
     assert contenders([best], measured, best) == [best]
+    failed = {"route": "failed everywhere", "curves": [None] * 6}  # no score: no contender
+    assert [r["route"] for r in contenders([best, failed, close], measured, best)] == ["best", "close"]
     # two packings give no standard error: nothing is told apart
     two = [{"route": r["route"], "curves": r["curves"][:2]} for r in (best, far)]
     assert len(contenders(two, measured, two[0])) == 2
