@@ -19,6 +19,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -48,6 +49,9 @@ from dem.plots import save_figure
 from dem.progress import progress_logger
 from pipeline.benchmarks import benchmark_seconds
 from pipeline.diagnosis import read_diagnosis
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
 
 log = logging.getLogger(__name__)
 BASE = ("friction", "restitution")
@@ -404,7 +408,7 @@ def plot_calibrated(result: dict, column: MeasuredColumn, path: StrPath) -> None
     save_figure(fig, path)
 
 
-def plot_runoff(result: dict, ax) -> None:
+def plot_runoff(result: dict, ax: Axes) -> None:
     """On `ax`: each runoff contender's MSE on the packings every route shared (open) and on all the
     runoff's (filled, +- its jackknife SE), the answer's in bold."""
     scored = result["runoff"]
