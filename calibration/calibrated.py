@@ -376,7 +376,6 @@ def runoff(
         )  # fmt: skip
         curves = list(route["curves"]) + more.curves
         mse, se = mse_jackknife(curves, column.runout)
-        each = [float(runout_mse(np.array(c), column.runout)) if c is not None else math.nan for c in curves]
         failed = {int(seed): why for seed, why in route["failed"].items()} | more.failed
         out.append(
             {
@@ -388,7 +387,7 @@ def runoff(
                 "failed": failed,
                 "mse": mse,
                 "mse_se": se,
-                "mse_each": each,
+                "mse_each": list(route["mse_each"]) + more.mse_each,
                 "shared_packings": shared,
             }
         )

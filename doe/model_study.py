@@ -105,11 +105,16 @@ def model_doe(
         if progress is not None:
             progress(done / len(design))
     responses = design.merge(pd.DataFrame(records), on="run_id")
-    designs = {CCD: responses[responses["ccd"]], **({FULL_FACTORIAL: responses} if full_factorial else {})}
+    designs = (CCD, FULL_FACTORIAL) if full_factorial else (CCD,)
     return responses, {
-        label: design_surface(runs, factors, model, label, column.name, centre_replicates)
-        for label, runs in designs.items()
+        label: design_surface(design_runs(responses, label), factors, model, label, column.name, centre_replicates)
+        for label in designs
     }
+
+
+def design_runs(responses: pd.DataFrame, design: str) -> pd.DataFrame:
+    """The rows of model_doe's responses that belong to `design` (CCD: those marked ccd; FULL_FACTORIAL: all)."""
+    return responses if design == FULL_FACTORIAL else responses[responses["ccd"]]
 
 
 def design_surface(

@@ -26,16 +26,11 @@ CELL = "padding: 2px 10px 2px 0; text-align: left; vertical-align: top"
 FIRST_SENTENCE = re.compile(r"(?<=[.:])\s+(?=[A-Z])")
 
 
-def answer_route(result: dict) -> dict:
-    """The route of calibrated.json `result` that is the answer (the model's lowest validated MSE)."""
-    return next(r for r in result["routes"] if r["route"] == result["answer"])
-
-
 def answer_html(result: dict, figure: StrPath | None = None) -> str:
     """The answer page of one measured column from its calibrated.json `result`, with the PNG at
     `figure` (calibrated.png) embedded under it when given."""
-    answer = answer_route(result)
     score = answer_score(result)
+    answer = score["route"]
     e = html.escape
     why = FIRST_SENTENCE.split(result["why"].strip(), maxsplit=1)[0]
     chosen = (

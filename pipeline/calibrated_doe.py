@@ -1,8 +1,8 @@
 """The DoE route of the calibrated model (workflow rule calibrated_doe): for one measured column,
 the face-centred central composite design over the calibrated model's parameters, one DEM run per
-point, the quadratic response surface and its optimum (doe/model_study.py); with the config's
-calibration.doe_full_factorial, also the 3-level full factorial from the same runs and the grid
-points the CCD lacks (k = 3: 30 runs, the GNS route's cost) -> results/calibrated/<name>/doe.json,
+point, the quadratic response surface and its optimum (doe/model_study.py); given its outputs (the
+rule always gives them), also the 3-level full factorial from the same runs and the grid points the
+CCD lacks (k = 3: 30 runs, the GNS route's cost) -> results/calibrated/<name>/doe.json,
 doe_responses.csv, doe_surface.png and doe_full_factorial.json, doe_full_factorial_surface.png (names
 are the rule's).
 """
@@ -18,7 +18,7 @@ from calibration.measured import load_column
 from dem.atomic import StrPath, write_json
 from dem.progress import progress_logger
 from dem.runout import RunoutMethod
-from doe.model_study import CCD, FULL_FACTORIAL, SURFACE, model_doe
+from doe.model_study import CCD, FULL_FACTORIAL, SURFACE, design_runs, model_doe
 from doe.plots import plot_surface_pairs
 from doe.study import write_responses
 
@@ -74,8 +74,8 @@ def run_model_doe(
         summary, fit = studies[design]
         results[design] = design_result(name, measured_path, column.name, model, why, settings, runout, dem, summary)
         write_json(path, results[design])
-        runs = responses if design == FULL_FACTORIAL else responses[responses["ccd"]]
-        plot_surface_pairs(fit, runs, figure, title=f"{name}: {model.name} model, DoE ({design})")
+        title = f"{name}: {model.name} model, DoE ({design})"
+        plot_surface_pairs(fit, design_runs(responses, design), figure, title=title)
         log.info("%s: DoE (%s) optimum %s (%s)", name, design, results[design]["optimum"], summary["failures"])
     log.info("%s: DoE stage done in %.0f s", name, time.perf_counter() - started)
     return results[CCD]
