@@ -101,15 +101,12 @@ def main():
     metadata = read_metadata(metadata_path)
     simulator = load_simulator(model_path, metadata)
     runout = RunoutMethod()  # the project's default (config key runout); the evaluation must match it
-    model_error = model_error_from_evaluation(
-        results / "gns" / args.dataset / "evaluation" / "summary.json"
-        if (results / "gns" / args.dataset / "evaluation" / "summary.json").exists()
-        else None,
-        runout,
-    )
+    evaluation = results / "gns" / args.dataset / "evaluation" / "summary.json"
+    evaluation = evaluation if evaluation.exists() else None
     trained = read_training_attrs(metadata)
     reference = trained[0]
     t_points = observation_times(float(reference.get("duration_over_tstar", 4.0)))
+    model_error = model_error_from_evaluation(evaluation, runout, t_points)
 
     t0 = time.perf_counter()
     start = simulate_collapse(case_like(reference, *PAPER_START, seed=TRUTH_SEED_OFFSET - 1))
@@ -130,7 +127,7 @@ def main():
         "rollout_steps": objective.n_steps,
         "t_over_tstar": t_points.tolist(),
         "dem_run_s": dem_s,
-        "model_error_std": model_error,
+        "model_error_std": None if model_error is None else model_error.tolist(),
         "timed_target": [float(v) for v in truth_params],
         "target_online_s": TARGET_ONLINE_S,
     }
@@ -184,7 +181,7 @@ def main():
             simulator,
             metadata,
             n_cases=args.cases,
-            model_error_std=model_error,
+            model_error=(lambda t: model_error_from_evaluation(evaluation, runout, t)) if evaluation else None,
             n_starts=args.recovery_starts,
             max_iterations=args.max_iterations,
             gradient=args.recovery_gradient,

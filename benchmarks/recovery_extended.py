@@ -12,8 +12,8 @@ target is the mean of `packings` builtin-DEM runs of the model at its truth (pac
 validation uses) plus measurement noise `noise` (L*, per point), stated with the std of such a mean
 (calibration.recovery.synthetic_measured). Each is recovered by calibration.inverse.inverse_design
 over every parameter of the model as the DAG's rule calibrated_inverse runs it (the config's
-calibration.gns_optimiser, gns_budget and start_packings), with the GNS's test-split runout error in
-the noise model. Per target and parameter it reports the estimate, the 95%
+calibration.gns_optimiser, gns_budget and start_packings), with the GNS's test-split runout error
+(per t/t* point) in the noise model. Per target and parameter it reports the estimate, the 95%
 interval, whether the truth lies inside, and the interval's half-width beside the half-width a
 perfect model of the mean response would give: the Cramer-Rao bound 1.96 sqrt(diag((J^T C^-1 J)^-1))
 with C the target's own noise (no model error) and J the Jacobian of L* at the optimum (the GNS's:
@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 import time
 from pathlib import Path
@@ -55,7 +54,7 @@ from gns.dataset import dataset_paths, read_metadata, read_training_attrs  # noq
 from gns.simulator import load_simulator  # noqa: E402
 from pipeline.calibrated_gns import start_packing_cases  # noqa: E402
 from pipeline.config import validate_config  # noqa: E402
-from pipeline.inverse_design import dataset_runs  # noqa: E402
+from pipeline.inverse_design import dataset_runs, model_error_from_evaluation  # noqa: E402
 
 TRUTH_SEED0 = 7001  # packings of the targets: no dataset's, calibration's or validation's
 
@@ -82,14 +81,15 @@ def main() -> None:
     column = load_column(args.measured or ROOT / f"data/measured/{args.name}_a6.csv")
     metadata = read_metadata(results / f"datasets/{dataset}/metadata.json")
     simulator = load_simulator(results / f"gns/{dataset}/train/model_best.pt", metadata)
-    evaluation = json.loads((results / f"gns/{dataset}/evaluation/summary.json").read_text())
-    model_error = math.sqrt(evaluation["runout_mse"])
+    evaluation_path = results / f"gns/{dataset}/evaluation/summary.json"
+    evaluation = json.loads(evaluation_path.read_text())
     start = read_trajectory(results / f"inverse/{args.name}/start.h5")
     start.attrs.setdefault(model.mechanism.parameter, model.mechanism.off_value(0.55, 0.73))
     # the rule calibrated_inverse's starts: the start run and packings of the model's dataset
     packings = start_packing_cases(section)
     starts = [start] + [read_trajectory(results / f"dem/{dataset}/trajectories/{c}.h5") for c in packings]
     runout = RunoutMethod.from_config(evaluation["runout"])
+    model_error = model_error_from_evaluation(evaluation_path, runout, column.t_over_tstar)  # [K]
     names = list(model.parameter_names)
     trained = np.array([metadata["parameter_ranges"][n] for n in names], float)
     inner = trained.mean(axis=1, keepdims=True) + 0.8 * (trained - trained.mean(axis=1, keepdims=True))
@@ -176,7 +176,7 @@ def main() -> None:
         "targets": args.targets,
         "packings": args.packings,
         "noise": args.noise,
-        "model_error_std": model_error,
+        "model_error_std": model_error.tolist(),
         "optimiser": section["gns_optimiser"],
         "start_packings": len(starts),
         "packing_std": packing_std.tolist(),

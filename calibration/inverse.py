@@ -112,11 +112,11 @@ def design_bounds(
 
 # -- the whole inverse design --------------------------------------------------------------------------
 def noise_level(
-    measured: MeasuredColumn, model_error_std: float | None, start_packing_std: ArrayLike | None = None
+    measured: MeasuredColumn, model_error_std: ArrayLike | None, start_packing_std: ArrayLike | None = None
 ) -> np.ndarray | None:
     """Noise std [K] of the posterior, or None (estimate from residuals) when the data give none.
 
-    The surrogate's own error (RMS of GNS - DEM L*, scalar) and the scatter of one packing's runout
+    The surrogate's own error (RMS of GNS - DEM L*, [K] or scalar) and the scatter of one packing's runout
     (start_packing_std, [K] or scalar, L*: every rollout starts from one packing, so the GNS
     predicts one packing's curve, not the mean over packings) add to the measured noise in
     quadrature: the posterior is of the DEM parameters, seen through an imperfect surrogate that
@@ -125,14 +125,15 @@ def noise_level(
     if measured.runout_std is None:
         return None
     packing = 0.0 if start_packing_std is None else np.asarray(start_packing_std, float)
-    return np.sqrt(np.asarray(measured.runout_std, float) ** 2 + (model_error_std or 0.0) ** 2 + packing**2)
+    model = 0.0 if model_error_std is None else np.asarray(model_error_std, float)
+    return np.sqrt(np.asarray(measured.runout_std, float) ** 2 + model**2 + packing**2)
 
 
 def posterior_at(
     objective: GNSObjective,
     optimum: ArrayLike,
     bounds: Sequence[Sequence[float]],
-    model_error_std: float | None = None,
+    model_error_std: ArrayLike | None = None,
     step: float | ArrayLike = JACOBIAN_STEP,
     start_packing_std: ArrayLike | None = None,
     untrusted: dict[str, str] | None = None,
@@ -207,7 +208,7 @@ def inverse_design(
     ftol: float = FTOL,
     gtol: float = GTOL,
     max_evaluations: int | None = None,
-    model_error_std: float | None = None,
+    model_error_std: ArrayLike | None = None,
     landscape_levels: int = 0,
     seed: int = 0,
     start_packing_std: ArrayLike | None = None,
@@ -348,7 +349,9 @@ def inverse_design(
         },
         n_batches=optimum.n_batches,
         landscape=grid,
-        model_error_std=model_error_std,
+        model_error_std=None
+        if model_error_std is None
+        else np.broadcast_to(model_error_std, measured.runout.shape).tolist(),
         roughness=roughness,
         start_packing_std=None
         if start_packing_std is None

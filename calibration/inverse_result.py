@@ -31,7 +31,7 @@ class InverseResult:
     seconds: dict  # optimisation, posterior, total (online), landscape
     n_batches: int
     landscape: dict | None = None  # {"axes": [[...], [...]], "values": [[...]]} GNS objective grid
-    model_error_std: float | None = None  # GNS runout error (L*) joined to the noise model
+    model_error_std: list | None = None  # GNS runout error of L* [K] joined to the noise model
     roughness: dict | None = None  # objective near the optimum (see posterior_at)
     start_packing_std: list | None = None  # packing scatter of L* [K] joined to the noise model
     runout: dict | None = None  # the runout method (dem.runout.RunoutMethod.to_config) every L* was read by

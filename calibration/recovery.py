@@ -23,7 +23,7 @@ from __future__ import annotations
 import logging
 import os
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -190,6 +190,7 @@ def recover_case(
         "packing_std": None if packing_std is None else np.broadcast_to(packing_std, measured.runout.shape).tolist(),
         "measured": measured.runout.tolist(),
         "measured_std": measured.runout_std.tolist(),
+        "posterior_std": result.posterior["sigma"],  # [K] the noise the posterior used (inverse.noise_level)
         "t_over_tstar": measured.t_over_tstar.tolist(),
         "seconds": seconds,
         "online_s": result.seconds["online"],
@@ -278,7 +279,7 @@ def recovery_study(
     metadata: dict,
     n_cases: int = 5,
     noise_std: float = 0.05,
-    model_error_std: float | None = None,
+    model_error: Callable[[np.ndarray], np.ndarray] | None = None,
     seed: int = 0,
     mu_tolerance: float = 0.03,
     start: Sequence[float] | None = None,
@@ -290,9 +291,11 @@ def recovery_study(
 ) -> dict:
     """Recover n_cases synthetic DEM targets of the GNS dataset's own column, each the mean of
     `packings` DEM runs; returns the summary (recovery_summary plus dataset, t/t* points, noise,
-    packing scatter and model error). bounds: as calibration.inverse.design_bounds (None: the
-    paper's, narrowed to the trained range). runout: how every L* is read (None: dem.runout's default);
-    dem_config: the engine of the DEM runs (the workflow's `dem` section; None: builtin)."""
+    packing scatter and model error). model_error: the GNS's runout error (L*) [K] at t/t* points [K]
+    (pipeline.inverse_design.model_error_from_evaluation; None: none joins the noise model). bounds:
+    as calibration.inverse.design_bounds (None: the paper's, narrowed to the trained range). runout:
+    how every L* is read (None: dem.runout's default); dem_config: the engine of the DEM runs (the
+    workflow's `dem` section; None: builtin)."""
     from calibration.inverse import design_bounds
     from calibration.lbfgsb import PAPER_START
     from dem.engines import simulate_case
@@ -302,6 +305,7 @@ def recovery_study(
     trained = read_training_attrs(metadata)
     reference = trained[0]
     t_points = observation_times(float(reference.get("duration_over_tstar", 4.0)))
+    model_error_std = None if model_error is None else np.asarray(model_error(t_points), float)
     start = start or PAPER_START
     bounds = design_bounds(bounds, list(DESIGN_NAMES), metadata["parameter_ranges"])
     log.info(
@@ -311,7 +315,7 @@ def recovery_study(
         packings,
         t_points.tolist(),
         noise_std,
-        model_error_std,
+        None if model_error_std is None else np.round(model_error_std, 3).tolist(),
     )
     start_run = simulate_case(
         case_like(reference, *start, seed=TRUTH_SEED_OFFSET - 1, name="recovery_start"), dem_config
@@ -368,7 +372,7 @@ def recovery_study(
         packings=packings,
         packing_std=packing_std.tolist(),
         packing_dof=packing_dof,
-        model_error_std=model_error_std,
+        model_error_std=None if model_error_std is None else model_error_std.tolist(),
         bounds=[list(b) for b in bounds],
         runout=runout.to_config(),
     )

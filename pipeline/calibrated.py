@@ -525,7 +525,7 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
             )
             lines += [
                 f"95% intervals of the GNS inverse design (its Laplace posterior about the GNS optimum; noise: the "
-                f"measured scatter and the GNS's own runout error on its test split): {spans}.",
+                f"measured scatter and the GNS's own runout error on its test split at each t/t* point): {spans}.",
                 "",
             ]
         for p in result.get("gns_sensitivity") or []:  # calibration.sensitivity: the GNS blind to a parameter

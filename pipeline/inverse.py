@@ -348,7 +348,12 @@ def report_section(
                 if scatter
                 else "The posterior's noise holds the noise"
             )
-            + ("" if model_error is None else f", and the GNS's own runout error {model_error:.3g}")
+            + (
+                ""
+                if model_error is None
+                else f", and the GNS's own runout error on its test split at each point, "
+                f"{min(model_error):.2g}-{max(model_error):.2g}"
+            )
             + f". mu within {summary['mu_tolerance']:g}: "
             f"**{summary['mu_within']} of {summary['n_cases']}**; truth inside both 95% intervals: "
             f"**{summary['truth_inside_95']} of {summary['n_cases']}** (target: all, and 4 of 5).",

@@ -9,7 +9,6 @@ calibration.recovery.
 from __future__ import annotations
 
 import json
-import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -28,19 +27,24 @@ from dem.atomic import StrPath, write_json
 from dem.runout import RunoutMethod, check_same_method
 from dem.trajectory import read_trajectory
 from gns.dataset import read_metadata, read_training_attrs
+from gns.evaluate import runout_error_at
 from gns.simulator import load_simulator
 from pipeline.inverse import START_NAMES
 
 
-def model_error_from_evaluation(path: StrPath | None, runout: RunoutMethod) -> float | None:
-    """RMS runout error (L*) of the GNS against the DEM on its test split (gns.evaluate's summary),
-    which must have been read by the same runout method."""
+def model_error_from_evaluation(
+    path: StrPath | None, runout: RunoutMethod, t_over_tstar: Sequence[float] | np.ndarray
+) -> np.ndarray | None:
+    """RMS runout error (L*) [K] of the GNS against the DEM on its test split at t/t* points [K]
+    (gns.evaluate's summary, which must have been read by the same runout method); None without one."""
     if not path:
         return None
     summary = json.loads(Path(path).read_text())
     check_same_method(summary.get("runout"), runout, f"GNS evaluation {path}")
-    value = summary.get("runout_mse")
-    return math.sqrt(value) if value is not None and math.isfinite(value) else None
+    try:
+        return runout_error_at(summary, t_over_tstar)
+    except ValueError as exc:
+        raise ValueError(f"GNS evaluation {path}: {exc}") from None
 
 
 def run_inverse_design(
@@ -88,7 +92,7 @@ def run_inverse_design(
     for packing in starts:  # a start run of the base model records no mechanism parameter
         packing.attrs = {**(start_values or {}), **packing.attrs}
     # the GNS's test-split error was read by the config's method; the design reads the column's way
-    model_error = model_error_from_evaluation(evaluation_path, RunoutMethod.from_config(runout))
+    model_error = model_error_from_evaluation(evaluation_path, RunoutMethod.from_config(runout), measured.t_over_tstar)
     runout = measured.runout_reading(runout)
     first_start = dict(zip(START_NAMES, settings["start"]))
     result = inverse_design(
@@ -161,7 +165,7 @@ def run_recovery(
     summary = recovery_study(
         load_simulator(model_path, metadata),
         metadata,
-        model_error_std=model_error_from_evaluation(evaluation_path, runout),
+        model_error=(lambda t: model_error_from_evaluation(evaluation_path, runout, t)) if evaluation_path else None,
         runout=runout,
         dem_config=dem,
         **study_kwargs,

@@ -21,7 +21,7 @@ from dem.runout import RunoutMethod
 from dem.trajectory import read_trajectory
 from gns.data import TrajectoryWindows
 from gns.dataset import DatasetError, read_metadata
-from gns.evaluate import evaluate_rollouts, rollout_runout_mse
+from gns.evaluate import evaluate_rollouts, rollout_runout_mse, runout_error_at
 from gns.settings import TrainSettings
 from gns.simulator import CheckpointError, load_simulator
 from gns.train import Trainer, train
@@ -225,6 +225,9 @@ def test_evaluation_rolls_out_test_cases_and_scores_them(trained, dataset, tmp_p
     # the evaluation scores the curves it drew; read afresh from the files they give the same MSE
     assert summary["runout_mse"] == pytest.approx(rollout_runout_mse(dem, written, CONNECTED), rel=1e-12)
     assert summary["runout"] == CONNECTED.to_config()  # the summary states how it read L*
+    # its curves give the error per t/t* point: at the frames, the MSE over frames again
+    t_frames = summary["runout_curves"][0]["t_over_tstar"]
+    assert np.mean(runout_error_at(summary, t_frames) ** 2) == pytest.approx(summary["runout_mse"], rel=1e-9)
     assert json.loads((tmp_path / "eval" / "summary.json").read_text())["runout"] == CONNECTED.to_config()
     # the stage's jobs: the same scores from the path lists, and the report section linking its figures
     gns_stage.evaluate([dem_path], [tmp_path / "rollout.h5"], tmp_path / "stage", CONNECTED)

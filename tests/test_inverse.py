@@ -35,7 +35,7 @@ from dem.collapse import simulate_collapse
 from dem.runout import METHODS, RunoutMethod, runout_at, runout_curve
 from dem.trajectory import read_attrs, read_trajectory, write_trajectory
 from gns.dataset import build_dataset, read_metadata, read_training_attrs
-from gns.evaluate import position_mse, rollout_runout_mse
+from gns.evaluate import position_mse
 from gns.rollout import rollout_trajectory
 from gns.runout import SOFT_TEMPERATURE, soft_runout_at, soft_top_k_mean
 from gns.settings import TrainSettings, simulator_config
@@ -711,7 +711,10 @@ def test_recovery_of_a_dem_target_on_the_tiny_column(trained_tiny_gns):
     t_points = observation_times(3.0)
     runout = RunoutMethod()  # the config's default, for the targets and the inverse design
     held_out = read_trajectory(metadata["splits"]["test"][0])
-    model_error = np.sqrt(rollout_runout_mse(held_out, rollout_trajectory(simulator, held_out), runout))
+    # the GNS's error at each t/t* point (one held-out case: its absolute difference)
+    model_error = np.abs(
+        runout_at(rollout_trajectory(simulator, held_out), t_points, runout) - runout_at(held_out, t_points, runout)
+    )
     curves = np.array([runout_at(t, t_points, runout) for t in truths])
     row = recover_case(
         simulator,
@@ -731,6 +734,8 @@ def test_recovery_of_a_dem_target_on_the_tiny_column(trained_tiny_gns):
     scatter = np.abs(curves[0] - curves[1]) / np.sqrt(2)
     assert row["packings"] == 2 and np.allclose(row["packing_std"], scatter)
     assert np.allclose(row["measured_std"], np.sqrt(0.05**2 + scatter**2 / 2))
+    # the posterior's noise: the target's, the GNS's error at each point and the scatter of the packing it rolls out
+    assert np.allclose(row["posterior_std"], np.sqrt(np.square(row["measured_std"]) + model_error**2 + scatter**2))
     assert np.abs(np.array(row["measured"]) - curves.mean(0)).max() < 4 * 0.05
     assert row["objective"] < row["start_objective"]
     # the estimate is the optimiser's fit: the GNS objective there is the reported one, and no worse

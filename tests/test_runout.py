@@ -312,14 +312,25 @@ def test_doe_responses_read_by_another_method_are_refused(tmp_path):
 def test_gns_evaluation_read_by_another_method_is_refused(tmp_path):
     method = RunoutMethod()
     summary = tmp_path / "summary.json"
-    summary.write_text(json.dumps({"runout": method.to_config(), "runout_mse": 0.04}))
-    assert model_error_from_evaluation(summary, method) == pytest.approx(0.2)
-    assert model_error_from_evaluation(None, method) is None
+    # two test cases: the GNS 0.3 and 0.4 ahead of the DEM at t/t* = 2, on time at 0
+    curves = [
+        {"case": "a", "t_over_tstar": [0.0, 2.0], "dem": [0.0, 5.0], "gns": [0.0, 5.3]},
+        {"case": "b", "t_over_tstar": [0.0, 2.0], "dem": [0.0, 4.0], "gns": [0.0, 3.6]},
+    ]
+    summary.write_text(json.dumps({"runout": method.to_config(), "runout_mse": 0.04, "runout_curves": curves}))
+    # the error per point, RMS over the cases (interpolated between frames), not one number for all
+    assert model_error_from_evaluation(summary, method, [0.0, 1.0, 2.0]) == pytest.approx(
+        [0.0, np.sqrt((0.15**2 + 0.2**2) / 2), np.sqrt((0.3**2 + 0.4**2) / 2)]
+    )
+    assert model_error_from_evaluation(None, method, [1.0]) is None
     with pytest.raises(RunoutError, match=r"GNS evaluation .*summary\.json: scored with runout"):
-        model_error_from_evaluation(summary, RunoutMethod("dense_front"))
+        model_error_from_evaluation(summary, RunoutMethod("dense_front"), [1.0])
+    summary.write_text(json.dumps({"runout": method.to_config(), "runout_mse": 0.04}))
+    with pytest.raises(ValueError, match=r"GNS evaluation .*summary\.json: .*no runout curves"):
+        model_error_from_evaluation(summary, method, [1.0])
     summary.write_text(json.dumps({"runout_mse": 0.04}))
     with pytest.raises(RunoutError, match=r"summary\.json: states no runout method"):
-        model_error_from_evaluation(summary, method)
+        model_error_from_evaluation(summary, method, [1.0])
 
 
 def _columns():

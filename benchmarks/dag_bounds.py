@@ -1,0 +1,121 @@
+"""How fast a finished DAG run could have been: its work bound and its critical path; prints JSON.
+
+    python benchmarks/dag_bounds.py LOG [--root DIR] [--cores 2] [--target-minutes 30]
+
+LOG: the Snakemake log of one run (`.snakemake/log/*.snakemake.log`, or what `bash run.sh main`
+printed); DIR: the folder it ran in (the benchmark TSVs are read relative to it). Each job's seconds
+are its benchmark file's wall time (`s`) and CPU time; the jobs' inputs and outputs, as the log
+lists them, give the DAG's edges. Two lower bounds on the wall time follow, whatever the scheduler:
+the work bound (the jobs' seconds over the cores) and the critical path (the longest chain of jobs,
+each waiting for the outputs of the one before). Issue 15's target, the default DAG under 30
+minutes on 2 cores, is out of reach on a machine where either bound exceeds it; the path says
+which jobs a trim must shorten.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import re
+from pathlib import Path
+
+RULE = re.compile(r"^(?:local)?rule (\w+):$")
+FIELD = re.compile(r"^\s+(input|output|benchmark|jobid|wildcards): (.*)$")
+
+
+def parse_jobs(log: Path) -> list[dict]:
+    """[{rule, jobid, input [paths], output [paths], benchmark, wildcards}] of the jobs the log started."""
+    jobs, job = [], None
+    for line in log.read_text().splitlines():
+        match = RULE.match(line)
+        if match:
+            job = {"rule": match.group(1), "input": [], "output": [], "benchmark": None, "wildcards": ""}
+            jobs.append(job)
+            continue
+        match = FIELD.match(line)
+        if job is not None and match:
+            key, value = match.groups()
+            if key in ("input", "output"):
+                job[key] = [p.strip() for p in value.split(",") if p.strip()]
+            else:
+                job[key] = value.strip()
+        elif job is not None and not line.startswith(" "):
+            job = None
+    return jobs
+
+
+def job_seconds(path: Path) -> tuple[float, float]:
+    """(wall s, CPU s) of one Snakemake benchmark TSV (its first row)."""
+    with path.open() as f:
+        row = next(csv.DictReader(f, delimiter="\t"))
+    cpu = row.get("cpu_time", "NA")
+    return float(row["s"]), float(cpu) if cpu not in ("NA", "") else float("nan")
+
+
+def critical_path(jobs: list[dict]) -> tuple[float, list[dict]]:
+    """(seconds, [job]) of the longest chain, each job after the producers of its inputs."""
+    producer = {path: k for k, job in enumerate(jobs) for path in job["output"]}
+    finish: dict[int, tuple[float, int | None]] = {}
+
+    def finish_of(k: int) -> tuple[float, int | None]:
+        if k not in finish:
+            before = [(finish_of(producer[p])[0], producer[p]) for p in jobs[k]["input"] if p in producer]
+            start, previous = max(before, default=(0.0, None))
+            finish[k] = (start + jobs[k]["seconds"], previous)
+        return finish[k]
+
+    for k in range(len(jobs)):  # in log order: a producer is started before its consumers
+        finish_of(k)
+    last = max(finish, key=lambda k: finish[k][0])
+    chain, k = [], last
+    while k is not None:
+        chain.append(jobs[k])
+        k = finish[k][1]
+    return finish[last][0], chain[::-1]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("log", type=Path)
+    parser.add_argument("--root", type=Path, default=Path("."), help="the folder the DAG ran in")
+    parser.add_argument("--cores", type=int, default=2)
+    parser.add_argument("--target-minutes", type=float, default=30.0)
+    args = parser.parse_args()
+    jobs = parse_jobs(args.log)
+    missing = [job["rule"] for job in jobs if not job["benchmark"] or not (args.root / job["benchmark"]).exists()]
+    jobs = [job for job in jobs if job["benchmark"] and (args.root / job["benchmark"]).exists()]
+    if not jobs:
+        raise SystemExit(f"{args.log}: no job with a benchmark file under {args.root}")
+    for job in jobs:
+        job["seconds"], job["cpu_seconds"] = job_seconds(args.root / job["benchmark"])
+    work = sum(job["seconds"] for job in jobs)
+    cpu = sum(job["cpu_seconds"] for job in jobs if job["cpu_seconds"] == job["cpu_seconds"])
+    path_seconds, path = critical_path(jobs)
+    bounds = {"work": work / args.cores / 60, "critical_path": path_seconds / 60}
+    print(
+        json.dumps(
+            {
+                "log": str(args.log),
+                "jobs": len(jobs),
+                "jobs_without_benchmark": sorted(set(missing)),
+                "cores": args.cores,
+                "work_job_seconds": round(work, 1),
+                "work_cpu_seconds": round(cpu, 1),
+                "work_bound_minutes": round(bounds["work"], 1),
+                "critical_path_minutes": round(bounds["critical_path"], 1),
+                "lower_bound_minutes": round(max(bounds.values()), 1),
+                "target_minutes": args.target_minutes,
+                "target_reachable": max(bounds.values()) <= args.target_minutes,
+                "critical_path": [
+                    {"rule": job["rule"], "wildcards": job["wildcards"], "seconds": round(job["seconds"], 1)}
+                    for job in path
+                ],
+            },
+            indent=1,
+        )
+    )
+
+
+if __name__ == "__main__":
+    main()
