@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from dem.atomic import StrPath, write_text
-from pipeline.calibrated import answer_score, format_se, format_span
+from pipeline.calibrated import answer_score, format_se, format_span, transfer_holds
 
 CELL = "padding: 2px 10px 2px 0; text-align: left; vertical-align: top"
 FIRST_SENTENCE = re.compile(r"(?<=[.:])\s+(?=[A-Z])")
@@ -49,7 +49,7 @@ def answer_html(result: dict, figure: StrPath | None = None) -> str:
         f"<p><b>How well.</b> DEM runs at these parameters reproduce the measured runout "
         f"({e(result['column'])}) with MSE <b>{score['mse']:.3g}</b> &plusmn; {format_se(score['mse_se'])} "
         f"(jackknife SE) on the mean L* of {score['n_ran']} packings the calibration never saw; each packing "
-        f"alone {format_span(score['mse_each'])}.{chosen}{_transfer(result, score['mse'])}</p>",
+        f"alone {format_span(score['mse_each'])}.{chosen}{_transfer(result, score)}</p>",
         f"<p><b>What it cost.</b> This route: {_runs(answer)} DEM runs and "
         f"{_duration(answer['calibration_seconds'])} to calibrate ({result['engine']} engine, size_scale "
         f"{result['size_scale']:g}). Every route, validated on the same packings:</p>",
@@ -111,12 +111,14 @@ def _interval(p: dict | None) -> str:
     return f"[{p['low']:.3g}, {p['high']:.3g}]" + ("" if p["identifiable"] else " not identifiable")
 
 
-def _transfer(result: dict, answer_mse: float) -> str:
+def _transfer(result: dict, score: dict) -> str:
     transfer = result.get("transfer")
     if not transfer or not math.isfinite(transfer["mse"]):
         return ""
-    return f" One size_scale finer the same parameters score MSE {transfer['mse']:.3g}" + (
-        ": the answer transfers." if transfer["mse"] <= 2 * answer_mse else ": recalibrate at the scale you run."
+    return (
+        f" One size_scale finer the same parameters score MSE {transfer['mse']:.3g} (here "
+        f"{score['shared_mse']:.3g} on as many packings)"
+        + (": the answer transfers." if transfer_holds(transfer, score) else ": recalibrate at the scale you run.")
     )
 
 

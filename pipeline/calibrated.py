@@ -484,6 +484,13 @@ def answer_score(result: dict) -> dict:
     }
 
 
+def transfer_holds(transfer: dict, score: dict) -> bool:
+    """Whether the answer transfers one size_scale finer (calibrated.json's `transfer` and answer_score's
+    `score`): its MSE there at most twice the answer's at its own scale on as many packings (the
+    validation's, not the runoff's: a mean over more packings scores lower by its smaller scatter)."""
+    return transfer["mse"] <= 2 * score["shared_mse"]
+
+
 def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
     """The report's first section: the answer per measured column."""
     lines = [
@@ -630,13 +637,13 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
         if transfer is not None:
             verdict = (
                 "the answer transfers."
-                if transfer["mse"] <= 2 * score["mse"]
+                if transfer_holds(transfer, score)
                 else "the parameters are effective values of their scale: recalibrate at the scale you run."
             )
             lines += [
                 f"**Scale transfer.** The same parameters one size_scale finer ({transfer['route']}): validated "
                 f"MSE **{transfer['mse']:.3g}** (each packing {format_span(transfer['mse_each'])}) against "
-                f"{score['mse']:.3g} at size_scale {result['size_scale']:g}: {verdict}",
+                f"{score['shared_mse']:.3g} at size_scale {result['size_scale']:g} on as many packings: {verdict}",
                 "",
             ]
         p = result["prediction"]

@@ -25,7 +25,14 @@ from calibration.objective import runout_mse
 from dem.atomic import write_json
 from dem.engines.liggghts import LiggghtsEngine
 from dem.runout import RunoutMethod
-from pipeline.calibrated import choose_model, run_calibrated, run_model_bayesopt, run_section, run_validation
+from pipeline.calibrated import (
+    choose_model,
+    run_calibrated,
+    run_model_bayesopt,
+    run_section,
+    run_validation,
+    transfer_holds,
+)
 from pipeline.calibrated_doe import run_model_doe
 from pipeline.config import ConfigError, check_calibration
 
@@ -175,6 +182,10 @@ def test_the_stage_writes_its_answer_figure_and_report_section(tmp_path):
     text = (tmp_path / "report" / "calibrated.md").read_text()
     assert "### tiny: base model" in text and "](../calibrated/calibrated.png)" in text
     assert f"validated runout MSE **{scored[route['key']]['mse']:.3g}**" in text and "**Scale transfer.**" in text
+    # the finer scale is set against the answer on as many packings (its validation's), not the runoff's
+    assert f"against {route['mse']:.3g} at size_scale 4 on as many packings" in text
+    assert transfer_holds({"mse": 0.15}, {"mse": 0.05, "shared_mse": 0.1})
+    assert not transfer_holds({"mse": 0.25}, {"mse": 0.05, "shared_mse": 0.1})
     assert "How the answer was chosen" in text and "on the mean of 3 packings" in text
     assert "| final L* | " in text and "](../calibrated/prediction.png)" in text
     assert (
