@@ -36,11 +36,14 @@ def model_error_from_evaluation(
     path: StrPath | None, runout: RunoutMethod, t_over_tstar: Sequence[float] | np.ndarray
 ) -> np.ndarray | None:
     """RMS runout error (L*) [K] of the GNS against the DEM on its test split at t/t* points [K]
-    (gns.evaluate's summary, which must have been read by the same runout method); None without one."""
+    (gns.evaluate's summary, which must have been read by the same runout method); None without one,
+    or where every test rollout failed (no error measured: the posterior's noise goes without it)."""
     if not path:
         return None
     summary = json.loads(Path(path).read_text())
     check_same_method(summary.get("runout"), runout, f"GNS evaluation {path}")
+    if summary.get("runout_curves") == [] and summary.get("n_failed") == summary.get("n_cases"):
+        return None
     try:
         return runout_error_at(summary, t_over_tstar)
     except ValueError as exc:

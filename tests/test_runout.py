@@ -328,6 +328,10 @@ def test_gns_evaluation_read_by_another_method_is_refused(tmp_path):
     summary.write_text(json.dumps({"runout": method.to_config(), "runout_mse": 0.04}))
     with pytest.raises(ValueError, match=r"GNS evaluation .*summary\.json: .*no runout curves"):
         model_error_from_evaluation(summary, method, [1.0])
+    # every test rollout failed: no error measured, none joins the noise (as a NaN runout MSE did)
+    failed = {"runout": method.to_config(), "runout_mse": None, "n_cases": 2, "n_failed": 2, "runout_curves": []}
+    summary.write_text(json.dumps(failed))
+    assert model_error_from_evaluation(summary, method, [1.0]) is None
     summary.write_text(json.dumps({"runout_mse": 0.04}))
     with pytest.raises(RunoutError, match=r"summary\.json: states no runout method"):
         model_error_from_evaluation(summary, method, [1.0])
