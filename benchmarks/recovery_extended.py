@@ -176,7 +176,7 @@ def main() -> None:
         "targets": args.targets,
         "packings": args.packings,
         "noise": args.noise,
-        "model_error_std": model_error.tolist(),
+        "model_error_std": None if model_error is None else model_error.tolist(),
         "optimiser": section["gns_optimiser"],
         "start_packings": len(starts),
         "packing_std": packing_std.tolist(),

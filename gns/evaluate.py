@@ -125,17 +125,20 @@ def evaluate_rollouts(
     return summary
 
 
-def runout_error_at(summary: dict, t_over_tstar: Sequence[float] | np.ndarray) -> np.ndarray:
+def runout_error_at(summary: dict, t_over_tstar: Sequence[float] | np.ndarray) -> np.ndarray | None:
     """RMS over the summary's valid cases of L*_GNS - L*_DEM [K] at t/t* points [K], each case's
-    curves interpolated there. Per point, not over the whole curve: the error grows as the collapse
-    spreads (0.01 at t/t* = 0.5, 0.7 at 3.5 for the calibrated quartz model's GNS), and one number
-    for every point would swamp the early points' information."""
-    curves = summary.get("runout_curves")
-    if not curves:
+    curves interpolated there; None when no case was valid (every rollout failed: no error measured).
+    Per point, not over the whole curve: the error grows as the collapse spreads (0.01 at t/t* = 0.5,
+    0.7 at 3.5 for the calibrated quartz model's GNS), and one number for every point would swamp
+    the early points' information."""
+    if "runout_curves" not in summary:
         raise ValueError(
-            "the GNS evaluation summary holds no runout curves of valid cases (written before they were kept, "
-            "or every rollout failed): rerun the GNS evaluation"
+            "the GNS evaluation summary holds no runout curves (written before they were kept): rerun the GNS "
+            "evaluation"
         )
+    curves = summary["runout_curves"]
+    if not curves:
+        return None
     t_query = np.asarray(t_over_tstar, float)
     errors = [
         np.interp(t_query, c["t_over_tstar"], c["gns"]) - np.interp(t_query, c["t_over_tstar"], c["dem"])

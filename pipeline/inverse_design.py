@@ -42,8 +42,6 @@ def model_error_from_evaluation(
         return None
     summary = json.loads(Path(path).read_text())
     check_same_method(summary.get("runout"), runout, f"GNS evaluation {path}")
-    if summary.get("runout_curves") == [] and summary.get("n_failed") == summary.get("n_cases"):
-        return None
     try:
         return runout_error_at(summary, t_over_tstar)
     except ValueError as exc:
