@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import math
 import re
 from pathlib import Path
 
@@ -82,15 +83,16 @@ def main() -> None:
     parser.add_argument("--cores", type=int, default=2)
     parser.add_argument("--target-minutes", type=float, default=30.0)
     args = parser.parse_args()
-    jobs = parse_jobs(args.log)
-    missing = [job["rule"] for job in jobs if not job["benchmark"] or not (args.root / job["benchmark"]).exists()]
-    jobs = [job for job in jobs if job["benchmark"] and (args.root / job["benchmark"]).exists()]
+    parsed = parse_jobs(args.log)
+    timed = [bool(job["benchmark"]) and (args.root / job["benchmark"]).exists() for job in parsed]
+    missing = [job["rule"] for job, ok in zip(parsed, timed) if not ok]
+    jobs = [job for job, ok in zip(parsed, timed) if ok]
     if not jobs:
         raise SystemExit(f"{args.log}: no job with a benchmark file under {args.root}")
     for job in jobs:
         job["seconds"], job["cpu_seconds"] = job_seconds(args.root / job["benchmark"])
     work = sum(job["seconds"] for job in jobs)
-    cpu = sum(job["cpu_seconds"] for job in jobs if job["cpu_seconds"] == job["cpu_seconds"])
+    cpu = sum(job["cpu_seconds"] for job in jobs if math.isfinite(job["cpu_seconds"]))
     path_seconds, path = critical_path(jobs)
     bounds = {"work": work / args.cores / 60, "critical_path": path_seconds / 60}
     print(
