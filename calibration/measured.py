@@ -29,12 +29,15 @@ Schema (full description and examples in data/measured/README.md). A CSV file in
   density       kg/m^3, solid_fraction (-): a material not in dem.case.MATERIALS, one value per
                 column, with its grain_diameter (empty for a material of the table)
 
-Each column needs at least two runout points; material, aspect_ratio and L_i must agree on every
-row of a column. Every error names the file, the line and the CSV column that is wrong.
+The file is UTF-8 (a byte-order mark, as a spreadsheet's "CSV UTF-8" writes one, is read past) and
+its delimiter is ','. Each column needs at least two runout points; material, aspect_ratio and L_i
+must agree on every row of a column; L* is a plain ratio, not metres nor percent. Every error names
+the file, the line and the CSV column that is wrong.
 """
 
 from __future__ import annotations
 
+import codecs
 import csv
 import dataclasses
 import math
@@ -57,6 +60,7 @@ PROFILE_READING = ("read_at", "bin_width")  # how a profile was read: one value 
 RUNOUT_READING = "runout_method"  # how the runout was read: one dem.runout method per column, or none
 KINDS = ("runout", "profile")
 MAX_L_I = 1.0  # m; a column length above this is almost surely given in mm or cm
+OTHER_DELIMITERS = {";": "';'", "\t": "a tab"}  # how a spreadsheet may save a CSV, by the name a message gives
 
 
 class MeasuredDataError(ValueError):
@@ -232,12 +236,12 @@ def load_column(path: str | os.PathLike, name: str | None = None) -> MeasuredCol
 # -- parsing -------------------------------------------------------------------------------------
 def _read_rows(path: Path) -> list[tuple[int, dict]]:
     """(line number, {field: raw string}) for every data row; checks the header."""
-    with open(path, newline="", encoding="utf-8") as handle:
-        lines = list(enumerate(handle, start=1))
+    lines = _read_lines(path)
     content = [(n, text) for n, text in lines if text.strip() and not text.lstrip().startswith("#")]
     if not content:
         raise MeasuredDataError(f"{path}: empty file (no header line)")
     header_line, header_text = content[0]
+    _check_delimiter(path, header_line, header_text)
     header = [name.strip() for name in next(csv.reader([header_text]))]
     missing = [name for name in REQUIRED_FIELDS if name not in header]
     if missing:
@@ -260,6 +264,45 @@ def _read_rows(path: Path) -> list[tuple[int, dict]]:
             raise MeasuredDataError(f"{path}, line {line}: {len(cells)} fields, the header has {len(header)}")
         rows.append((line, dict(zip(header, cells))))
     return rows
+
+
+def _read_lines(path: Path) -> list[tuple[int, str]]:
+    """(line number, text) of every line of `path`, read as UTF-8; a byte-order mark at the start (a
+    spreadsheet's "CSV UTF-8") is read past, a byte that is not UTF-8 is an error naming its line."""
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as handle:
+            return list(enumerate(handle, start=1))
+    except UnicodeDecodeError:
+        raise _not_utf8(path) from None
+
+
+def _not_utf8(path: Path) -> MeasuredDataError:
+    """The error for a file that is not UTF-8, naming the first line that is not and its byte."""
+    raw = path.read_bytes().removeprefix(codecs.BOM_UTF8)
+    for line, text in enumerate(raw.splitlines(keepends=True), start=1):
+        try:
+            text.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            byte = text[exc.start : exc.start + 1]
+            return MeasuredDataError(
+                f"{path}, line {line}: byte 0x{byte.hex()} (byte {exc.start + 1} of the line) is not UTF-8 (read as "
+                f"Latin-1 it is {byte.decode('latin-1')!r}: the file was saved in another encoding); save it as "
+                "UTF-8 (a spreadsheet's CSV UTF-8 format)"
+            )
+    return MeasuredDataError(f"{path}: not UTF-8; save it as UTF-8 (a spreadsheet's CSV UTF-8 format)")
+
+
+def _check_delimiter(path: Path, line: int, header_text: str) -> None:
+    """The schema's delimiter is ','. A header without one, split by ';' (as a spreadsheet saves a CSV
+    in a locale whose decimal mark is ',') or by tabs, is an error naming the delimiter it uses."""
+    if "," in header_text:
+        return
+    for delimiter, name in OTHER_DELIMITERS.items():
+        if delimiter in header_text:
+            raise MeasuredDataError(
+                f"{path}, line {line}: the header's fields are separated by {name}; the schema's delimiter is ',' "
+                "(and its decimal mark '.'): save the file as CSV with ',' between fields"
+            )
 
 
 def _number(path, line, field, text, allow_empty=False) -> float:
@@ -313,6 +356,11 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
         if kind not in KINDS:
             raise MeasuredDataError(f"{path}, line {line}, column 'kind': {kind!r} is not one of {list(KINDS)}")
         x = _number(path, line, "x", row["x"])
+        if kind == "runout" and row["value"].endswith("%"):
+            raise MeasuredDataError(
+                f"{path}, line {line}, column 'value': {row['value']!r} is a percentage; give L* = (L - L_i)/L_i "
+                "as a fraction (250% is 2.5)"
+            )
         value = _number(path, line, "value", row["value"])
         std = _number(path, line, "std", row.get("std", ""), allow_empty=True)
         reading = {f: _number(path, line, f, row.get(f, ""), allow_empty=True) for f in PROFILE_READING}
@@ -494,17 +542,27 @@ def _series(path, name, points, what, min_points):
 
 
 def _check_runout_units(path, column: MeasuredColumn, line: int) -> None:
-    """Catch runout given in metres (L or L - L_i) instead of the dimensionless L*.
+    """Catch runout given in metres (L or L - L_i) or in percent instead of the dimensionless L*.
 
     A metre-valued runout of a lab column is a few L_i, so every value is below 0.5 and, divided by
     L_i, it becomes a plausible L* for the column's aspect ratio, while read as L* it is far too
-    short. Only late curves (t/t* >= 2, front near its final position) are judged: earlier the front
-    has not gone far and small values are genuine.
+    short. Only late curves (t/t* >= 2, front near its final position) are judged for metres: earlier
+    the front has not gone far and small values are genuine. A percent-valued runout, divided by 100,
+    is a plausible L* (at least a quarter of the final runout the scaling gives), so read as L* it is
+    at least 25x that final runout, which no front reaches at any time (a runout more than 4x away
+    from it already warns): curves of any length are judged for percent.
     """
-    if column.t_over_tstar[-1] < 2.0:
-        return
     expected = expected_final_runout(column.aspect_ratio)
     reached = float(np.max(column.runout))
+    if reached > 4 * expected and expected / 4 <= reached / 100 <= 4 * expected + 1:
+        raise MeasuredDataError(
+            f"{path}, line {line}, column 'value': runout of {column.name!r} peaks at {reached:g}, yet a column of "
+            f"a = {column.aspect_ratio:g} runs out to L* ~ {expected:.2g}; divided by 100 it would be "
+            f"{reached / 100:.3g}. The values look like percent; give L* = (L - L_i)/L_i as a fraction instead "
+            "(250% is 2.5)"
+        )
+    if column.t_over_tstar[-1] < 2.0:
+        return
     if reached < 0.5 and reached < expected / 4 and expected / 4 <= reached / column.L_i <= 4 * expected + 1:
         raise MeasuredDataError(
             f"{path}, line {line}, column 'value': runout of {column.name!r} peaks at {reached:g}, yet a column of "

@@ -47,6 +47,12 @@ UNITS_FACTOR = 3.0
 # the errors from its own scatter about the line (growing_curve).
 GROWTH_T = 3.0
 BIAS_Z = 2.0  # |sum of z| / sqrt(n) above this: a group's residuals are biased
+# What the diagnosis needs of the data (check_data). Per column, a curve, not a point: a line through two
+# points leaves no scatter to judge its growth by (growing_curve), nor a misfit after the fit of friction and
+# restitution. Per file, this many measured values beyond the parameters of its largest model, or no
+# chi^2 and BIC are left to compare models with. pipeline.config checks both before any job runs.
+MIN_RUNOUT_POINTS = 3
+MIN_SPARE_VALUES = 3
 
 
 class DiagnosisError(ValueError):
@@ -187,15 +193,15 @@ def check_data(observables: Observables, library: Library, models: list[Model], 
     """Errors for data the diagnosis cannot judge; warnings [str] for doubtful data."""
     largest = max(m.n_parameters for m in models)
     for c in observables.columns:
-        if len(c.t_over_tstar) < 3:
+        if len(c.t_over_tstar) < MIN_RUNOUT_POINTS:
             raise DiagnosisError(
                 f"column {c.name!r} ({c.source}): {len(c.t_over_tstar)} runout point(s); the "
-                "diagnosis needs at least 3 per column (a curve, not a point)"
+                f"diagnosis needs at least {MIN_RUNOUT_POINTS} per column (a curve, not a point)"
             )
-    if observables.size < largest + 3:
+    if observables.size < largest + MIN_SPARE_VALUES:
         raise DiagnosisError(
             f"{observables.size} measured values for models of up to {largest} parameters: "
-            "too few to compare models (need at least parameters + 3)"
+            f"too few to compare models (need at least parameters + {MIN_SPARE_VALUES})"
         )
     # Units. A runout given in metres (L - L_i = L* L_i) is far below every base-model run (which
     # always collapses), grows like a runout, and divided by L_i becomes a plausible L*. (A

@@ -1,6 +1,7 @@
 """Config validation, in one place: the schema check and the checks across keys.
 
-`validate_config` checks a config against workflow/schemas/config.schema.yaml, adds the checks the
+`validate_config` reads the numbers, booleans and nulls Snakemake's --config leaves as strings in
+nested sections, checks a config against workflow/schemas/config.schema.yaml, adds the checks the
 schema cannot express (range order, split fractions, overrides' case ids, each gns.per_dataset
 entry as the gns section it makes, the runout method) and fills the defaults. `check_cross_keys`
 then checks the keys that name another key's entries (a dataset, a `measured` entry, a GNS) against
@@ -22,9 +23,11 @@ from pathlib import Path
 import jsonschema
 import yaml
 
+from calibration.design_runs import Model
 from calibration.geometry import InverseDesignError, check_geometry_of_dataset, nearest_dataset
 from calibration.measured import MeasuredColumn, MeasuredDataError, MeasuredDataWarning, load_column, read_measured
 from calibration.mechanisms import get_mechanisms
+from calibration.residuals import MIN_RUNOUT_POINTS, MIN_SPARE_VALUES
 from dem.case import (
     RENAMED_CASE_KEYS,
     CaseError,
@@ -60,11 +63,12 @@ __all__ = [
 def validate_config(config: dict, schema_path: str | os.PathLike) -> dict:
     """Check `config` against the JSON schema at `schema_path` and fill its defaults.
 
-    Returns a new dict. Raises ConfigError listing every problem as `key.path: message`, with the
-    allowed values (enum, bounds, known keys) in the message.
+    Returns a new dict, with the strings of the command line read (_read_command_line). Raises
+    ConfigError listing every problem as `key.path: message`, with the allowed values (enum, bounds,
+    known keys) in the message.
     """
     schema = yaml.safe_load(Path(schema_path).read_text())
-    config = copy.deepcopy(dict(config))
+    config = _read_command_line(copy.deepcopy(dict(config)), schema)
     renamed = _renamed_keys(config)
     if renamed:  # before the schema, whose "unexpected key" would not say what the key is now called
         raise ConfigError("invalid config:\n  " + "\n  ".join(renamed))
@@ -87,6 +91,72 @@ def validate_config(config: dict, schema_path: str | os.PathLike) -> dict:
     if problems:
         raise ConfigError("invalid config:\n  " + "\n  ".join(problems))
     return config
+
+
+# --- values given on the command line -------------------------------------------------------------
+SCALAR_TYPES = ("integer", "number", "boolean", "null")  # schema types a command-line string may stand for
+
+
+def _read_command_line(config: dict, schema: dict) -> dict:
+    """`config` with every string YAML reads as a number, boolean or null read so where the schema
+    expects one and no string (each gns.per_dataset entry by the gns section's schema).
+
+    Snakemake reads a --config value with YAML's BaseLoader, which keeps every scalar inside it a
+    string: `--config dem='{threads: 2}'` arrives as {"threads": "2"}, merged into the configfile's.
+    """
+    config = _read_strings(config, schema, schema)
+    gns = config.get("gns")
+    if isinstance(gns, dict) and isinstance(gns.get("per_dataset"), dict):
+        section = schema["properties"]["gns"]
+        gns["per_dataset"] = {name: _read_strings(o, section, schema) for name, o in gns["per_dataset"].items()}
+    return config
+
+
+def _read_strings(instance, schema: dict, root: dict):
+    """`instance` with its strings read where `schema` (of the schema `root`) expects a scalar of
+    SCALAR_TYPES and no string, recursing into objects and arrays; a new value."""
+    schema = _resolve(schema, root)
+    for part in schema.get("allOf", []):
+        instance = _read_strings(instance, part, root)
+    if isinstance(instance, str):
+        types = schema.get("type", [])
+        types = [types] if isinstance(types, str) else types
+        return instance if "string" in types or not set(types) & set(SCALAR_TYPES) else _scalar(instance, types)
+    if isinstance(instance, dict):
+        properties, extra = schema.get("properties", {}), schema.get("additionalProperties")
+        return {
+            key: _read_strings(value, properties.get(key, extra if isinstance(extra, dict) else {}), root)
+            for key, value in instance.items()
+        }
+    if isinstance(instance, list) and isinstance(schema.get("items"), dict):
+        return [_read_strings(value, schema["items"], root) for value in instance]
+    return instance
+
+
+def _scalar(text: str, types: list[str]):
+    """`text` read as YAML (a float also in Python's notation, 1e-3) when that gives a value of one of
+    `types` (an integral number for an integer, a finite one for a number); else `text` itself."""
+    try:
+        value = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return text
+    if isinstance(value, str):  # YAML 1.1 reads 1e-3 as a string
+        try:
+            value = float(text)
+        except ValueError:
+            return text
+    if isinstance(value, bool):
+        return value if "boolean" in types else text
+    if value is None:
+        return None if "null" in types else text
+    if isinstance(value, int):
+        return value if {"integer", "number"} & set(types) else text
+    if isinstance(value, float) and math.isfinite(value):
+        if "number" in types:
+            return value
+        if "integer" in types and value.is_integer():
+            return int(value)
+    return text
 
 
 def _check_gns_per_dataset(gns: dict, schema: dict) -> list[str]:
@@ -442,15 +512,41 @@ def check_inverse(config: dict, cases: dict[str, dict]) -> dict[str, str]:
 
 
 def check_diagnosis(config: dict) -> None:
-    """When diagnosis.enabled: every column of every `measured` entry passes the size guard
-    (dem.min_grains_across) at diagnosis.size_scale (the diagnosis runs each column, read_measured)."""
-    if not config["diagnosis"]["enabled"]:
+    """When diagnosis.enabled: every `measured` entry holds the points the diagnosis needs
+    (_check_diagnosable) and every column of it passes the size guard (dem.min_grains_across) at
+    diagnosis.size_scale (the diagnosis runs each column, read_measured)."""
+    section = config["diagnosis"]
+    if not section["enabled"]:
         return
-    size_scale = config["diagnosis"]["size_scale"]
+    mechanisms = get_mechanisms(section["candidates"], section["channel_width"])
+    largest = max(model.n_parameters for model in [Model()] + [Model(m) for m in mechanisms])
     for name in sorted(config["measured"]):
-        for column in _measured_columns(config, name).values():
+        columns = list(_measured_columns(config, name).values())
+        _check_diagnosable(name, columns, largest)
+        for column in columns:
             where = f"diagnosis.size_scale (measured {name!r}, column {column.name!r})"
-            _guard(column.L_i, column.material_properties, size_scale, config, where)
+            _guard(column.L_i, column.material_properties, section["size_scale"], config, where)
+
+
+def _check_diagnosable(name: str, columns: list[MeasuredColumn], largest: int) -> None:
+    """The counts calibration.residuals.check_data asks of the columns of `measured` entry `name`, one
+    file: MIN_RUNOUT_POINTS runout points per column, and MIN_SPARE_VALUES measured values (runout
+    and profile points) beyond the `largest` number of parameters of a diagnosis model."""
+    for column in columns:
+        if len(column.t_over_tstar) < MIN_RUNOUT_POINTS:
+            raise ConfigError(
+                f"config key measured.{name}: {column.source}: column {column.name!r} has {len(column.t_over_tstar)} "
+                f"runout point(s); the diagnosis (diagnosis.enabled) needs at least {MIN_RUNOUT_POINTS} per column "
+                "(a curve, not a point): add runout rows, or set diagnosis.enabled: false"
+            )
+    values = sum(len(c.t_over_tstar) + (0 if c.profile_x is None else len(c.profile_x)) for c in columns)
+    if values < largest + MIN_SPARE_VALUES:
+        raise ConfigError(
+            f"config key measured.{name}: {columns[0].source}: {values} measured value(s) (runout and profile "
+            f"points); the diagnosis compares models of up to {largest} parameters (diagnosis.candidates) and needs "
+            f"at least {largest + MIN_SPARE_VALUES} (parameters + {MIN_SPARE_VALUES}): add runout rows, or set "
+            "diagnosis.enabled: false"
+        )
 
 
 def check_scale_ladder(config: dict) -> None:

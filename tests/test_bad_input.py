@@ -1,14 +1,16 @@
 """Bad input at the stages that read it: a truncated or NaN trajectory HDF5 at every reader, a
 truncated training checkpoint, trajectories too short for the GNS window, a DEM run that fails
-inside the Bayesian optimisation or the diagnosis, a DoE responses file with a missing run. Each
-gets a clear error naming the file, key or line, or is recorded with its reason and left out;
-nothing computed is lost."""
+inside the Bayesian optimisation or the diagnosis, a DoE responses file with a missing run, a measured
+CSV too short for the diagnosis, numbers in nested sections of the command line. Each gets a clear
+error naming the file, key or line, or is recorded with its reason and left out, or is read as
+meant; nothing computed is lost."""
 
 from __future__ import annotations
 
 import json
 import logging
 import shutil
+import warnings
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -17,19 +19,24 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
+import yaml
+from snakemake.cli import parse_config
+from snakemake.utils import update_config
 
 import dem.engines
 from calibration.bayesopt import BOSettings, bayesian_optimisation
 from calibration.compare import bayesopt_on_dem, write_bayesopt
 from calibration.dem_scoring import dem_evaluate, dem_runs
 from calibration.design_runs import DEMRunner, Library, Model, SimulationSettings, build_library
-from calibration.measured import MeasuredColumn
+from calibration.diagnosis import DiagnosisSettings
+from calibration.measured import MeasuredColumn, load_column
 from calibration.observables import LibraryError, Observables
 from calibration.optimise import OptimisationError, PointFailed, one_at_a_time
-from calibration.residuals import DiagnosisError, NoiseModel, held_out_folds
+from calibration.residuals import MIN_RUNOUT_POINTS, DiagnosisError, NoiseModel, check_data, held_out_folds
 from dem.case import CollapseCase
 from dem.engines import EngineError
 from dem.engines.builtin import OUTPUT, BuiltinEngine
+from dem.grid import case_table
 from dem.runout import RunoutMethod
 from dem.trajectory import TrajectoryError, read_attrs, read_trajectory, write_trajectory
 from doe.design import FACTORS, full_factorial
@@ -40,6 +47,7 @@ from gns.rollout import rollout_trajectory
 from gns.settings import TrainSettings, simulator_config
 from gns.simulator import LearnedSimulator
 from gns.train import train
+from pipeline.config import ConfigError, check_cross_keys, derive_columns, validate_config
 from tests.gns_synthetic import sliding_grains, synthetic_dataset
 from tests.test_gns_train import CONNECTED, TINY
 
@@ -332,3 +340,91 @@ def test_a_doe_run_without_a_response_is_recorded_or_named_by_file_line_and_run(
         read_responses(tmp_path / "missing.csv", connected)
     with pytest.raises(ResponsesError, match=r"no trajectory file for design run\(s\) \['run_8'\]"):
         collect_responses(design, {k: v for k, v in paths.items() if k != "run_8"}, COLUMN, connected)
+
+
+# -- a measured CSV too short for the diagnosis: refused before any job runs ---------------------------------
+ROOT = Path(__file__).resolve().parents[1]
+SCHEMA = ROOT / "workflow" / "schemas" / "config.schema.yaml"
+
+
+def readme_example() -> list[str]:
+    """The lines of the user's CSV that README.md "Calibrate your own column" shows, header first."""
+    section = (ROOT / "README.md").read_text().split("## Calibrate your own column")[1].split("\n## ")[0]
+    return next(block for block in section.split("```")[1::2] if block.lstrip().startswith("column,")).split()
+
+
+def as_run_sh_main(csv: Path, *settings: str) -> dict:
+    """config/config.yaml with `--config measured='{mine: <csv>}' *settings` as Snakemake hands it to
+    the workflow (parse_config, then merged into the configfile's), through every parse-time check of
+    workflow/rules/common.smk; returns the checked config."""
+    config = yaml.safe_load((ROOT / "config" / "config.yaml").read_text())
+    command_line = parse_config([f"measured={{mine: {csv}}}", *settings])
+    update_config(config, command_line)
+    config = derive_columns(validate_config(config, SCHEMA), command_line["measured"])
+    check_cross_keys(config, case_table(config))
+    return config
+
+
+@pytest.mark.parametrize(
+    "n_rows, message",
+    [
+        (2, f"column 'mine' has 2 runout point\\(s\\); the diagnosis .*needs at least {MIN_RUNOUT_POINTS} per column"),
+        (3, r"3 measured value\(s\) .*models of up to 3 parameters .*needs at least 6 \(parameters \+ 3\)"),
+    ],
+    ids=["the-readmes-former-two-rows", "three-rows"],
+)
+def test_a_measured_csv_too_short_for_the_diagnosis_is_refused_at_parse_time(tmp_path, monkeypatch, n_rows, message):
+    """The README's example as it was (its first two rows) ran until the diagnosis refused it; the
+    diagnosis' own counts (calibration.residuals.check_data) now refuse it before any job runs."""
+    monkeypatch.chdir(ROOT)  # the config's measured CSVs are relative to the workflow's root
+    csv = tmp_path / "mine.csv"
+    csv.write_text("\n".join(readme_example()[: n_rows + 1]) + "\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a GeometryWarning on the way is not what this test looks at
+        with pytest.raises(ConfigError, match=f"config key measured.mine: {csv}: {message}"):
+            as_run_sh_main(csv)
+        # without the diagnosis (and the model it picks) the reader's two points are enough
+        assert as_run_sh_main(csv, "diagnosis={enabled: false}", "calibration={model: base}")["measured"]["mine"]
+    section = validate_config(yaml.safe_load((ROOT / "config" / "config.yaml").read_text()), SCHEMA)["diagnosis"]
+    models = DiagnosisSettings.from_config({k: v for k, v in section.items() if k != "enabled"}).models()
+    with pytest.raises(DiagnosisError, match="runout point|too few to compare models"):  # as the job refused it
+        check_data(Observables([load_column(csv)]), None, models, None)
+
+
+def test_the_readmes_example_csv_passes_every_parse_time_check(tmp_path, monkeypatch):
+    monkeypatch.chdir(ROOT)
+    csv = tmp_path / "mine.csv"
+    csv.write_text("\n".join(readme_example()) + "\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a GeometryWarning on the way is not what this test looks at
+        config = as_run_sh_main(csv)
+    assert config["inverse"]["dataset"]["mine"] == "inverse_mine"
+
+
+# -- numbers in nested sections of the command line ------------------------------------------------------
+def test_nested_numbers_given_on_the_command_line_are_read_as_the_schema_expects():
+    """Snakemake reads `--config dem='{threads: 2}'` with YAML's BaseLoader: every scalar inside is a
+    string. Where the schema expects a number, integer, boolean or null the string is read as one."""
+    config = yaml.safe_load((ROOT / "config" / "tiny_all.yaml").read_text())
+    command_line = [
+        "dem={threads: 2, figures: false}",
+        "diagnosis={runout_noise: null, channel_width: 1e-2, rule: {min_delta_bic_vs_base: 12}}",
+        "doe={friction: [0.2, 0.8]}",
+        "gns={per_dataset: {tiny_column: {steps: 5, wall_clamp: true}}}",
+        "report={title: 2024}",
+        "export_vtk=true",
+    ]
+    update_config(config, parse_config(command_line))
+    assert config["dem"]["threads"] == "2" and config["doe"]["friction"] == ["0.2", "0.8"]  # as it arrives
+    checked = validate_config(config, SCHEMA)
+    assert (checked["dem"]["threads"], checked["dem"]["figures"], checked["export_vtk"]) == (2, False, True)
+    assert (checked["diagnosis"]["runout_noise"], checked["diagnosis"]["channel_width"]) == (None, 0.01)
+    assert checked["diagnosis"]["rule"]["min_delta_bic_vs_base"] == 12 and checked["doe"]["friction"] == [0.2, 0.8]
+    assert checked["gns"]["per_dataset"] == {"tiny_column": {"steps": 5, "wall_clamp": True}}
+    assert checked["report"]["title"] == "2024"  # a string where the schema wants one stays a string
+    assert checked["dem"]["engine"] == "builtin" and checked["dem"]["min_grains_across"] == 5  # the file's keys kept
+    update_config(config, parse_config(["dem={threads: two}", "gns={steps: 2.5}"]))
+    with pytest.raises(ConfigError) as info:
+        validate_config(config, SCHEMA)
+    assert "dem.threads: 'two' has the wrong type; expected integer" in str(info.value)
+    assert "gns.steps: '2.5' has the wrong type; expected integer" in str(info.value)

@@ -1,11 +1,14 @@
 """Measured-data CSV reader: the shipped curves, the schema and every bad-input check."""
 
+import codecs
+import dataclasses
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from calibration.measured import (
+    MeasuredColumn,
     MeasuredDataError,
     MeasuredDataWarning,
     expected_final_runout,
@@ -107,6 +110,15 @@ def test_collapse_case_of_a_measured_column():
             "line 5, column 'std'.*every runout row",
         ),
         (HEADER, "no data rows"),
+        # a spreadsheet's CSV in a locale whose decimal mark is ',', and a tab-separated file
+        (
+            HEADER.replace(",", ";") + runout_rows().replace(",", ";").replace(".", ","),
+            r"line 1: the header's fields are separated by ';'; the schema's delimiter is ','",
+        ),
+        (
+            "# a comment, with a comma\n" + HEADER.replace(",", "\t") + runout_rows().replace(",", "\t"),
+            r"line 2: the header's fields are separated by a tab; the schema's delimiter is ','",
+        ),
         ("# only a comment\n", "empty file"),
         # how a profile was read (read_at, bin_width) and its std
         (READ_HEADER + runout_rows(extra=",4.0,") + profile_rows(), "line 2, column 'read_at': a runout row"),
@@ -158,6 +170,30 @@ def test_runout_in_metres_is_caught(tmp_path):
         read_measured(path)
 
 
+def test_runout_in_percent_is_caught(tmp_path):
+    percent = np.array(QUARTZ_RUNOUT) * 100
+    path = write(tmp_path, HEADER + runout_rows(values=percent))
+    with pytest.raises(MeasuredDataError, match="look like percent") as info:
+        read_measured(path)
+    assert "line 2, column 'value'" in str(info.value) and "L* = (L - L_i)/L_i as a fraction" in str(info.value)
+    # an early curve too: no front is ever 25x past the final runout of its column
+    early = write(tmp_path, HEADER + runout_rows(values=percent[:3], times=TIMES[:3]), "early.csv")
+    with pytest.raises(MeasuredDataError, match="look like percent"):
+        read_measured(early)
+    signed = write(tmp_path, HEADER + runout_rows(values=[f"{v:g}%" for v in percent]), "signed.csv")
+    with pytest.raises(MeasuredDataError, match=r"line 2, column 'value': '30%' is a percentage; give L\*"):
+        read_measured(signed)
+
+
+@pytest.mark.parametrize("a", [0.3, 1.0, 2.8, 6.0, 20.0])
+def test_long_genuine_runouts_are_never_read_as_percent(tmp_path, a):
+    # 10x the scaling law's final runout: implausible (a warning), never refused as percent
+    values = 10 * expected_final_runout(a) * np.linspace(0.1, 1.0, len(TIMES))
+    with pytest.warns(MeasuredDataWarning, match="far from"):
+        column = read_measured(write(tmp_path, HEADER + runout_rows(values=values, a=a)))["q"]
+    np.testing.assert_allclose(column.runout, values)
+
+
 def test_small_genuine_runouts_pass(tmp_path):
     # a squat column (a = 0.3) genuinely runs out to L* ~ 0.4; early-time curves are never judged
     squat = write(tmp_path, HEADER + runout_rows(values=[0.05, 0.15, 0.25, 0.32, 0.36, 0.37, 0.37], a=0.3))
@@ -171,6 +207,45 @@ def test_implausible_runout_warns(tmp_path):
     path = write(tmp_path, HEADER + runout_rows(values=np.array(QUARTZ_RUNOUT) * 10))
     with pytest.warns(MeasuredDataWarning, match="far from"):
         read_measured(path)
+
+
+# -- files as spreadsheets save them -----------------------------------------------------------------------
+def same_columns(read, expected):
+    """Two reads of one file's text hold the same columns, every field (but the file's name) equal."""
+    assert list(read) == list(expected)
+    for name, column in read.items():
+        for field in dataclasses.fields(MeasuredColumn):
+            if field.name != "source":
+                np.testing.assert_equal(getattr(column, field.name), getattr(expected[name], field.name), field.name)
+
+
+@pytest.mark.parametrize(
+    "comment", ["", "# L* = (L - L_i)/L_i, t* = sqrt(H_i/g)\n"], ids=["header-first", "comment-first"]
+)
+def test_a_byte_order_mark_is_read_past(tmp_path, comment):
+    """A spreadsheet's "CSV UTF-8" starts with a byte-order mark: the file reads as the same text without it."""
+    text = (
+        comment
+        + HEADER
+        + runout_rows(std="0.1")
+        + "q,quartz,6.0,0.02,profile,0.0,0.03,\nq,quartz,6.0,0.02,profile,0.05,0.01,\n"
+    )
+    marked = tmp_path / "marked.csv"
+    marked.write_bytes(codecs.BOM_UTF8 + text.encode("utf-8"))
+    same_columns(read_measured(marked), read_measured(write(tmp_path, text)))
+
+
+def test_a_file_in_another_encoding_names_the_line_and_asks_for_utf8(tmp_path):
+    text = HEADER + runout_rows() + "# grains of 425 \u00b5m\n"
+    path = tmp_path / "latin.csv"
+    path.write_bytes(text.encode("latin-1"))
+    with pytest.raises(
+        MeasuredDataError, match=r"line 9: byte 0xb5 .*is not UTF-8 .*'\u00b5'.*save it as UTF-8"
+    ) as info:
+        read_measured(path)
+    assert str(path) in str(info.value)
+    path.write_bytes(text.encode("utf-8"))  # the same text in UTF-8 reads
+    assert len(read_measured(path)["q"].runout) == len(TIMES)
 
 
 def test_profile_reading_and_std_are_kept_and_defaults_said(tmp_path):
