@@ -6,7 +6,8 @@ with a random jitter, so nothing overlaps; gravity then settles them against the
 wall and the gate at x = L_i, with the case's own contact law. Deterministic for a given seed.
 
 The settled column is a one-frame trajectory (engine "builtin", stage "settled"), so every
-engine can start from the same packing and it is stored and read like any other trajectory.
+engine can start from the same packing and it is stored and read like any other trajectory; inside
+dem.run_store.kept_runs (a long job's block) a packing settled before is read from the store.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import numpy as np
 
 from dem.case import FILL_HEIGHT_FACTOR, MAX_DT_OVER_CONTACT_TIME, CaseError, CollapseCase
 from dem.integrate import ENGINE_VERSION, ContactLaw, SimulationError, State, run
+from dem.run_store import active_store, run_key
 from dem.trajectory import GRAIN, Trajectory, TrajectoryError, engine_attrs
 
 LATTICE_CLEARANCE = 1.02  # lattice pitch / largest diameter
@@ -136,7 +138,18 @@ def settle_state(case: CollapseCase, progress: Callable[[float], None] | None = 
 
 def settle_column(case: CollapseCase, progress: Callable[[float], None] | None = None, threads: int = 1) -> Trajectory:
     """The settled column as a one-frame Trajectory (engine "builtin", stage "settled").
-    threads: as in dem.integrate.run (recorded: the packing's bits depend on it)."""
+    threads: as in dem.integrate.run (recorded: the packing's bits depend on it). Inside
+    dem.run_store.kept_runs: the packing of the same case and thread count settled before, read from
+    the store (progress(1.0)), else settled and stored (and read back: the same bits either way)."""
+    store = active_store()
+    if store is None:
+        return settled_column(case, progress, threads)
+    key = run_key("packing", case=case.to_dict(), threads=threads)
+    return store.kept(key, lambda _work_dir: settled_column(case, progress, threads), progress)
+
+
+def settled_column(case: CollapseCase, progress: Callable[[float], None] | None = None, threads: int = 1) -> Trajectory:
+    """settle_column's packing, settled here and now (no store)."""
     state = settle_state(case, progress, threads)
     attrs = engine_attrs(case, "builtin", ENGINE_VERSION)
     attrs.update(

@@ -47,6 +47,7 @@ from calibration.measured import MeasuredColumn, expected_final_runout, load_col
 from dem.atomic import StrPath, write_json, write_text
 from dem.plots import save_figure
 from dem.progress import progress_logger
+from dem.run_store import keeps_runs
 from pipeline.benchmarks import benchmark_seconds
 from pipeline.diagnosis import read_diagnosis
 
@@ -57,6 +58,7 @@ log = logging.getLogger(__name__)
 BASE = ("friction", "restitution")
 
 
+@keeps_runs("out_json")
 def run_model_bayesopt(
     measured_path: StrPath,
     model_path: StrPath,
@@ -181,6 +183,7 @@ def route_optimum(key: str, source: StrPath, model: Model) -> tuple[str, Model, 
     raise CalibrationError(f"{source}: unknown calibration route {key!r}")
 
 
+@keeps_runs("out_json")
 def run_validation(
     key: str,
     source: StrPath,
@@ -228,6 +231,7 @@ def run_validation(
     return result
 
 
+@keeps_runs("out_json")
 def run_calibrated(
     measured_path: StrPath,
     model_path: StrPath,

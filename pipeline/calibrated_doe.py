@@ -17,6 +17,7 @@ from calibration.design_runs import Model, SimulationSettings
 from calibration.measured import load_column
 from dem.atomic import StrPath, write_json
 from dem.progress import progress_logger
+from dem.run_store import keeps_runs
 from dem.runout import RunoutMethod
 from doe.model_study import CCD, FULL_FACTORIAL, SURFACE, design_runs, model_doe
 from doe.plots import plot_surface_pairs
@@ -25,6 +26,7 @@ from doe.study import write_responses
 log = logging.getLogger(__name__)
 
 
+@keeps_runs("out_json")
 def run_model_doe(
     measured_path: StrPath,
     model_path: StrPath,

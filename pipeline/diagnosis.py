@@ -27,11 +27,13 @@ from calibration.measured import MeasuredColumn, MeasuredDataWarning, read_measu
 from calibration.observables import Observables
 from dem.atomic import StrPath, write_json, write_text
 from dem.progress import progress_logger
+from dem.run_store import keeps_runs
 
 log = logging.getLogger(__name__)
 
 
 # -- the jobs --------------------------------------------------------------------------------------------
+@keeps_runs("library_path")
 def run_library(measured_path: StrPath, library_path: StrPath, section: dict, *, runout: dict | None) -> Library:
     """Design runs for the columns of a measured-data CSV (workflow rule diagnosis_library); their
     runouts read by `runout` (the config's runout section), which the library records."""
@@ -43,6 +45,7 @@ def run_library(measured_path: StrPath, library_path: StrPath, section: dict, *,
     return library
 
 
+@keeps_runs("out_dir")
 def run_diagnosis(
     measured_path: StrPath,
     library_path: StrPath,

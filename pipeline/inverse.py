@@ -40,6 +40,7 @@ from calibration.measured import MeasuredColumn, load_column
 from calibration.objective import objective
 from dem.atomic import StrPath, write_text
 from dem.progress import progress_logger
+from dem.run_store import keeps_runs
 from dem.runout import RunoutMethod, check_same_method, runout_curve
 from dem.trajectory import read_trajectory, write_trajectory
 from gns.dataset import read_metadata
@@ -102,6 +103,7 @@ def run_dem_at(
     return name, params, summary
 
 
+@keeps_runs("out_json")
 def run_bayesopt(
     measured_path: StrPath,
     metadata_path: StrPath,

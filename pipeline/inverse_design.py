@@ -24,6 +24,7 @@ from calibration.inverse_result import InverseResult, write_result
 from calibration.measured import MeasuredColumn, load_column
 from calibration.recovery import plot_recovery, recovery_study
 from dem.atomic import StrPath, write_json
+from dem.run_store import keeps_runs
 from dem.runout import RunoutMethod, check_same_method
 from dem.trajectory import read_trajectory
 from gns.dataset import read_metadata, read_training_attrs
@@ -144,6 +145,7 @@ def dataset_runs(
     return points, np.array([runout.at(run, measured.t_over_tstar) for run in runs])
 
 
+@keeps_runs("out_json")
 def run_recovery(
     model_path: StrPath,
     metadata_path: StrPath,

@@ -4,7 +4,9 @@
     trajectory = engine.simulate(case, packing, work_dir, output="case.h5")
 
 `simulate_case(case, config)` runs one case with the configured engine in a scratch folder: every
-DEM run of the pipeline goes through here or through the DEM stage's own rules.
+DEM run of the pipeline goes through here or through the DEM stage's own rules. Inside
+dem.run_store.kept_runs (a long job's block) a run made before is read from the store instead, and a
+new one is stored there.
 
 A DEM run that fails raises one of FAILURES (a blow-up, a solver that crashed, output that cannot
 be read or holds no runout front, a case that cannot be built). A caller that can do without the
@@ -30,6 +32,7 @@ from dem.engines.builtin import BuiltinEngine
 from dem.engines.liggghts import LiggghtsEngine
 from dem.engines.mfix import MfixEngine
 from dem.integrate import SimulationError
+from dem.run_store import active_store, run_key, trajectory_digest
 from dem.runout import RunoutError
 from dem.trajectory import TrajectoryError
 
@@ -109,8 +112,25 @@ def simulate_case(
 ) -> Trajectory:
     """One collapse of `case` with the engine config["engine"] (the workflow's `dem` section; None or
     no "engine": builtin), from `packing` (None: settled by the builtin settling step), in a scratch
-    folder removed afterwards. The trajectory records the engine that ran it."""
+    folder removed afterwards. The trajectory records the engine that ran it.
+
+    Inside dem.run_store.kept_runs: the stored run of the same case, engine (name, version, config)
+    and packing bits when there is one (progress(1.0)), else the run made in the store's work folder
+    and stored; either way the stored file read back, so that both give the same bits."""
     config = dict(config or {})
     engine = get_engine(config.get("engine", "builtin"), config)
-    with tempfile.TemporaryDirectory(prefix=f"dem_{engine.name}_") as work_dir:
-        return engine.simulate(case, packing, work_dir, progress=progress)
+    store = active_store()
+    if store is None:
+        with tempfile.TemporaryDirectory(prefix=f"dem_{engine.name}_") as work_dir:
+            return engine.simulate(case, packing, work_dir, progress=progress)
+    key = run_key(
+        "collapse",
+        case=case.to_dict(),
+        engine=engine.name,
+        engine_version=engine.version(),
+        config=config,
+        packing=trajectory_digest(packing),
+    )
+    return store.kept(
+        key, lambda work_dir: engine.simulate(case, packing, work_dir, progress=progress), progress, engine.resume_files
+    )
