@@ -12,9 +12,12 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from dem.fields import from_mapping
+
+if TYPE_CHECKING:
+    import numpy as np
 
 GRAVITY = 9.81  # m/s^2
 
@@ -60,6 +63,13 @@ MATERIALS = {
     "quartz": Material("quartz", diameter=425e-6, density=2650.0, solid_fraction=0.58),
     "copper": Material("copper", diameter=325e-6, density=8960.0, solid_fraction=0.50),
 }
+
+
+def sphere_mass(density: float, diameter: float | np.ndarray) -> float | np.ndarray:
+    """Mass (kg) of spheres of `diameter` (m; a float or an array [N]) and `density` (kg/m^3). The cube
+    is two products, not a power: numpy's vector power is compiled per instruction set and may round
+    otherwise on another machine, where the products round the same everywhere."""
+    return density * math.pi * (diameter * diameter * diameter) / 6.0
 
 
 def get_material(spec: str | dict | Material) -> Material:
@@ -243,7 +253,7 @@ class CollapseCase:
 
     def sphere_mass(self, diameter: float) -> float:
         """Mass (kg) of a sphere of `diameter`: 2D discs carry sphere mass and inertia."""
-        return self.density * math.pi * diameter**3 / 6.0
+        return sphere_mass(self.density, diameter)
 
     @property
     def contact_time(self) -> float:

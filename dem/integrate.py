@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
-from dem.case import GRAVITY, CollapseCase
+from dem.case import GRAVITY, CollapseCase, sphere_mass
 from dem.contact import (
     FAST_MATH,
     cohesion_force,
@@ -31,14 +31,18 @@ from dem.contact import (
     rolling_torque,
     tangential_force,
 )
+from dem.kernel_sources import KERNEL_MODULES, digest, kernel
 from dem.neighbours import build_pairs, build_pairs_threaded, default_skin, empty_pairs
 
 log = logging.getLogger(__name__)
 
 # recorded in every trajectory the engine writes. 2: settles at contact_time / 20; 3: two or more
 # threads split the grains by contact work (one thread's bits unchanged); 4: the settle's step
-# follows the collapse's (2.5x; the default's bits unchanged) (issue 18)
-ENGINE_VERSION = "builtin-4"
+# follows the collapse's (2.5x; the default's bits unchanged); 5: IEEE arithmetic (no fastmath), the
+# same bits on every x86-64 processor. After the "+": the first 12 hex digits of the digest of the
+# kernels' code (dem.kernel_sources), so that a trajectory names the code that made it and a
+# checkpoint of other code is not resumed
+ENGINE_VERSION = f"builtin-5+{digest(*KERNEL_MODULES)[:12]}"
 
 # status codes from `advance`
 OK, NON_FINITE, OVERLAP, LEFT_BOX = 0, 1, 2, 3
@@ -138,7 +142,7 @@ class State:
             v=np.zeros((n, 2)),
             spin=np.zeros(n),
             radius=radius,
-            mass=density * math.pi * (2 * radius) ** 3 / 6.0,
+            mass=sphere_mass(density, 2 * radius),
             skin=default_skin(radius),
             wall_history=np.zeros((n, N_WALLS, 2)),
         )
@@ -151,7 +155,7 @@ class State:
         return float(0.5 * np.sum(self.mass[:, None] * self.v**2) + 0.5 * np.sum(self.inertia * self.spin**2))
 
 
-@nb.njit(inline="always", fastmath=FAST_MATH, cache=True)
+@kernel(inline="always", fastmath=FAST_MATH)
 def _contact(
     overlap,
     nx,
@@ -187,7 +191,7 @@ def _contact(
     return -fn * nx - ft * ny, -fn * ny + ft * nx, ft, roll, abs(fn), spring
 
 
-@nb.njit(fastmath=FAST_MATH, cache=True)
+@kernel(fastmath=FAST_MATH)
 def _contact_forces(
     i_start,
     i_end,
@@ -328,7 +332,7 @@ def _contact_forces(
     return worst
 
 
-@nb.njit(fastmath=FAST_MATH, cache=True)
+@kernel(fastmath=FAST_MATH)
 def _forces(
     x, v, spin, radius, mass, start, partner, history, wall_history, law, walls, time, dt, gravity, force, torque, load
 ):
@@ -376,7 +380,7 @@ def _forces(
     return worst
 
 
-@nb.njit(fastmath=FAST_MATH, cache=True)
+@kernel(fastmath=FAST_MATH)
 def _move(i_start, i_end, x, v, spin, force, torque, inv_mass, inv_inertia, x_built, half_skin2, dt):
     """One symplectic Euler step (kick, then drift) of grains i_start <= i < i_end under force
     [N, 2] (N) and torque [N] (N m). True when one of them moved more than half the skin since the
@@ -395,7 +399,7 @@ def _move(i_start, i_end, x, v, spin, force, torque, inv_mass, inv_inertia, x_bu
     return moved
 
 
-@nb.njit(cache=True)
+@kernel()
 def _escaped(x, box):
     """Status of positions x [N, 2] (m) before a pair-list build: 1 (NON_FINITE) for a grain not
     finite, 3 (LEFT_BOX) for one outside box = (x_min, x_max, y_min, y_max) (m), else 0 (OK)."""
@@ -407,7 +411,7 @@ def _escaped(x, box):
     return 0
 
 
-@nb.njit(fastmath=FAST_MATH, cache=True)
+@kernel(fastmath=FAST_MATH)
 def _advance(
     x,
     v,
@@ -475,7 +479,7 @@ def _advance(
     return 0, n_steps, start, partner, history, rebuilds, worst_all
 
 
-@nb.njit(fastmath=FAST_MATH, cache=True)
+@kernel(fastmath=FAST_MATH)
 def _range_forces(
     i_start,
     i_end,
@@ -547,7 +551,7 @@ CONTACT_WORK = 4.0
 WALL_WORK = 2.0
 
 
-@nb.njit(cache=True)
+@kernel()
 def _chunk_bounds(x, radius, start, partner, n_chunks):
     """Chunks of grains for the threads: bounds [n_chunks + 1] split 0..N into ranges of about
     equal work (a grain's listed pairs, CONTACT_WORK for each of them in contact at x [N, 2] (m)
@@ -580,7 +584,7 @@ def _chunk_bounds(x, radius, start, partner, n_chunks):
     return bounds, reach
 
 
-@nb.njit(parallel=True, fastmath=FAST_MATH, cache=True)
+@kernel(parallel=True, fastmath=FAST_MATH)
 def _advance_threaded(
     x,
     v,

@@ -11,8 +11,10 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from dem.kernel_sources import kernel
 
-@nb.njit(cache=True)
+
+@kernel()
 def _cells(x, radius, skin):
     """Counting sort of the grains x [N, 2] (m) into square cells of side 2 r_max + skin over their
     bounding box: (cell_of [N], cell_start [C+1], in_cell [N] (grains by cell), nx, ny)."""
@@ -37,7 +39,7 @@ def _cells(x, radius, skin):
     return cell_of, cell_start, in_cell, nx, ny
 
 
-@nb.njit(cache=True)
+@kernel()
 def _list_rows(i_start, i_end, x, radius, skin, cells, start, partner, old_start, old_partner, old_history, history):
     """Rows i_start <= i < i_end of the pair list over the 3x3 cells around each grain: with
     partner empty, count them into start[i + 1]; else fill partner[start[i]:start[i + 1]] (start
@@ -72,7 +74,7 @@ def _list_rows(i_start, i_end, x, radius, skin, cells, start, partner, old_start
                         break
 
 
-@nb.njit(cache=True)
+@kernel()
 def build_pairs(
     x: np.ndarray,
     radius: np.ndarray,
@@ -100,7 +102,7 @@ def build_pairs(
     return start, partner, history
 
 
-@nb.njit(parallel=True, cache=True)
+@kernel(parallel=True)
 def build_pairs_threaded(
     x: np.ndarray,
     radius: np.ndarray,

@@ -69,10 +69,14 @@ def tiny_all_run(tmp_path_factory):
 
 
 # `run.sh test` runs the suite on two workers (pytest-xdist, --dist loadfile): a test file runs on one
-# worker, so a module's fixture (a DAG, a design library) runs once; the two files that share the
+# worker, so a module's fixture (a DAG, a design library) runs once; the files that share the
 # session's tiny_all DAG are one unit, so it runs once too. (xdist's loadgroup marks do not reach
 # its scheduler under pytest 9, which no longer reads the node id xdist rewrites.)
-SHARED_UNITS = {"tests/test_html_report.py": "tiny_all", "tests/test_pipeline_end_to_end.py": "tiny_all"}
+SHARED_UNITS = {
+    "tests/test_html_report.py": "tiny_all",
+    "tests/test_pipeline_end_to_end.py": "tiny_all",
+    "tests/test_same_answer.py": "tiny_all",
+}
 
 
 # The longest units first (seconds alone on 2 cores, 2026-11-30): each worker takes the next unit
@@ -80,6 +84,7 @@ SHARED_UNITS = {"tests/test_html_report.py": "tiny_all", "tests/test_pipeline_en
 LONGEST_FIRST = (
     "tests/test_html_report.py",  # with test_pipeline_end_to_end.py: the tiny_all DAG, ~170 s
     "tests/test_pipeline_end_to_end.py",
+    "tests/test_same_answer.py",  # the tiny_all DAG a second time, ~110 s
     "tests/test_diagnosis.py",  # ~230 s
     "tests/test_workflow.py",  # ~100 s
     "tests/test_slurm.py",  # ~55 s

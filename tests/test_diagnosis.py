@@ -445,9 +445,9 @@ CI_SETTINGS = DiagnosisSettings(
     n_base=6,
     n_per_mechanism=5,
     n_rounds=1,
-    # 2 packings per DEM score (3 cost 50% more DEM time a case; the cases' runner-up margins at 2:
-    # see the report of issue 16; an older side-wall case beat rolling resistance by only 5-12 on 2)
-    n_packings=2,
+    # 3 packings per DEM score: on 2 the side-wall case beat rolling resistance by 5.2 BIC on one
+    # machine's DEM (the rule asks 6) and by 5-12 on others, a coin flip of two packings' chaos
+    n_packings=3,
     dem_top=2,
     profile_noise=5e-4,
     seed=0,

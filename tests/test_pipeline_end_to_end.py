@@ -170,9 +170,8 @@ def assert_trajectory(path: Path, n_frames: int | None = None):
 
 # -- the DAG ----------------------------------------------------------------------------------------
 def test_every_stage_ran_each_planned_job_and_nothing_is_left_to_do(run):
-    workdir, stats, seconds, own = run
+    workdir, stats, _, own = run
     assert {rule: stats.get(rule, 0) for rule in EXPECTED_JOBS} == EXPECTED_JOBS
-    assert seconds < 600, f"the tiny DAG took {seconds:.0f} s"
     summary = snakemake(workdir, "--summary", *own, configfile=CONFIG, cores=CORES).stdout
     rows = [line.split("\t") for line in summary.strip().splitlines()[1:]]
     assert len(rows) > 100

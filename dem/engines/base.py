@@ -312,9 +312,11 @@ def size_classes(
         if worst <= tolerance:
             break
     width = span / n_classes if span > 0 else 1.0
-    index = np.minimum(((np.log(mass) - log_lo) / width).astype(int), n_classes - 1)
-    class_mass = np.exp(log_lo + (np.arange(n_classes) + 0.5) * width) if span > 0 else np.array([mass[0]])
-    return index, class_mass, worst
+    # the scalar math library, not numpy's vector exp and log: those are compiled per instruction set
+    # (AVX-512 has its own), so a deck would differ in its last digits from machine to machine
+    index = np.array([min(int((math.log(m) - log_lo) / width), n_classes - 1) for m in mass.tolist()], int)
+    centres = [math.exp(log_lo + (k + 0.5) * width) for k in range(n_classes)] if span > 0 else [float(mass[0])]
+    return index, np.array(centres), worst
 
 
 def read_error(path: str | os.PathLike, what: str) -> EngineError:

@@ -25,7 +25,6 @@ The deck reproduces the builtin physics (ARCHITECTURE.md, "Engines"):
 
 from __future__ import annotations
 
-import math
 import os
 import re
 import subprocess
@@ -33,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dem.case import GRAVITY, CollapseCase
+from dem.case import GRAVITY, CollapseCase, sphere_mass
 from dem.engines.base import SolverEngine, damping_ratio, read_error, refuse_unsupported, size_classes
 from dem.integrate import frame_steps
 from dem.trajectory import Trajectory
@@ -106,7 +105,7 @@ class LiggghtsEngine(SolverEngine):
 def grain_types(case: CollapseCase, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """Atom type per grain (1..K, size classes) for radii [N] (m), class masses [K] (kg), worst
     relative error of e."""
-    mass = case.density * math.pi * (2 * np.asarray(radius, float)) ** 3 / 6.0
+    mass = sphere_mass(case.density, 2 * np.asarray(radius, float))
     index, class_mass, worst = size_classes(
         mass, (case.restitution, case.resolved_restitution_wall), RESTITUTION_TOLERANCE, MAX_SIZE_CLASSES
     )

@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dem.case import GRAVITY, CollapseCase
+from dem.case import GRAVITY, CollapseCase, sphere_mass
 from dem.contact import cohesion_force
 from dem.engines.base import EngineError, read_error, refuse_unsupported
 from dem.engines.liggghts import DATA, DUMP_COLUMNS, FRAMES, LOG, LiggghtsEngine, _matrix_lines
@@ -133,7 +133,7 @@ def render_hertz_deck(case: CollapseCase, poured: Trajectory) -> tuple[str, str]
     n_steps = steps_per_frame * (case.n_frames - 1)
     check_steps = max(1, round(SETTLE_CHECK_TSTAR * case.t_star / dt))
     max_checks = math.ceil(MAX_SETTLE_TSTAR / SETTLE_CHECK_TSTAR)
-    mass = case.density * math.pi * (2 * radius) ** 3 / 6.0
+    mass = sphere_mass(case.density, 2 * radius)
     rest_energy = float(0.5 * mass.sum() * REST_SPEED**2 * GRAVITY * case.H_i)  # RMS speed REST_SPEED sqrt(g H_i)
     depth = 2 * float(radius.max())
     data = [

@@ -24,7 +24,7 @@ from string import Template
 
 import numpy as np
 
-from dem.case import GRAVITY, CollapseCase
+from dem.case import GRAVITY, CollapseCase, sphere_mass
 from dem.engines.base import EngineError, SolverEngine, read_error, refuse_unsupported, size_classes
 from dem.trajectory import Trajectory
 
@@ -90,11 +90,11 @@ def _real(value) -> str:
 
 def phases(case: CollapseCase, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     """Phase (1..M) per grain for radii [N] (m), phase diameters [M] (m) and worst relative error of e."""
-    mass = case.density * math.pi * (2 * np.asarray(radius, float)) ** 3 / 6.0
+    mass = sphere_mass(case.density, 2 * np.asarray(radius, float))
     index, class_mass, worst = size_classes(
         mass, (case.restitution, case.resolved_restitution_wall), RESTITUTION_TOLERANCE, MAX_PHASES
     )
-    diameter = (6 * class_mass / (math.pi * case.density)) ** (1 / 3)
+    diameter = np.array([math.cbrt(6 * m / (math.pi * case.density)) for m in class_mass.tolist()])  # as size_classes
     return index + 1, diameter, worst
 
 
