@@ -299,12 +299,14 @@ def validate(
     calibration_seconds: float = 0.0,
     progress: Callable[[float], None] | None = None,
     first_packing: int = 0,
+    seed0: int = VALIDATION_SEED0,
 ) -> Validation:
-    """The model at theta [p] run on n_packings validation packings (VALIDATION_SEED0 + first_packing
-    + k); dem_runs and calibration_seconds: what the route spent to find theta (reported beside the
-    score). progress: callable(fraction of all the runs done) or None."""
+    """The model at theta [p] run on n_packings packings, seeds seed0 + first_packing + k (by default
+    the validation packings, which no calibration uses); dem_runs and calibration_seconds: what the
+    route spent to find theta (reported beside the score). progress: callable(fraction of all the
+    runs done) or None."""
     started = time.perf_counter()
-    seeds = [VALIDATION_SEED0 + first_packing + k for k in range(n_packings)]
+    seeds = [seed0 + first_packing + k for k in range(n_packings)]
     curves, failed = [], {}
     for k, seed in enumerate(seeds):
         within = None if progress is None else (lambda f, k=k: progress((k + f) / n_packings))

@@ -40,6 +40,7 @@ from calibration.calibrated import (
     validate,
 )
 from calibration.compare import plot_bayesopt
+from calibration.confirmation import confirm
 from calibration.design_runs import Model, SimulationSettings
 from calibration.diagnosis_result import Diagnosis
 from calibration.inverse_result import read_result
@@ -130,6 +131,15 @@ def choose_model(
     return record
 
 
+def gns_points(inverse: dict, names: Sequence[str]) -> tuple[list[list[float]], list[float]]:
+    """(parameters [m, p] in the order of `names`, GNS objective [m]) of every point a GNS inverse
+    design (its inverse.json, read) evaluated, over all its starts."""
+    order = [inverse["names"].index(name) for name in names]
+    points = [[p[k] for k in order] for start in inverse["starts"] for p in start["evaluations"]["params"]]
+    values = [v for start in inverse["starts"] for v in start["evaluations"]["values"]]
+    return points, values
+
+
 def route_optimum(key: str, source: StrPath, model: Model) -> tuple[str, Model, list[float], int, float, dict]:
     """(route label, the model it calibrates, theta [p], DEM runs it spent, seconds it took, extra)
     of route `key` from its file `source`; extra: what the report shows beside the validation. DEM
@@ -209,6 +219,22 @@ def run_validation(
         seconds = benchmark_seconds(cost["files"])[0]
     runs = (cost or {}).get("dem_runs") or runs
     settings = SimulationSettings(size_scale=diagnosis_section["size_scale"])
+    if key == "model-inverse" and section.get("gns_confirm_candidates"):
+        # the GNS's few best distinct points run by the DEM first: the DEM, not the GNS's bits, chooses
+        points, values = gns_points(read_result(source), route_model.parameter_names)
+        confirmation = confirm(
+            route_model, column, points, values, settings, column.runout_reading(runout), dem,
+            section["gns_confirm_candidates"], section["gns_confirm_packings"],
+            progress_logger(f"{name}: {label}, its best points confirmed by DEM", log),
+        )  # fmt: skip
+        theta, runs = confirmation.theta, runs + confirmation.dem_runs
+        seconds += sum(c.seconds for c in confirmation.candidates)
+        extra["confirmation"] = confirmation.to_dict()
+        log.info(
+            "%s: DEM confirmation of the GNS's best %d points: MSE %s, chose %d",
+            name, len(confirmation.candidates), [round(c.mse, 4) for c in confirmation.candidates],
+            confirmation.chosen + 1,
+        )  # fmt: skip
     validation = validate(
         label,
         route_model,
@@ -225,7 +251,7 @@ def run_validation(
     validation.extra = extra
     result = dict(validation.to_dict(), key=key, model=route_model.name)
     if (cost or {}).get("own_dem_runs") is not None:  # the model's GNS route: its own dataset's runs
-        result["own_dem_runs"] = cost["own_dem_runs"]
+        result["own_dem_runs"] = cost["own_dem_runs"] + extra.get("confirmation", {}).get("dem_runs", 0)
     write_json(out_json, result)
     log.info("%s: %s at %s validated, MSE %.4g", name, label, np.round(theta, 4).tolist(), validation.mse)
     return result
@@ -608,6 +634,21 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
                 lines += [
                     f"{route['route']}: the GNS's own objective at its optimum {extra['gns_objective']:.3g} (its "
                     "error against the DEM shows in the gap to the validated MSE).",
+                    "",
+                ]
+            if "confirmation" in extra:
+                confirmation = extra["confirmation"]
+                scores = ", ".join(
+                    f"{value:.3g} -> " + ("failed" if c["mse"] is None else f"{c['mse']:.3g}")
+                    for value, c in zip(confirmation["surrogate_values"], confirmation["candidates"])
+                )
+                n_packings = len(confirmation["candidates"][0]["seeds"])
+                packings = f"{n_packings} packing{'s' if n_packings > 1 else ''}"
+                lines += [
+                    f"{route['route']}: its {len(confirmation['candidates'])} best distinct GNS points, run by the "
+                    f"DEM on {packings} of their own (GNS objective -> DEM MSE: {scores}); candidate "
+                    f"{confirmation['chosen'] + 1} was validated ({confirmation['dem_runs']} DEM runs, counted in "
+                    "the route's).",
                     "",
                 ]
         stated = "as the file states" if result.get("runout_stated") else "the config's: the file states none"

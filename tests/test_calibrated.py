@@ -1,6 +1,7 @@
 """The calibrated model (calibration/calibrated.py, pipeline/calibrated.py): which model, its
 parameters, and the validation on several packings, on tiny coarse-grained columns (77 grains)."""
 
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -417,3 +418,25 @@ def test_the_gns_routes_runs_are_split_in_words_only_when_it_borrows_the_base_gn
     assert own_runs_text({"gns_dem_runs": 30, "gns_own_dem_runs": 30}) == ""
     assert own_runs_text({"gns_dem_runs": 60}) == ""
     assert own_runs_text({"gns_dem_runs": 60, "gns_own_dem_runs": 30}).startswith(" (30 of its own dataset")
+
+
+def test_the_gns_routes_best_distinct_points_are_confirmed_by_the_dem():
+    """The surrogate's favourite is a point the DEM scores badly: the DEM's confirmation, on packings
+    of its own, chooses the point that made the data; near-duplicates and failed points are no
+    candidates."""
+    from calibration.confirmation import CONFIRM_SEED0, confirm, distinct_best
+
+    model = Model()
+    truth = [0.3, 0.8]
+    column = replace(COLUMN, runout=model_runout(model, COLUMN, truth, SETTINGS, 11, RUNOUT, None))
+    points = np.array([[0.9, 0.3], [0.9, 0.305], truth, [0.6, 0.6], [0.5, 0.5]])
+    values = np.array([0.01, 0.011, 0.02, np.nan, 0.5])  # the GNS's objective: its best is wrong
+    assert distinct_best(points, values, model, 3) == [0, 2, 4]  # the near-duplicate and the NaN left out
+    assert distinct_best(points, values, model, 1) == [0]
+    confirmation = confirm(model, column, points, values, SETTINGS, RUNOUT, None, n_candidates=2, n_packings=2)
+    assert [c.seeds for c in confirmation.candidates] == [[CONFIRM_SEED0, CONFIRM_SEED0 + 1]] * 2
+    assert confirmation.surrogate_values == [0.01, 0.02] and confirmation.dem_runs == 4
+    scores = [c.mse for c in confirmation.candidates]
+    # the truth on packings other than the data's: packing scatter only (here 0.0035, the wrong point 0.019)
+    assert scores[1] < scores[0] / 2, scores
+    assert confirmation.chosen == 1 and confirmation.theta == pytest.approx(truth)

@@ -392,6 +392,15 @@ def test_calibrated_model_routes_and_validations(results):
         assert finite(v["mse"], v["mse_se"], v["mean"], v["curves"]) and v["mse"] >= 0, key
         assert within(v["parameters"], list(v["parameters"]), [bounds[names.index(n)] for n in v["parameters"]]), key
         assert v["model"] == ("base" if key.startswith(("base-", "diagnosis-base")) else "rolling_resistance"), key
+    # the GNS route's 2 best distinct points ran by the DEM on 1 packing each; the lowest was validated
+    confirmation = validations["model-inverse"]["extra"]["confirmation"]
+    candidates = confirmation["candidates"]
+    assert len(candidates) == 2 and [c["seeds"] for c in candidates] == [[7001], [7001]]
+    chosen = candidates[confirmation["chosen"]]
+    assert chosen["mse"] == min(c["mse"] for c in candidates)
+    assert validations["model-inverse"]["parameters"] == chosen["parameters"]
+    values = confirmation["surrogate_values"]
+    assert confirmation["dem_runs"] == 2 and values == sorted(values)
 
 
 def test_calibrated_answer_transfer_and_prediction(results):
