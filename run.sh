@@ -84,8 +84,7 @@ case "${1:-}" in
             echo "run.sh: lint failed (see above); fix it before the tests run" >&2; exit 1
         fi
         # two workers, one per core, a test file per worker at a time, the longest first
-        # (tests/conftest.py); the slowest tests in the log: the suite must stay under 10 minutes
-        # on 2 cores (README)
+        # (tests/conftest.py); the slowest tests in the log, to keep the suite short on 2 cores
         exec "$VENV/bin/python" -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder --durations=15 "$@"
         ;;
     *)

@@ -86,7 +86,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-EXPECTED_EXPONENT = {"dem": -3.5, "gns": -2.0}  # cost ~ size_scale^exponent (README "The DEM model")
+EXPECTED_EXPONENT = {"dem": -3.5, "gns": -2.0}  # cost ~ size_scale^exponent (docs/experiments/grain-size.md)
 
 
 def timed(function):

@@ -401,7 +401,8 @@ LIBRARY_SETTINGS = ("size_scale", "packing_seeds", "candidates", "channel_width"
 # A candidate whose fit leaves its mechanism at the off value is the base model at another (mu, e):
 # its BIC gain over the base is the base's own fit falling short (a chaotic objective, searched from
 # other runs), not evidence for the mechanism. Found on LIGGGHTS data (basal friction 0.23, where
-# "gate lift" won at gate slowness 0 by ΔBIC 38): README "Another solver's data".
+# "gate lift" won at gate slowness 0 by ΔBIC 38): docs/experiments/diagnosis.md,
+# "2026-11-30: another solver's data (LIGGGHTS)".
 OFF_TOLERANCE = 0.01  # of the mechanism's range: closer than this to its off value is off
 
 

@@ -2,7 +2,7 @@
 
 Each candidate is one small plug-in class behind one interface (`Mechanism`): a single physical
 parameter, "off" at `off_value`, that `case_fields` turns into CollapseCase fields of the builtin
-engine (dem/, README "The DEM model"; each checked against a known answer in
+engine (dem/, docs/dem.md "Candidate mechanisms"; each checked against a known answer in
 tests/test_mechanisms.py). The diagnosis (calibration/diagnosis.py) adds one candidate at a time to
 the base model and asks whether the data want it.
 

@@ -3,7 +3,7 @@ DEM's, over the box the inverse design searches.
 
 A GNS can fit its training runs on average and still ignore one of its inputs. The calibrated quartz
 GNS (cohesion) rolled out L*(t/t* = 3.5) between 6.0 and 6.7 over its whole Bond-number range, where
-the DEM runs of its own dataset fall from about 8.3 to 4.4 (README, "The GNS route"). An inverse
+the DEM runs of its own dataset fall from about 8.3 to 4.4 (docs/experiments/gns-route.md). An inverse
 design through such a GNS moves that parameter on noise, and its posterior, linearised on the GNS,
 cannot know. The check, run with every inverse design that has its dataset's DEM runs:
 

@@ -123,7 +123,7 @@ class CollapseCase:
     tangential_stiffness_ratio: float = 2.0 / 7.0
     tangential_damping_ratio: float = 0.5
     dt_over_contact_time: float = 1.0 / 50.0
-    # Candidate mechanisms beyond the paper's model, each off by default (see README):
+    # Candidate mechanisms beyond the paper's model, each off by default (docs/dem.md, "Candidate mechanisms"):
     rolling_friction: float = 0.0  # mu_r of a type-C (EPSD2) rolling resistance
     cohesion_energy: float = 0.0  # w (J/m^2): pull-off force 1.5 pi w R* while in contact
     friction_base: float | None = None  # floor friction; None: follows the wall friction
@@ -336,11 +336,12 @@ def check_grains_across(
 
     Coarse graining (size_scale) keeps the column's L_i and a and swells the grains, so a short
     column at a large size_scale is only a few grains across, and then it collapses differently:
-    the runout falls well below the fine-grained column's (config key dem.min_grains_across, README
-    "The DEM model"). The one check of every DEM column the pipeline builds from its config (the
-    datasets' cases, the DoE's and the diagnosis' runs; pipeline.config). Raises CaseError whose
-    message starts with `where` (the config key) and names the grains across, the minimum, the
-    largest size_scale that passes and the shortest L_i that passes at this size_scale.
+    the runout falls well below the fine-grained column's (config key dem.min_grains_across,
+    docs/experiments/grain-size.md, "The size guard"). The one check of every DEM column the
+    pipeline builds from its config (the datasets' cases, the DoE's and the diagnosis' runs;
+    pipeline.config). Raises CaseError whose message starts with `where` (the config key) and
+    names the grains across, the minimum, the largest size_scale that passes and the shortest L_i
+    that passes at this size_scale.
     """
     material = get_material(material)
     across = grains_across(L_i, material, size_scale)

@@ -36,11 +36,10 @@ KERNEL_MODULES = ("dem.contact", "dem.integrate", "dem.neighbours")
 PACKAGE = Path(__file__).parent
 
 
-@functools.cache
-def _parsed(module: str) -> tuple[str, frozenset[str]]:
-    """(the module's code without docstrings or comments, in ast.unparse's layout; the kernel
-    modules it imports)."""
-    tree = ast.parse((PACKAGE / f"{module.rpartition('.')[2]}.py").read_bytes())
+def code_of(source: bytes) -> tuple[str, frozenset[str]]:
+    """(Python `source`'s code without docstrings or comments, in ast.unparse's layout; the modules
+    it imports): what a digest of code, not of text, is taken of."""
+    tree = ast.parse(source)
     imports = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.ImportFrom) and node.module:
@@ -55,7 +54,14 @@ def _parsed(module: str) -> tuple[str, frozenset[str]]:
                 and isinstance(first.value.value, str)
             ):
                 node.body = node.body[1:] or [ast.Pass()]
-    return ast.unparse(tree), frozenset(imports) & frozenset(KERNEL_MODULES)
+    return ast.unparse(tree), frozenset(imports)
+
+
+@functools.cache
+def _parsed(module: str) -> tuple[str, frozenset[str]]:
+    """(the kernel module's code_of; the kernel modules it imports)."""
+    code, imports = code_of((PACKAGE / f"{module.rpartition('.')[2]}.py").read_bytes())
+    return code, imports & frozenset(KERNEL_MODULES)
 
 
 @functools.cache

@@ -1,7 +1,7 @@
 """How the runout changes with grain size: one column and parameter set at several size_scale.
 
 Coarse graining (`size_scale`) swells the grains of a column of fixed L_i and a, so a coarse column
-is fewer grains across; its runout is shorter and its deposit higher (README "The DEM model"). A
+is fewer grains across; its runout is shorter and its deposit higher (docs/experiments/grain-size.md). A
 scale ladder runs one column at several size_scale, on a few packings each, and reads every run
 the same way. It runs in the DAG as rows of the case table (dataset `scale_ladder`,
 workflow/rules/scale_ladder.smk; stage layer pipeline/scale_ladder.py) and alone in

@@ -10,7 +10,7 @@ folder
                           particle_id (the grain's index, for ParaView's pathline filters)
 
 written with meshio (zlib-compressed binary XML). Open the `.pvd` in ParaView and show the points
-as "Point Gaussian" scaled by `radius` (README, "Looking at a run in ParaView").
+as "Point Gaussian" scaled by `radius` (docs/workflow.md, "Looking at a run in ParaView").
 
 The folder is written atomically: into a temporary folder beside it, renamed over it when every
 file (the `.pvd` last) is complete. An existing folder is replaced only when it holds nothing but

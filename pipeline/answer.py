@@ -6,7 +6,7 @@ results/report/answer_<name>.html (workflow rule calibrated_section, beside the 
 Snakemake's HTML report shows it under "1. The answer" and on its first page
 (workflow/report/workflow.rst includes it), so it is a fragment styled inline: no <html>, no
 <style> that could restyle the page around it, ASCII only (other characters as entities). The
-numbers are calibrated.json's, formatted as pipeline/calibrated.py's Markdown section formats them.
+numbers are calibrated.json's, formatted as pipeline/calibrated_section.py's Markdown section formats them.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from dem.atomic import StrPath, write_text
-from pipeline.calibrated import answer_score, format_se, format_span, transfer_holds
+from pipeline.calibrated_section import answer_score, format_se, format_span, transfer_holds
 
 CELL = "padding: 2px 10px 2px 0; text-align: left; vertical-align: top"
 FIRST_SENTENCE = re.compile(r"(?<=[.:])\s+(?=[A-Z])")

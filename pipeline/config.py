@@ -242,7 +242,7 @@ def _fill_defaults(instance, schema: dict, root: dict) -> None:
 
 
 def _renamed_keys(config: dict) -> list[str]:
-    """`key.path: renamed to NEW` for every key of an older version (README: "Renamed keys")."""
+    """`key.path: renamed to NEW` for every key of an older version (docs/dem.md, "Renamed keys")."""
     problems = []
     for name, spec in (config.get("datasets") or {}).items():
         for old in sorted(set(spec or {}) & set(RENAMED_CASE_KEYS)):

@@ -26,15 +26,9 @@ from calibration.objective import runout_mse
 from dem.atomic import write_json
 from dem.engines.liggghts import LiggghtsEngine
 from dem.runout import RunoutMethod
-from pipeline.calibrated import (
-    choose_model,
-    run_calibrated,
-    run_model_bayesopt,
-    run_section,
-    run_validation,
-    transfer_holds,
-)
+from pipeline.calibrated import choose_model, run_calibrated, run_model_bayesopt, run_validation
 from pipeline.calibrated_doe import run_model_doe
+from pipeline.calibrated_section import run_section, transfer_holds
 from pipeline.config import ConfigError, check_calibration
 
 RUNOUT = RunoutMethod()
@@ -413,7 +407,7 @@ def test_the_bo_figure_draws_a_model_of_three_parameters(tmp_path):
 def test_the_gns_routes_runs_are_split_in_words_only_when_it_borrows_the_base_gns():
     """A model's GNS trained from scratch spends only its own dataset's runs; a warm-started one also
     the base GNS's, and the report says which part is whose."""
-    from pipeline.calibrated import own_runs_text
+    from pipeline.calibrated_section import own_runs_text
 
     assert own_runs_text({"gns_dem_runs": 30, "gns_own_dem_runs": 30}) == ""
     assert own_runs_text({"gns_dem_runs": 60}) == ""

@@ -164,7 +164,7 @@ def test_checks_run_in_stage_order():
     ],
 )
 def test_old_case_key_names_its_new_name(where, old, new):
-    """One name per quantity (README "Renamed keys"): a config written for the old names fails at the key."""
+    """One name per quantity (docs/dem.md, "Renamed keys"): a config written for the old names fails at the key."""
 
     def edit(config):
         spec = config["datasets"]["tiny_friction"]

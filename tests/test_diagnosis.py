@@ -40,6 +40,7 @@ from calibration.synthetic import (
 from calibration.uncertainty import laplace_posterior
 from dem.case import CollapseCase
 from dem.engines.liggghts_hertz import MAX_OVERLAP, hertz_parameters, sjkr_energy_density, sjkr_pull_off_force
+from dem.kernel_sources import code_of
 from dem.runout import RunoutMethod, runout_curve
 from dem.trajectory import Trajectory
 from pipeline.diagnosis import read_diagnosis, run_diagnosis, run_section, write_diagnosis
@@ -266,8 +267,8 @@ def test_decision_names_a_cause_only_when_decisive():
 
 
 def test_a_mechanism_at_its_off_value_is_off():
-    """The LIGGGHTS case that named gate lift at gate slowness 0 (basal friction 0.23; README): each
-    candidate's off value, the basal friction's being the fitted mu."""
+    """The LIGGGHTS case that named gate lift at gate slowness 0 (basal friction 0.23;
+    docs/experiments/diagnosis.md): each candidate's off value, the basal friction's being the fitted mu."""
     models = {m.name: Model(m) for m in get_mechanisms()}
     fit = {"friction": 0.48, "restitution": 0.75}
     assert not mechanism_on(models["gate_lift"], dict(fit, gate_slowness=0.0))
@@ -479,16 +480,16 @@ def library_key(runout_method: str | None = None) -> str:
     digest = hashlib.sha256(
         json.dumps([{k: CI_SETTINGS.to_dict()[k] for k in LIBRARY_SETTINGS}, Observables(columns).signature()]).encode()
     )
-    for path in sorted(p for pattern in LIBRARY_SOURCES for p in root.glob(pattern)):
-        digest.update(path.relative_to(root).as_posix().encode() + path.read_bytes())
+    for path in sorted(p for pattern in LIBRARY_SOURCES for p in root.glob(pattern)):  # their code, not comments
+        digest.update(path.relative_to(root).as_posix().encode() + code_of(path.read_bytes())[0].encode())
     return digest.hexdigest()[:16]
 
 
 def cached_library(prefix: str, runout_method: str | None = None) -> tuple[list[MeasuredColumn], Library, Path]:
     """(columns, design runs, file) of the CI columns stating `runout_method` (None: none, read by
     the config's method): 34 short DEM runs (~30 s), cached in tests/diagnosis_cache/<prefix>_<key>.npz
-    under a hash of the engine's and the design's sources and CI_SETTINGS (rebuilt when it
-    changes), with every model's emulator fitted once for all the cases that use it."""
+    under a hash of the engine's and the design's code (not their comments) and CI_SETTINGS (rebuilt
+    when it changes), with every model's emulator fitted once for all the cases that use it."""
     columns = synthetic_columns(runout_method=runout_method)
     path = CACHE / f"{prefix}_{library_key(runout_method)}.npz"
     if path.exists():

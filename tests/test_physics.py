@@ -24,7 +24,7 @@ def run_until_separated(state, law, dt, steps=4000):
 
 
 # the default step (t_c / 50, MFIX's DTSOLID_FACTOR 50) and the coarser one a full-scale run may take
-# (README, "Speed"), with the restitution each gives to within: at t_c / 25 a damped contact's
+# (docs/experiments/time-step.md), with the restitution each gives to within: at t_c / 25 a damped contact's
 # discrete impulse falls short by up to 3% (measured: 0.291 for e = 0.3)
 STEPS = pytest.mark.parametrize("dt_over_contact_time", [1 / 50, 1 / 25])
 E_TOLERANCE = {1 / 50: 0.02, 1 / 25: 0.04}

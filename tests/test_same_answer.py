@@ -5,8 +5,8 @@ with another PYTHONHASHSEED, writes the same JSON outputs as the session's run
 What this shows is bits on one machine: the same code and libraries on the same processor repeat
 every number of every stage (DEM, the GNS trainings, GP fits, Bayesian optimisation, the DoE
 regression, the diagnosis, the answer). It says nothing of another processor, whose BLAS and torch
-kernels may round otherwise: there a route's optimum can move within its own spread (README, "How
-much the answer moves").
+kernels may round otherwise: there a route's optimum can move within its own spread (README, "What
+repeats, and where").
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ column (results/report/answer_<name>.html) from every calibrated.json."""
 import logging
 
 from pipeline.answer import run_answers
-from pipeline.calibrated import run_section
+from pipeline.calibrated_section import run_section
 
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
 run_section(snakemake.input.results, snakemake.input.figures, snakemake.output.section)

@@ -1,0 +1,282 @@
+"""The report's section of the calibrated model (workflow rule calibrated_section):
+results/report/calibrated.md from every measured column's calibrated.json (pipeline/calibrated.py
+writes those), and the answer's score as the report and the answer page (pipeline/answer.py) state it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+from calibration.calibrated import PREDICTION_TSTAR
+from dem.atomic import StrPath, write_text
+
+
+def answer_score(result: dict) -> dict:
+    """The answer's score as the report states it, from calibrated.json `result`: {route, mse,
+    mse_se, mse_each, n_ran, shared} on the runoff's packings when the answer ran one (shared: the
+    packings every route was scored on, with their MSE as shared_mse), else on the validation's."""
+    answer = next(r for r in result["routes"] if r["route"] == result["answer"])
+    scored = next((r for r in result.get("runoff") or [] if r["route"] == result["answer"]), None)
+    source = scored or answer
+    return {
+        "route": answer,
+        "mse": source["mse"],
+        "mse_se": source.get("mse_se"),
+        "mse_each": source["mse_each"],
+        "n_ran": len(source["seeds"]) - len(source["failed"]),
+        "shared": None if scored is None else len(answer["seeds"]) - len(answer["failed"]),
+        "shared_mse": answer["mse"],
+    }
+
+
+def transfer_holds(transfer: dict, score: dict) -> bool:
+    """Whether the answer transfers one size_scale finer (calibrated.json's `transfer` and answer_score's
+    `score`): its MSE there at most twice the answer's at its own scale on as many packings (the
+    validation's, not the runoff's: a mean over more packings scores lower by its smaller scatter)."""
+    return transfer["mse"] <= 2 * score["shared_mse"]
+
+
+def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
+    """The report's first section: the answer per measured column."""
+    lines = [
+        "The answer: which DEM model reproduces each measurement, its parameters, and how well DEM runs "
+        "at them do, scored on the mean runout curve of several packings the calibration never saw "
+        "(packing scatter beside it).",
+        "",
+    ]
+    for result in results:
+        score = answer_score(result)
+        answer = score["route"]
+        figure = Path(os.path.relpath(Path(result["figure"]), Path(section_path).parent)).as_posix()
+        parameters = ", ".join(f"{k} = {v:.3g}" for k, v in answer["parameters"].items())
+        lines += [
+            f"### {result['name']}: {result['model']} model",
+            "",
+            f"**{parameters}** (route: {answer['route']}), validated runout MSE **{score['mse']:.3g}** "
+            f"+- {format_se(score['mse_se'])} on the mean of {score['n_ran']} packings "
+            f"(each packing alone: {format_span(score['mse_each'])}).",
+            "",
+            *runoff_lines(result),
+            f"Why this model: {result['why']}",
+            "",
+        ]
+        if result.get("intervals"):
+            spans = ", ".join(
+                f"{p['name']} [{p['low']:.3g}, {p['high']:.3g}]" + ("" if p["identifiable"] else " (not identifiable)")
+                for p in result["intervals"]
+            )
+            lines += [
+                f"95% intervals (the diagnosis' Laplace posterior of this model, about its own fit): {spans}.",
+                "",
+            ]
+        if result.get("gns_intervals"):
+            spans = ", ".join(
+                f"{p['name']} {p['value']:.3g} [{p['low']:.3g}, {p['high']:.3g}]"
+                + ("" if p["identifiable"] else " (not identifiable)")
+                for p in result["gns_intervals"]
+            )
+            lines += [
+                f"95% intervals of the GNS inverse design (its Laplace posterior about the GNS optimum; noise: the "
+                f"measured scatter and the GNS's own runout error on its test split at each t/t* point): {spans}.",
+                "",
+            ]
+        for p in result.get("gns_sensitivity") or []:  # calibration.sensitivity: the GNS blind to a parameter
+            if p["resolved"] is False:
+                lines += [
+                    f"**The GNS does not see {p['name']}**: {p['why'].removeprefix('the GNS does not resolve it: ')}; "
+                    "the GNS route's value of it is a guess (figure: does the GNS see each parameter).",
+                    "",
+                ]
+            elif p.get("gns_only"):
+                lines += [
+                    f"**The GNS responds to {p['name']}, the DEM hardly does**: "
+                    f"{p['why'].removeprefix('the DEM hardly responds to it, the GNS does: ')}; the GNS route's "
+                    "interval of it rests on the GNS alone (flagged not identifiable; figure: does the GNS see each "
+                    "parameter).",
+                    "",
+                ]
+        lines += [
+            "| route | parameters | DEM runs to calibrate | time to calibrate | validated MSE (packing mean) +- SE | "
+            "minus the answer's, paired +- SE | MSE per packing | failed runs | validation time |",
+            "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        ]
+        for route in result["routes"]:
+            values = ", ".join(f"{k} {v:.3g}" for k, v in route["parameters"].items())
+            failed = "; ".join(f"packing {k}: {v}" for k, v in route["failed"].items()) or "none"
+            runs = route["dem_runs"] or "those of the GNS dataset"
+            versus = route.get("versus_answer") or {}
+            lines.append(
+                f"| {route['route']} | {values} | {runs} | {route['calibration_seconds']:.0f} s | "
+                f"{route['mse']:.4g} +- {format_se(route.get('mse_se'))} | "
+                f"{versus.get('mse_difference', math.nan):+.3g} +- {format_se(versus.get('se'))} | "
+                f"{format_span(route['mse_each'])} | {failed} | {route['seconds']:.0f} s |"
+            )
+        lines += [
+            "",
+            "SE: the jackknife standard error over the validation packings (how far another "
+            f"{result['validation_packings']} packings could move the score); the paired difference uses the "
+            "same packings for both routes, so their shared chaos cancels. Routes whose difference is within "
+            "about 2 SE of zero are not told apart by this validation.",
+            "",
+        ]
+        for versus in result.get("gns_vs_doe") or []:
+            if versus["se"] is None:
+                verdict = "too few packings ran to tell them apart"
+            elif abs(versus["mse_difference"]) <= 2 * versus["se"]:
+                verdict = "within the packing scatter of each other"
+            else:
+                verdict = "the GNS route is better" if versus["mse_difference"] < 0 else "the DoE route is better"
+            cost = "no more" if versus["gns_dem_runs"] <= versus["doe_dem_runs"] else "more"
+            lines += [
+                f"**GNS against {versus['doe_route']}** (the paper's claim): validated MSE of the GNS route minus "
+                f"the DoE route's {versus['mse_difference']:+.3g} +- {format_se(versus['se'])} (paired, on "
+                f"{versus.get('packings', result['validation_packings'])} packings), with "
+                f"{versus['gns_dem_runs']} DEM runs{own_runs_text(versus)} against {versus['doe_dem_runs']} "
+                f"({cost} DEM runs): {verdict}.",
+                "",
+            ]
+        for route in result["routes"]:
+            extra = route.get("extra") or {}
+            if "r_squared" in extra:
+                lines += [
+                    f"{route['route']}: {route['dem_runs']} DEM runs ({extra['failures']}); quadratic response "
+                    f"surface R^2 {extra['r_squared']:.3f}, lack of fit p = {extra['lack_of_fit_p']:.3g}; terms with "
+                    f"p < 0.05 (type-III ANOVA): {', '.join(extra['significant']) or 'none'}; the surface predicts "
+                    f"MSE {extra['predicted_mse']:.3g} at its optimum.",
+                    "",
+                ]
+            if "gns_objective" in extra:
+                lines += [
+                    f"{route['route']}: the GNS's own objective at its optimum {extra['gns_objective']:.3g} (its "
+                    "error against the DEM shows in the gap to the validated MSE).",
+                    "",
+                ]
+            if "confirmation" in extra:
+                confirmation = extra["confirmation"]
+                scores = ", ".join(
+                    f"{value:.3g} -> " + ("failed" if c["mse"] is None else f"{c['mse']:.3g}")
+                    for value, c in zip(confirmation["surrogate_values"], confirmation["candidates"])
+                )
+                n_packings = len(confirmation["candidates"][0]["seeds"])
+                packings = f"{n_packings} packing{'s' if n_packings > 1 else ''}"
+                lines += [
+                    f"{route['route']}: its {len(confirmation['candidates'])} best distinct GNS points, run by the "
+                    f"DEM on {packings} of their own (GNS objective -> DEM MSE: {scores}); candidate "
+                    f"{confirmation['chosen'] + 1} was validated ({confirmation['dem_runs']} DEM runs, counted in "
+                    "the route's).",
+                    "",
+                ]
+        stated = "as the file states" if result.get("runout_stated") else "the config's: the file states none"
+        lines += [
+            f"DEM: {result['engine']} engine, size_scale {result['size_scale']:g} (parameters fitted at one scale are "
+            f"effective values of that scale), runout read by {result['runout']['method']} ({stated}); the Bayesian "
+            f"optimisation ran on packing seed {result['calibration_packing']}, the validation on "
+            f"{result['validation_packings']} others. The answer is the route of this model with the lowest "
+            f"validated MSE on {result.get('answer_packings', result['validation_packings'])} packings (so the "
+            "choice, not each route's score, has seen the validation packings); the diagnosis fit's time is the "
+            "diagnosis job's, its design runs' DEM time aside.",
+            "",
+            f"![calibrated model of {result['name']}]({figure})",
+            "",
+        ]
+        for extra_figure, what in (
+            ("bayesopt.png", "Bayesian optimisation"),
+            ("doe_surface.png", "DoE response surface (face-centred CCD)"),
+            ("doe_full_factorial_surface.png", "DoE response surface (3-level full factorial)"),
+            ("inverse_paths.png", "GNS inverse design"),
+        ):
+            if (Path(result["figure"]).parent / extra_figure).exists():
+                lines += [f"![{what} of {result['name']}]({Path(figure).with_name(extra_figure).as_posix()})", ""]
+        # the model's own GNS (the GNS stage's rules on dataset calibrated_<name>): training and test split
+        gns = Path(result["figure"]).parents[2] / "gns" / f"calibrated_{result['name']}"
+        for gns_figure, what in (("train/loss_curve.png", "training"), ("evaluation/runout_curves.png", "test split")):
+            if (gns / gns_figure).exists():
+                link = Path(os.path.relpath(gns / gns_figure, Path(section_path).parent)).as_posix()
+                lines += [f"![the {result['model']} model's GNS of {result['name']}, {what}]({link})", ""]
+        transfer = result["transfer"]
+        if transfer is not None:
+            verdict = (
+                "the answer transfers."
+                if transfer_holds(transfer, score)
+                else "the parameters are effective values of their scale: recalibrate at the scale you run."
+            )
+            lines += [
+                f"**Scale transfer.** The same parameters one size_scale finer ({transfer['route']}): validated "
+                f"MSE **{transfer['mse']:.3g}** (each packing {format_span(transfer['mse_each'])}) against "
+                f"{score['shared_mse']:.3g} at size_scale {result['size_scale']:g} on as many packings: {verdict}",
+                "",
+            ]
+        p = result["prediction"]
+        cells = [f"{v:.3g}" if v is not None else "failed" for v in p["final_runout"]]
+        heights = [f"{v:.3g}" if v is not None else "failed" for v in p["height_over_L_i"]]
+        lines += [
+            "**Prediction** (same material, L_i and scale; one packing each): final runout at t/t* = "
+            f"{PREDICTION_TSTAR:g} and deposit height by aspect ratio; the measured column (a = "
+            f"{result['prediction_measured_a']:g}) reached L* = {result['measured_final_runout']:.3g} by its "
+            "last time.",
+            "",
+            "| a | " + " | ".join(f"{a:g}" for a in p["aspect_ratios"]) + " |",
+            "| --- |" + " --- |" * len(p["aspect_ratios"]),
+            "| final L* | " + " | ".join(cells) + " |",
+            "| H_f / L_i | " + " | ".join(heights) + " |",
+            "",
+            f"![predictions of {result['name']}]({Path(figure).with_name('prediction.png').as_posix()})",
+            "",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def runoff_lines(result: dict) -> list[str]:
+    """The runoff in words and a table (none when the answer ran none), for the report section."""
+    scored = result.get("runoff") or []
+    if not scored:
+        return []
+    shared = scored[0]["shared_packings"]
+    lines = [
+        f"How the answer was chosen: the lowest of several {shared}-packing scores flatters itself, so the "
+        f"{len(scored)} routes within 2 SE of the lowest (paired) ran on {result['answer_packings']} packings "
+        f"(the {shared} shared first) and the lowest there is the answer:",
+        "",
+        f"| route | MSE on {shared} packings | MSE on {result['answer_packings']} packings +- SE |",
+        "| --- | --- | --- |",
+    ]
+    first = {r["route"]: r["mse"] for r in result["routes"]}
+    for r in scored:
+        bold = "**" if r["route"] == result["answer"] else ""
+        score = f"{r['mse']:.3g} +- {format_se(r['mse_se'])}"
+        lines.append(f"| {bold}{r['route']}{bold} | {first[r['route']]:.3g} | {score} |")
+    return [*lines, ""]
+
+
+def own_runs_text(versus: dict) -> str:
+    """The GNS route's own DEM runs in words, for calibrated.json's gns_vs_doe ("" when its file
+    does not say): the rest are the base GNS's, shared with the paper's route."""
+    own, runs = versus.get("gns_own_dem_runs"), versus.get("gns_dem_runs")
+    if own is None or own == runs:  # trained from scratch: every run is its own
+        return ""
+    return f" ({own} of its own dataset, the rest the base GNS's it starts from)"
+
+
+def format_se(value: float | None) -> str:
+    """A standard error as the report writes it ("n/a" where there is none)."""
+    return f"{value:.2g}" if value is not None and math.isfinite(value) else "n/a"
+
+
+def format_span(values: Sequence[float]) -> str:
+    """The range of the finite values, "low-high" ("none ran" without any)."""
+    finite = [v for v in values if math.isfinite(v)]
+    return f"{min(finite):.3g}-{max(finite):.3g}" if finite else "none ran"
+
+
+def run_section(json_paths: Sequence[StrPath], figure_paths: Sequence[StrPath], section_path: StrPath) -> None:
+    """results/report/calibrated.md from every calibrated.json (workflow rule calibrated_section)."""
+    results = []
+    for path, figure in zip(json_paths, figure_paths, strict=True):
+        data = json.loads(Path(path).read_text())
+        data["figure"] = str(figure)
+        results.append(data)
+    write_text(section_path, section_markdown(results, section_path))

@@ -1,0 +1,132 @@
+"""The answer the project ships: the calibrated model of each measured column on the default config,
+frozen from a default DAG's calibrated.json into data/answer/<name>.json, and checked against the
+DEM of the code at hand (tests/test_shipped_answer.py).
+
+  python -m pipeline.shipped results/calibrated/quartz/calibrated.json data/answer/quartz.json
+
+A ShippedAnswer holds what an engineer takes away (model, route, parameters, validated MSE with its
+jackknife SE on so many packings) and what it takes to check it: the measured file, the runout
+method, the size_scale, the engine version, and the runout curve of every packing it was scored on.
+
+The check (`rerun`) runs the answer on its first validation packings again. With the same engine
+version the builtin DEM repeats its bits on every x86-64 processor, so the curves must come back as
+stored; under other kernels a collapse is another draw of its chaos, and the score must lie within
+what the packing scatter of the stored curves allows (`scatter_bound`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import json
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from calibration.calibrated import Validation, validate
+from calibration.design_runs import Model, SimulationSettings
+from calibration.measured import load_column
+from calibration.mechanisms import get_mechanisms
+from calibration.objective import runout_mse
+from dem.atomic import StrPath, write_json
+from dem.integrate import ENGINE_VERSION
+from dem.runout import RunoutMethod
+from pipeline.calibrated_section import answer_score
+
+
+@dataclass
+class ShippedAnswer:
+    """The shipped answer of one measured column.
+
+    parameters: {name: value} in the model's order; mse: runout MSE (L*^2) of the mean curve over
+    the packings `seeds`, mse_se its jackknife SE (None under 3 packings); curves [R][K]: L* of each
+    packing at the measured t/t* (None where a run failed); channel_width (m): the side-wall
+    candidate's channel; engine_version: dem.integrate.ENGINE_VERSION of the runs."""
+
+    name: str
+    measured: str
+    model: str
+    route: str
+    parameters: dict[str, float]
+    mse: float
+    mse_se: float | None
+    seeds: list[int]
+    curves: list[list[float] | None]
+    size_scale: float
+    runout: dict
+    channel_width: float
+    engine: str
+    engine_version: str
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> ShippedAnswer:
+        return cls(**data)
+
+    def model_of(self) -> Model:
+        """The Model the answer calibrates (its parameters in this answer's order)."""
+        model = Model() if self.model == "base" else Model(get_mechanisms([self.model], self.channel_width)[0])
+        if list(model.parameter_names) != list(self.parameters):
+            raise ValueError(f"{self.name}: parameters {list(self.parameters)} are not model {self.model}'s")
+        return model
+
+
+def freeze(calibrated: dict, channel_width: float = 0.01) -> ShippedAnswer:
+    """The ShippedAnswer of a calibrated.json (read): the answer's route, scored on the runoff's
+    packings where it ran one, else on the validation's (pipeline.calibrated_section.answer_score)."""
+    score = answer_score(calibrated)
+    answer = score["route"]
+    source = next((r for r in calibrated.get("runoff") or [] if r["route"] == calibrated["answer"]), answer)
+    return ShippedAnswer(
+        name=calibrated["name"],
+        measured=calibrated["measured"],
+        model=calibrated["model"],
+        route=answer["route"],
+        parameters={k: float(v) for k, v in answer["parameters"].items()},
+        mse=float(score["mse"]),
+        mse_se=score["mse_se"],
+        seeds=[int(s) for s in source["seeds"]],
+        curves=source["curves"],
+        size_scale=float(calibrated["size_scale"]),
+        runout=calibrated["runout"],
+        channel_width=channel_width,
+        engine=calibrated["engine"],
+        engine_version=ENGINE_VERSION,
+    )
+
+
+def read_answer(path: StrPath) -> ShippedAnswer:
+    return ShippedAnswer.from_dict(json.loads(Path(path).read_text()))
+
+
+def rerun(answer: ShippedAnswer, n_packings: int = 2, root: StrPath = ".") -> Validation:
+    """The answer run again by the DEM on its first n_packings packings (the measured file read from
+    under `root`)."""
+    column = load_column(Path(root) / answer.measured)
+    runout = column.runout_reading(RunoutMethod.from_config(answer.runout))
+    settings = SimulationSettings(size_scale=answer.size_scale)
+    theta = list(answer.parameters.values())
+    first = answer.seeds[0]
+    dem = {"engine": answer.engine}
+    return validate(answer.route, answer.model_of(), column, theta, settings, runout, dem, n_packings, seed0=first)
+
+
+def scatter_bound(answer: ShippedAnswer, measured: np.ndarray, n_packings: int = 2) -> tuple[float, float]:
+    """(lowest, highest) MSE of the mean curve of any n_packings of the stored packings: the range
+    another draw of as many packings of the same parameters falls in, by the stored scatter."""
+    curves = [np.asarray(c, float) for c in answer.curves if c is not None]
+    scores = [runout_mse(np.mean(group, axis=0), measured) for group in itertools.combinations(curves, n_packings)]
+    return float(min(scores)), float(max(scores))
+
+
+def main(argv: list[str]) -> None:
+    calibrated_path, out_path = argv[1], argv[2]
+    write_json(out_path, freeze(json.loads(Path(calibrated_path).read_text())).to_dict())
+
+
+if __name__ == "__main__":
+    main(sys.argv)
