@@ -1,7 +1,7 @@
-"""Throughput of the builtin engine on one and two threads, against LIGGGHTS; prints JSON (issue 18).
+"""Throughput of the builtin engine on one and two threads, against LIGGGHTS; prints JSON.
 
 Two cases, quartz L_i = 0.02 m at full grain size:
-- standard: a = 1 (~2,450 grains), the case of issue 2;
+- standard: a = 1 (~2,450 grains), the case of the engine's first throughput benchmark;
 - full_scale: the measured column, a = 6 (~14,700 grains).
 For each: the settle and --duration t* of collapse on 1 and on 2 threads (particle-steps/s and the
 speed-up), the settle's cost in t* of collapse, and LIGGGHTS 3.8 on the same packing over

@@ -1,6 +1,6 @@
 """GNS speed against the builtin DEM, measured in one run; prints JSON. Two modes.
 
-One dataset case (issue 5):
+One dataset case:
 
   python benchmarks/gns_speed.py [--dataset results/datasets/quartz_multiple/metadata.json]
                                  [--model results/gns/quartz_multiple/train/model_best.pt]
@@ -18,9 +18,9 @@ Speed-ups, DEM over GNS:
   speedup_settle_and_collapse    (DEM settle + collapse) / GNS rollout: a new parameter set in the
                                  inverse design, where every GNS rollout reuses one start but the
                                  DEM has to settle the column again (the packing depends on mu, e)
-Target (issue 5): GNS rollout at least 2x faster than the builtin DEM.
+Target: GNS rollout at least 2x faster than the builtin DEM.
 
-Across grain sizes (issue 18): how the speed-up grows as the grains get finer.
+Across grain sizes: how the speed-up grows as the grains get finer.
 
   python benchmarks/gns_speed.py --size-scales 5,4,3,2 [--model PATH] [--duration 4]
                                  [--config config/config.yaml] [--threads 1]

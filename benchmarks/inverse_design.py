@@ -1,7 +1,7 @@
 """GNS inverse design on this CPU: online wall time with autograd and with finite differences, the
 float32 finite-difference step scan, and parameter recovery on synthetic DEM targets; prints JSON.
 
-Target (issue 7): online inverse design under 2 minutes with autograd gradients on the default
+Target: online inverse design under 2 minutes with autograd gradients on the default
 config (the paper: about 15 minutes on an RTX 3060); recovery of mu within 0.03 with the truth
 inside the 95% intervals in at least 4 of 5 targets.
 

@@ -1,4 +1,4 @@
-"""Parameter recovery through the calibrated model's GNS (issue 15): synthetic DEM targets of the
+"""Parameter recovery through the calibrated model's GNS: synthetic DEM targets of the
 extended model, recovered by the GNS inverse design over all its parameters; prints JSON.
 
     python benchmarks/recovery_extended.py [--name quartz] [--targets 5] [--packings 4] [--noise 0.05]
@@ -20,8 +20,8 @@ with C the target's own noise (no model error) and J the Jacobian of L* at the o
 the best estimate of the mean response's slopes at hand). As in the DAG, the GNS's response to each
 parameter is checked against its dataset's DEM runs (calibration.sensitivity): a parameter it does
 not resolve, or resolves where the DEM is flat, has its bounds as interval, and as bound too (the
-DEM's flat mean response could not narrow it either); the row lists them (untrusted). Targets of
-issue 15: the truth inside in at least 4 of 5; half-widths within 2x of the bound.
+DEM's flat mean response could not narrow it either); the row lists them (untrusted). Pass targets
+(docs/experiments/gns-route.md): the truth inside in at least 4 of 5; half-widths within 2x of the bound.
 """
 
 from __future__ import annotations

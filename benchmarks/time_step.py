@@ -1,4 +1,4 @@
-"""How the collapse's answer depends on the time step, against the packing scatter; prints JSON (issue 18).
+"""How the collapse's answer depends on the time step, against the packing scatter; prints JSON.
 
 The measured quartz column (a = 6, L_i = 0.02 m) at (mu, e) = (0.39, 0.54), at each --size-scales
 (default 3: 1,635 grains), on --packings packings (seeds 0, 1, ...), each settled and collapsed over

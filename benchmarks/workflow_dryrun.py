@@ -1,6 +1,6 @@
 """Time of a Snakemake dry run of the paper's 700-case config; prints JSON.
 
-Target (issue 4): under 30 s. Reports wall time and the CPU time of the Snakemake process (user +
+Target: under 30 s. Reports wall time and the CPU time of the Snakemake process (user +
 system), which does not grow when other work shares the machine.
 
     python benchmarks/workflow_dryrun.py [--configfile config/paper.yaml]

@@ -13,7 +13,7 @@ starts every rollout from the first frames of a reference run at the paper's sta
 packing, as a real measurement would have), so its prediction is one packing's: s_p joins the
 posterior's noise model on the model side as well (calibration.inverse.noise_level), and the
 95% intervals carry the packing scatter instead of pretending the runout is a smooth function of
-(mu, e). Pass (issue 7): mu within `mu_tolerance` of the truth, and the truth inside the 95%
+(mu, e). Pass: mu within `mu_tolerance` of the truth, and the truth inside the 95%
 intervals of both parameters (an unidentifiable parameter's interval is the whole bound: it
 cannot fail by being too narrow, and is reported as such).
 """

@@ -94,7 +94,7 @@ def profile_resolution_std(column: MeasuredColumn, size_scale: float) -> float:
     A height is the top of the highest grain in a bin, so a deposit a few grains thick is built of
     whole grains: a model of coarser grains (d_model = size_scale x the material's diameter) piles
     it in thicker layers and reads it on average about half the difference of the diameters higher
-    (the offset seen in data from a finer solver, issue 19). That is the model's resolution, not
+    (the offset seen in data from a finer solver). That is the model's resolution, not
     its physics, so it is counted as noise, not left for a mechanism to absorb. The grain-scale
     roughness of the surface itself is already in the packing scatter of repeated runs.
     """

@@ -362,7 +362,7 @@ def check_grains_across(
 
 
 MAX_DT_OVER_CONTACT_TIME = 0.1
-# Old spellings of case fields (one name per quantity since issue 14): old -> new.
+# Old spellings of case fields (one name per quantity): old -> new.
 RENAMED_CASE_KEYS = {
     "column_length": "L_i",
     "initial_height": "H_i (derived: aspect_ratio x L_i)",

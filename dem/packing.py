@@ -30,7 +30,7 @@ MAX_SETTLE_TSTAR = 20.0  # give up (error) after this many t*
 # longer than contact_time / 10, the case's own stability bound (MAX_DT_OVER_CONTACT_TIME): only the
 # state at rest is kept, and 10-20 steps still resolve a contact (symplectic Euler is stable to
 # ~contact_time / 1.6). The settle then costs about half to two thirds of what 1 t* of collapse
-# costs at either step (issue 18, benchmarks/builtin_engine.py); most of its ~1.7 t* is the lattice
+# costs at either step (docs/experiments/dem-speed.md, benchmarks/builtin_engine.py); most of its ~1.7 t* is the lattice
 # falling ~0.2 H_i and a few grains splashed off the top falling back.
 SETTLE_STEP_OVER_COLLAPSE_STEP = 2.5
 MIN_SETTLE_STEPS_PER_CONTACT = 1.0 / MAX_DT_OVER_CONTACT_TIME

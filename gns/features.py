@@ -30,7 +30,7 @@ Where this differs from the paper, and why:
     update is where the network forms it. Fed to the nodes only, a GNS of the cohesive model
     (mu, e, Bond) rolled out the same runout at every Bond number (L*(3.5) 6.3 / 6.2 / 6.4 at Bond
     28 / 44 / 60, DEM 8.3 / 6.5 / 4.4), however it was trained; with the parameters on the edges
-    too, the same training gave 8.3 / 7.1 / 6.3 (issue 15 note, benchmarks/gns_sensitivity.py).
+    too, the same training gave 8.3 / 7.1 / 6.3 (benchmarks/gns_sensitivity.py, docs/experiments/gns-route.md).
   - degenerate ranges (a parameter fixed across the dataset) give a constant 0 feature.
 """
 

@@ -22,8 +22,8 @@ from torch import nn
 class LayerNorm(nn.LayerNorm):
     """nn.LayerNorm with its affine step (weight, bias) outside torch's fused kernel. That kernel's CPU
     backward sums the weight and bias gradients over the rows in per-thread buffers, so they, and so
-    every trained weight, changed with the number of torch threads (issue 16: a training on 1 and on 2
-    threads differed after one step); autograd's sum of the elementwise affine over the rows is split
+    every trained weight, changed with the number of torch threads (a training on 1 and on 2 threads
+    differed after one step); autograd's sum of the elementwise affine over the rows is split
     by output column, the same on any number of threads. Same parameters, same state_dict keys."""
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:

@@ -14,7 +14,7 @@ class TrainSettings:
     """The config's `gns` section (workflow/schemas/config.schema.yaml documents each key)."""
 
     # A small model, sized by measurement on the quartz a = 6 column (589 grains, one step =
-    # 0.005 s; issue 5 note, benchmarks/gns_speed.py): a rollout step costs several times less
+    # 0.005 s; benchmarks/gns_speed.py, docs/experiments/gns-training.md): a rollout step costs several times less
     # than the 64-wide, M = 5 model and trains ~4x more steps per CPU second.
     connectivity_radius: float = 2.0  # in mean grain diameters of the dataset (~10 edges per grain)
     n_input_frames: int = 6  # C

@@ -28,7 +28,7 @@ from gns.network import EncodeProcessDecode
 # entries of a dataset's parameter_ranges that are not DEM parameters: the layout, and the
 # aspect ratio H_i / L_i that the layout already gives
 NOT_PARAMETERS = LAYOUT_KEYS + ("aspect_ratio",)
-# checkpoint keys renamed since (issue 14: the metres carry their unit; the config's keys are in diameters)
+# checkpoint keys of older trainings, renamed: the metres carry their unit (the config's keys are in diameters)
 RENAMED = {"connectivity_radius": "connectivity_radius_m", "noise_std": "noise_std_m"}
 WALL_CLAMP_DEPTH = 0.5  # grain radii: the deepest a rollout lets a grain centre sink into a wall
 

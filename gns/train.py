@@ -7,7 +7,7 @@ there. The random-walk noise of Sanchez-Gonzalez et al. stands in for rollout er
 frame interval (grains move up to 2.5 diameters a frame, and a one-step prediction errs by about
 0.1 diameter a step) it is a hundred times smaller than the error a rollout makes; trained on its
 own drifted states the model learns to correct them. On quartz_multiple it cut the validation
-runout MSE at equal steps by several times (issue 5 note).
+runout MSE at equal steps by several times (docs/experiments/gns-training.md).
 
 Outputs in `out_dir`:
   checkpoint_last.pt  model, optimiser, sampler and noise RNG states, step, metrics history:

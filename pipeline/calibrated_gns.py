@@ -41,7 +41,7 @@ def model_gns_settings(
     the config's gns section for that dataset) for `steps` steps.
 
     From scratch by default: the base's learning rate, falling tenfold over `decay_steps` (None: over
-    the `steps`, as the 12000-step run that learnt the Bond number, issue 15 note; the schedule does
+    the `steps`, as the 12000-step run that learnt the Bond number, docs/experiments/gns-route.md; the schedule does
     not depend on `steps`, so a shorter run repeats the first steps of a longer one bit for bit). With
     `init_from`, a warm start from the weights there at `learning_rate`, the base's schedule
     compressed in proportion (a fine-tuning: a start at the base's 1e-3 undid it, the validation

@@ -1,4 +1,4 @@
-"""Same bits across processes (issue 16): run one piece of Python in several fresh interpreters at
+"""Same bits across processes: run one piece of Python in several fresh interpreters at
 once, each with its own PYTHONHASHSEED (and, where asked, its own torch thread count), and compare
 the sha256 of what each printed. Hashes of arrays, HDF5 datasets and torch state_dicts, in a fixed
 order, so "identical" means identical bits, not close."""

@@ -1,4 +1,4 @@
-"""Another solver's data (issue 16): a hidden mechanism in LIGGGHTS data is named by the diagnosis,
+"""Another solver's data: a hidden mechanism in LIGGGHTS data is named by the diagnosis,
 unchanged. Its own file so that, on CI's two workers (`--dist loadfile`), it runs beside
 tests/test_diagnosis.py rather than after it; the library and settings are that file's."""
 

@@ -141,7 +141,7 @@ DEM_IN_A_PROCESS = (
 
 def test_same_seed_same_result_bit_for_bit(small_case):
     """The same case gives the same trajectory arrays, bit for bit: here and in two fresh interpreters
-    with other hash seeds (issue 16: no dict or set order, no state left from an earlier run)."""
+    with other hash seeds (no dict or set order, no state left from an earlier run)."""
     case = small_case.replace(duration_over_tstar=1.0)
     first = simulate_collapse(case)
     here = sha256_arrays(dict(positions=first.positions, radius=first.radius, particle_type=first.particle_type))
@@ -166,7 +166,7 @@ def test_same_bits_on_every_x86_64_target(small_case):
 
 
 def test_two_threads_same_forces_and_same_bits(small_case, caplog):
-    """dem.threads 2 splits the grains between threads (issue 18): its steps follow the serial
+    """dem.threads 2 splits the grains between threads: its steps follow the serial
     kernel's to rounding (a reaction across the split lost or counted twice would not), and a
     run gives the same bits every time. Side-wall drag and rolling resistance are on, so the
     sums the split reorders all matter."""
@@ -195,7 +195,7 @@ class Killed(Exception):
 
 def test_killed_run_resumes_from_its_checkpoint_with_the_same_bits(small_case, tmp_path, caplog):
     """A run killed midway goes on from its last checkpoint and ends with the bits of a run never
-    stopped (issue 18: full-scale runs take minutes); a checkpoint that does not read whole or is
+    stopped (full-scale runs take minutes); a checkpoint that does not read whole or is
     of another thread count is set aside, saying so, and the run starts clean."""
     case, threads = small_case.replace(duration_over_tstar=1.0), 2
     packing = settle_column(case)

@@ -202,7 +202,7 @@ def test_tiny_dag_runs_through_the_slurm_executor(slurm_cluster, tmp_path):
 
 
 def test_dem_jobs_ask_for_what_their_grains_need():
-    """A DEM job's runtime and memory request scales with its grains and steps (issue 18): the
+    """A DEM job's runtime and memory request scales with its grains and steps: the
     measured column at full scale asks for about an hour where the coarse default's asks for the
     minimum, two threads ask for less time, a retry for twice as much."""
     from pipeline.dem import MIN_RUNTIME_MIN, job_resources

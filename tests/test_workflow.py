@@ -187,7 +187,7 @@ def test_changing_one_case_reruns_only_its_jobs_and_dependents(finished, tmp_pat
 
 def test_killed_run_resumes_recomputing_only_incomplete_jobs(finished, tmp_path):
     """Killed midway and resumed, in another clean copy with another hash seed: only the incomplete
-    jobs run again, and the result is the same bits as the uninterrupted run's (issue 16)."""
+    jobs run again, and the result is the same bits as the uninterrupted run's."""
     workdir = copy_workflow(tmp_path / "killed")
     target = "results/datasets/tiny_friction/metadata.json"
     trajectories = workdir / "results/dem/tiny_friction/trajectories"

@@ -1,4 +1,4 @@
-# The calibrated model (calibration/calibrated.py, issue 15): for every entry of `measured`, the
+# The calibrated model (calibration/calibrated.py): for every entry of `measured`, the
 # model (calibration.model; auto: the diagnosis' answer, read from its diagnosis.json when the job
 # runs, so a new measured curve needs no hand edit), its parameters by the diagnosis' fit and by
 # Bayesian optimisation on DEM runs, every optimum validated on several packings. The report's first

@@ -1,4 +1,4 @@
-# Discrepancy diagnosis (calibration/diagnosis.py, issue 8). For every entry of `measured`: DEM
+# Discrepancy diagnosis (calibration/diagnosis.py). For every entry of `measured`: DEM
 # design runs of the base model and of the base model plus each candidate mechanism (the library,
 # builtin engine, coarse-grained), then the diagnosis (emulator fits, DEM scoring at the optima,
 # residual structure, the verdict), its figures, and the report section

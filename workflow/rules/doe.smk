@@ -1,4 +1,4 @@
-# DoE stage (doe/, issue 6): for every measured column named in doe.measured, a full-factorial
+# DoE stage (doe/): for every measured column named in doe.measured, a full-factorial
 # design over friction and restitution (7 x 7 + replicated centre by default) run in DEM through
 # the DEM stage's own rules (case-table dataset "doe_<name>", case_id = run_id), the response-
 # surface regression and ANOVA, a DEM validation run at each model's optimum, figures, and the

@@ -1,4 +1,4 @@
-# GNS stage (gns/, issue 5): for every dataset in gns.datasets (default: all), train a graph-network
+# GNS stage (gns/): for every dataset in gns.datasets (default: all), train a graph-network
 # simulator on its train split (best model on its valid split), roll it out on each test case
 # from the case's first C frames, score the rollouts against the DEM, and write the report
 # section results/report/gns.md. Outputs under results/gns/<dataset>/.

@@ -1,5 +1,5 @@
 # Inverse-design stage (pipeline/inverse.py, its GNS jobs pipeline/inverse_design.py; methods in calibration/inverse.py,
-# compare.py, recovery.py; issue 7). For every measured
+# compare.py, recovery.py). For every measured
 # column named in inverse.measured: a DEM run at the start point (its first frames start every GNS
 # rollout; its objective is the uncalibrated value), the GNS inverse design (L-BFGS-B, multi-start,
 # posterior), a DEM validation run at the GNS optimum, Bayesian optimisation directly on DEM runs,
@@ -27,7 +27,7 @@ rule inverse_start:
     benchmark:
         "results/benchmarks/inverse/inverse_start/{name}.tsv"
     # on the longest path (the calibrated model's GNS inverse design starts from it) but ready long
-    # before: without it the DEM jobs queued ahead of it held that path ~3 min (issue 15 timing)
+    # before: without it the DEM jobs queued ahead of it held that path ~3 min in a timed default run
     priority: 10
     conda:
         "../envs/pipeline.yaml"

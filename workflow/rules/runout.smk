@@ -1,7 +1,7 @@
-# Runout-method study (pipeline/runout.py; statistics in dem/runout_study.py, issue 13): every runout method of dem.runout read off
-# the same DEM runs of the GNS test cases and the DoE design centres: packing scatter per phase,
-# frame-to-frame flicker and the chaos floor, with the GNS rollouts where a case has one. The table
-# in results/report/runout.md is the evidence for the configured `runout.method`.
+# Runout-method study (pipeline/runout.py; statistics in dem/runout_study.py): every runout method
+# of dem.runout read off the same DEM runs of the GNS test cases and the DoE design centres: packing
+# scatter per phase, frame-to-frame flicker and the chaos floor, with the GNS rollouts where a case
+# has one. The table in results/report/runout.md is the evidence for the configured `runout.method`.
 RUNOUT_CASES = {f"{d} {c}": f"results/dem/{d}/trajectories/{c}.h5" for d in GNS_DATASETS for c in gns_test_cases(d)}
 RUNOUT_CASES.update(
     {

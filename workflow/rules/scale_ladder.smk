@@ -1,4 +1,4 @@
-# Scale ladder (dem/scale_ladder.py; stage layer pipeline/scale_ladder.py; issue 18): one column and
+# Scale ladder (dem/scale_ladder.py; stage layer pipeline/scale_ladder.py): one column and
 # parameter set (config scale_ladder) run at every size_scale of scale_ladder.size_scales on
 # scale_ladder.packings packings each, through the DEM stage's own rules (case-table dataset
 # "scale_ladder", case_id scale<s>_packing<k>: their SLURM requests scale with the grains), then read
