@@ -2,7 +2,8 @@
 frozen from a default DAG's calibrated.json into data/answer/<name>.json, and checked against the
 DEM of the code at hand (tests/test_shipped_answer.py).
 
-  python -m pipeline.shipped results/calibrated/quartz/calibrated.json data/answer/quartz.json
+  python -m pipeline.shipped freeze results/calibrated/quartz/calibrated.json data/answer/quartz.json
+  python -m pipeline.shipped readme README.md data/answer/*.json   # the README's answer table
 
 A ShippedAnswer holds what an engineer takes away (model, route, parameters, validated MSE with its
 jackknife SE on so many packings) and what it takes to check it: the measured file, the runout
@@ -30,7 +31,7 @@ from calibration.design_runs import Model, SimulationSettings
 from calibration.measured import load_column
 from calibration.mechanisms import get_mechanisms
 from calibration.objective import runout_mse
-from dem.atomic import StrPath, write_json
+from dem.atomic import StrPath, write_json, write_text
 from dem.integrate import ENGINE_VERSION
 from dem.runout import RunoutMethod
 from pipeline.calibrated_section import answer_score
@@ -123,9 +124,40 @@ def scatter_bound(answer: ShippedAnswer, measured: np.ndarray, n_packings: int =
     return float(min(scores)), float(max(scores))
 
 
+TABLE_START, TABLE_END = "<!-- answer-table -->", "<!-- /answer-table -->"
+
+
+def answer_table(answers: list[ShippedAnswer]) -> str:
+    """The README's answer table (Markdown) of the shipped answers."""
+    lines = [
+        "| column | model | route | parameters | validated runout MSE +- SE | packings |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    for a in answers:
+        parameters = ", ".join(f"{k} {v:.3g}" for k, v in a.parameters.items())
+        se = "n/a" if a.mse_se is None else f"{a.mse_se:.2g}"
+        lines.append(f"| {a.name} | {a.model} | {a.route} | {parameters} | {a.mse:.3g} +- {se} | {len(a.seeds)} |")
+    return "\n".join(lines)
+
+
+def with_answer_table(readme: str, answers: list[ShippedAnswer]) -> str:
+    """`readme` with the text between its answer-table markers replaced by answer_table(answers)."""
+    head, start, rest = readme.partition(TABLE_START)
+    _, end, tail = rest.partition(TABLE_END)
+    if not start or not end:
+        raise ValueError(f"the README has no {TABLE_START} ... {TABLE_END} block")
+    return f"{head}{TABLE_START}\n{answer_table(answers)}\n{TABLE_END}{tail}"
+
+
 def main(argv: list[str]) -> None:
-    calibrated_path, out_path = argv[1], argv[2]
-    write_json(out_path, freeze(json.loads(Path(calibrated_path).read_text())).to_dict())
+    """freeze <calibrated.json> <answer.json> | readme <README.md> <answer.json>..."""
+    if argv[1] == "freeze":
+        write_json(argv[3], freeze(json.loads(Path(argv[2]).read_text())).to_dict())
+    elif argv[1] == "readme":
+        readme = Path(argv[2])
+        write_text(readme, with_answer_table(readme.read_text(), [read_answer(p) for p in argv[3:]]))
+    else:
+        raise SystemExit(main.__doc__)
 
 
 if __name__ == "__main__":
