@@ -44,7 +44,8 @@ class ShippedAnswer:
     parameters: {name: value} in the model's order; mse: runout MSE (L*^2) of the mean curve over
     the packings `seeds`, mse_se its jackknife SE (None under 3 packings); curves [R][K]: L* of each
     packing at the measured t/t* (None where a run failed); channel_width (m): the side-wall
-    candidate's channel; engine_version: dem.integrate.ENGINE_VERSION of the runs."""
+    candidate's channel; engine_version: dem.integrate.ENGINE_VERSION of the runs (that of the tree
+    which freezes them: freeze on the tree that ran the DAG)."""
 
     name: str
     measured: str
@@ -60,6 +61,7 @@ class ShippedAnswer:
     channel_width: float
     engine: str
     engine_version: str
+    dem_runs: int  # what the route spent to find the parameters
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -97,6 +99,7 @@ def freeze(calibrated: dict, channel_width: float = 0.01) -> ShippedAnswer:
         channel_width=channel_width,
         engine=calibrated["engine"],
         engine_version=ENGINE_VERSION,
+        dem_runs=int(answer["dem_runs"]),
     )
 
 
@@ -130,13 +133,14 @@ TABLE_START, TABLE_END = "<!-- answer-table -->", "<!-- /answer-table -->"
 def answer_table(answers: list[ShippedAnswer]) -> str:
     """The README's answer table (Markdown) of the shipped answers."""
     lines = [
-        "| column | model | route | parameters | validated runout MSE +- SE | packings |",
-        "| --- | --- | --- | --- | --- | --- |",
+        "| column | model | route | parameters | validated runout MSE +- SE | packings | DEM runs of the route |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
     ]
     for a in answers:
         parameters = ", ".join(f"{k} {v:.3g}" for k, v in a.parameters.items())
         se = "n/a" if a.mse_se is None else f"{a.mse_se:.2g}"
-        lines.append(f"| {a.name} | {a.model} | {a.route} | {parameters} | {a.mse:.3g} +- {se} | {len(a.seeds)} |")
+        score = f"{a.mse:.3g} +- {se}"
+        lines.append(f"| {a.name} | {a.model} | {a.route} | {parameters} | {score} | {len(a.seeds)} | {a.dem_runs} |")
     return "\n".join(lines)
 
 
