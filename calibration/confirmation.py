@@ -35,13 +35,16 @@ class Confirmation:
 
     candidates [n]: each point's Validation on the confirmation packings (seeds CONFIRM_SEED0 + k),
     its route naming its rank; surrogate_values [n]: the surrogate's objective at each; chosen: the
-    index of the lowest DEM MSE (the surrogate's best where every run failed); dem_runs: the runs
-    made (candidates x packings)."""
+    index of the lowest DEM MSE (the surrogate's best where every run failed)."""
 
     candidates: list[Validation]
     surrogate_values: list[float]
     chosen: int
-    dem_runs: int
+
+    @property
+    def dem_runs(self) -> int:
+        """The DEM runs made: candidates x packings, a failed run counted too."""
+        return sum(len(c.seeds) for c in self.candidates)
 
     @property
     def theta(self) -> list[float]:
@@ -113,4 +116,4 @@ def confirm(
         candidates.append(validate(label, model, column, theta, settings, runout, dem_config, n_packings, **own))
     scores = [c.mse if math.isfinite(c.mse) else math.inf for c in candidates]
     chosen = int(np.argmin(scores)) if math.isfinite(min(scores)) else 0
-    return Confirmation(candidates, [float(values[i]) for i in picked], chosen, len(picked) * n_packings)
+    return Confirmation(candidates, [float(values[i]) for i in picked], chosen)

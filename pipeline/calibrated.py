@@ -219,11 +219,12 @@ def run_validation(
         seconds = benchmark_seconds(cost["files"])[0]
     runs = (cost or {}).get("dem_runs") or runs
     settings = SimulationSettings(size_scale=diagnosis_section["size_scale"])
+    reading = column.runout_reading(runout)
     if key == "model-inverse" and section.get("gns_confirm_candidates"):
         # the GNS's few best distinct points run by the DEM first: the DEM, not the GNS's bits, chooses
         points, values = gns_points(read_result(source), route_model.parameter_names)
         confirmation = confirm(
-            route_model, column, points, values, settings, column.runout_reading(runout), dem,
+            route_model, column, points, values, settings, reading, dem,
             section["gns_confirm_candidates"], section["gns_confirm_packings"],
             progress_logger(f"{name}: {label}, its best points confirmed by DEM", log),
         )  # fmt: skip
@@ -241,7 +242,7 @@ def run_validation(
         column,
         theta,
         settings,
-        column.runout_reading(runout),
+        reading,
         dem,
         section["validation_packings"],
         runs,

@@ -17,8 +17,9 @@ from dem.atomic import StrPath, write_text
 
 def answer_score(result: dict) -> dict:
     """The answer's score as the report states it, from calibrated.json `result`: {route, mse,
-    mse_se, mse_each, n_ran, shared} on the runoff's packings when the answer ran one (shared: the
-    packings every route was scored on, with their MSE as shared_mse), else on the validation's."""
+    mse_se, mse_each, seeds, curves, n_ran, shared} on the runoff's packings when the answer ran one
+    (shared: the packings every route was scored on, with their MSE as shared_mse), else on the
+    validation's."""
     answer = next(r for r in result["routes"] if r["route"] == result["answer"])
     scored = next((r for r in result.get("runoff") or [] if r["route"] == result["answer"]), None)
     source = scored or answer
@@ -27,6 +28,8 @@ def answer_score(result: dict) -> dict:
         "mse": source["mse"],
         "mse_se": source.get("mse_se"),
         "mse_each": source["mse_each"],
+        "seeds": source["seeds"],
+        "curves": source["curves"],
         "n_ran": len(source["seeds"]) - len(source["failed"]),
         "shared": None if scored is None else len(answer["seeds"]) - len(answer["failed"]),
         "shared_mse": answer["mse"],

@@ -83,7 +83,6 @@ def freeze(calibrated: dict, channel_width: float = 0.01) -> ShippedAnswer:
     packings where it ran one, else on the validation's (pipeline.calibrated_section.answer_score)."""
     score = answer_score(calibrated)
     answer = score["route"]
-    source = next((r for r in calibrated.get("runoff") or [] if r["route"] == calibrated["answer"]), answer)
     return ShippedAnswer(
         name=calibrated["name"],
         measured=calibrated["measured"],
@@ -92,8 +91,8 @@ def freeze(calibrated: dict, channel_width: float = 0.01) -> ShippedAnswer:
         parameters={k: float(v) for k, v in answer["parameters"].items()},
         mse=float(score["mse"]),
         mse_se=score["mse_se"],
-        seeds=[int(s) for s in source["seeds"]],
-        curves=source["curves"],
+        seeds=[int(s) for s in score["seeds"]],
+        curves=score["curves"],
         size_scale=float(calibrated["size_scale"]),
         runout=calibrated["runout"],
         channel_width=channel_width,
