@@ -154,6 +154,7 @@ def test_answer_page_states_model_parameters_fit_and_cost(tmp_path):
             "mse": mse,
             "mse_se": 0.004,
             "mse_each": [0.05, 0.07, 0.06, 0.09],
+            "curves": [[0.0, 1.0, 1.5]] * 4,
             "dem_runs": runs,
             "calibration_seconds": seconds,
         }
