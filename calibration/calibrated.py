@@ -38,11 +38,12 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from calibration.bayesopt import BOSettings, bayesian_optimisation
-from calibration.design_runs import Model, SimulationSettings
+from calibration.design_runs import SimulationSettings
 from calibration.diagnosis_result import Diagnosis
 from calibration.emulator import latin_hypercube
 from calibration.measured import MeasuredColumn
 from calibration.mechanisms import BASE_BOUNDS, candidate_mechanisms, get_mechanisms
+from calibration.model import Model
 from calibration.objective import runout_mse, simulated_runout_at
 from calibration.optimise import OptimisationHistory, PointFailed, one_at_a_time
 from dem.case import CollapseCase

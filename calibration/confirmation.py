@@ -20,8 +20,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from calibration.calibrated import CalibrationError, Validation, validate
-from calibration.design_runs import Model, SimulationSettings
+from calibration.design_runs import SimulationSettings
 from calibration.measured import MeasuredColumn
+from calibration.model import Model
 from calibration.sensitivity import finite_or_none
 from dem.runout import RunoutMethod
 

@@ -23,7 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from calibration.design_runs import DEMRunner, Model
+from calibration.design_runs import DEMRunner
+from calibration.model import Model
 from calibration.objective import runout_mse
 from calibration.observables import Observables
 from calibration.residuals import DiagnosisError, Fold, NoiseModel

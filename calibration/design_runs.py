@@ -1,5 +1,5 @@
-"""DEM runs over a model's parameter box: the models, the builtin DEM that runs them, and the
-library of design runs.
+"""DEM runs over a model's parameter box (the models: calibration/model.py): the builtin DEM that
+runs them, and the library of design runs.
 
 The design (`build_library`: a seeded Latin hypercube over each model's box) does not depend on the
 measured values, only on the measured columns' geometry and observation points, so one library
@@ -29,9 +29,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from calibration.emulator import GPEmulator, ParameterBox, latin_hypercube
+from calibration.emulator import GPEmulator, latin_hypercube
 from calibration.measured import MeasuredColumn
-from calibration.mechanisms import BASE_BOUNDS, BASE_PARAMETERS, Mechanism
+from calibration.model import Model
 from calibration.observables import LibraryError, Observables
 from dem.atomic import atomic_path
 from dem.engines import BUILTIN, FAILURES, failure_reason, simulate_case
@@ -40,7 +40,6 @@ from dem.packing import settle_column
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
 
-    from dem.case import CollapseCase
     from dem.trajectory import Trajectory
 
 log = logging.getLogger(__name__)
@@ -50,69 +49,7 @@ FRAMES_PER_TSTAR = 25  # output frames per t*: the measured t/t* are interpolate
 # (rolling resistance, cohesion, basal and side-wall friction, gate lift) are its features.
 
 
-# -- models ---------------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Model:
-    """The base model (friction, restitution), or the base model plus one candidate mechanism."""
-
-    mechanism: Mechanism | None = None
-
-    @property
-    def name(self) -> str:
-        return "base" if self.mechanism is None else self.mechanism.name
-
-    @property
-    def parameter_names(self) -> tuple[str, ...]:
-        return BASE_PARAMETERS + (() if self.mechanism is None else (self.mechanism.parameter,))
-
-    @property
-    def bounds(self) -> np.ndarray:
-        """[p, 2] (low, high) of every parameter."""
-        extra = () if self.mechanism is None else (self.mechanism.bounds,)
-        return np.array(BASE_BOUNDS + extra, float)
-
-    @property
-    def box(self) -> ParameterBox:
-        extra = () if self.mechanism is None else (self.mechanism.log_scale,)
-        return ParameterBox(self.bounds, (False,) * len(BASE_BOUNDS) + extra)
-
-    @property
-    def n_parameters(self) -> int:
-        return len(self.parameter_names)
-
-    def case(
-        self, column: MeasuredColumn, theta: Sequence[float] | np.ndarray, settings: SimulationSettings, seed: int
-    ) -> CollapseCase:
-        """The CollapseCase of `column` at parameters theta [p] (mu, e[, mechanism parameter]),
-        coarse-grained per settings."""
-        case = column.collapse_case(
-            float(theta[0]),
-            float(theta[1]),
-            size_scale=settings.size_scale,
-            seed=seed,
-            duration_over_tstar=settings.duration_for(column),
-            output_interval=None,
-            name=f"{column.name}:{self.name}",
-        )
-        return self.at(case, theta)
-
-    def at(self, case: CollapseCase, theta: Sequence[float] | np.ndarray) -> CollapseCase:
-        """`case` with this model's parameters theta [p]: friction, restitution and the fields that
-        switch the mechanism on at theta[2]."""
-        case = case.replace(friction=float(theta[0]), restitution=float(theta[1]))
-        if self.mechanism is not None:
-            case = case.replace(**self.mechanism.case_fields(float(theta[2]), case))
-        return case
-
-    def embed_base(self, base_theta: ArrayLike) -> np.ndarray:
-        """Base-model points [n, 2] as points [n, p] of this model (mechanism at its off value)."""
-        base_theta = np.atleast_2d(np.asarray(base_theta, float))
-        if self.mechanism is None:
-            return base_theta
-        off = [self.mechanism.off_value(mu, e) for mu, e in base_theta]
-        return np.column_stack([base_theta, np.clip(off, *self.mechanism.bounds)])
-
-
+# -- how the DEM runs -----------------------------------------------------------------------------
 @dataclass(frozen=True)
 class SimulationSettings:
     """How the DEM is run for the diagnosis (builtin engine)."""

@@ -46,7 +46,7 @@ import numpy as np
 
 from calibration.decision import DecisionRule, decide
 from calibration.dem_scoring import DEMRuns, DEMScore, dem_evaluate, dem_runs
-from calibration.design_runs import DEMRunner, Library, Model, SimulationSettings, build_library
+from calibration.design_runs import DEMRunner, Library, SimulationSettings, build_library
 from calibration.diagnosis_result import (
     BeforeAfter,
     ColumnSummary,
@@ -58,6 +58,7 @@ from calibration.diagnosis_result import (
 )
 from calibration.measured import MeasuredColumn
 from calibration.mechanisms import get_mechanisms
+from calibration.model import Model
 from calibration.observables import Observables
 from calibration.residuals import (
     DiagnosisError,

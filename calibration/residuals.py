@@ -30,8 +30,9 @@ from numpy.typing import ArrayLike
 from scipy.stats import chi2 as chi2_distribution
 from scipy.stats import norm
 
-from calibration.design_runs import Library, Model
+from calibration.design_runs import Library
 from calibration.measured import MeasuredColumn
+from calibration.model import Model
 from calibration.observables import Observables
 
 # The paper's three phases of a collapse (Jiang et al. 2024, section 4.1).

@@ -28,8 +28,8 @@ from scipy.stats import chi2 as chi2_distribution
 from scipy.stats import qmc
 from threadpoolctl import threadpool_limits
 
-from calibration.design_runs import Model
 from calibration.emulator import GPEmulator
+from calibration.model import Model
 from calibration.objective import runout_mse
 from calibration.observables import Observables
 from calibration.residuals import Fold

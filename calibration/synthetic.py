@@ -25,9 +25,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from calibration.design_runs import Library, Model, SimulationSettings
+from calibration.design_runs import Library, SimulationSettings
 from calibration.measured import OPTIONAL_FIELDS, REQUIRED_FIELDS, MeasuredColumn
 from calibration.mechanisms import Mechanism
+from calibration.model import Model
 from calibration.observables import Observables
 from dem.atomic import atomic_path
 from dem.case import MATERIALS, CollapseCase

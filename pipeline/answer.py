@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import base64
 import html
-import json
 import math
 import re
 from collections.abc import Sequence
 from pathlib import Path
 
+from calibration.calibrated_result import CalibratedResult
 from dem.atomic import StrPath, write_text
 from pipeline.calibrated_section import answer_score, format_se, format_span, transfer_holds
 
@@ -138,5 +138,5 @@ def run_answers(json_paths: Sequence[StrPath], figure_paths: Sequence[StrPath], 
     """results/report/answer_<name>.html of every measured column from its calibrated.json and
     calibrated.png (workflow rule calibrated_section)."""
     for path, figure, out in zip(json_paths, figure_paths, out_paths, strict=True):
-        text = answer_html(json.loads(Path(path).read_text()), figure)
+        text = answer_html(CalibratedResult.from_json(path).to_dict(), figure)
         write_text(out, text.encode("ascii", "xmlcharrefreplace").decode("ascii"))

@@ -39,12 +39,14 @@ from calibration.calibrated import (
     runoff,
     validate,
 )
+from calibration.calibrated_result import CalibratedResult
 from calibration.compare import plot_bayesopt
 from calibration.confirmation import confirm
-from calibration.design_runs import Model, SimulationSettings
+from calibration.design_runs import SimulationSettings
 from calibration.diagnosis_result import Diagnosis
 from calibration.inverse_result import read_result
 from calibration.measured import MeasuredColumn, expected_final_runout, load_column
+from calibration.model import Model
 from dem.atomic import StrPath, write_json
 from dem.plots import save_figure
 from dem.progress import progress_logger
@@ -273,12 +275,13 @@ def run_calibrated(
     runout: dict | None,
     dem: dict | None,
     name: str = "",
-) -> dict:
+) -> CalibratedResult:
     """The answer for one measured column (workflow rule calibrated): of the validated routes
     (validation_paths, written by run_validation) those of the model (model.json) compete: those
     within 2 SE of the lowest validated MSE run on answer_packings packings in all (the first
     shared; calibration.calibrated.runoff) and the lowest there is the answer; it is validated
-    again one size_scale finer and predicts other aspect ratios.
+    again one size_scale finer and predicts other aspect ratios. Returns the CalibratedResult it
+    writes to out_json (calibration/calibrated_result.py).
 
     section: the config's `calibration` section (validation_packings, answer_packings (absent or not
     above validation_packings: no runoff), finer_size_scale, predict_aspect_ratios);
@@ -353,38 +356,38 @@ def run_calibrated(
                 "doe_dem_runs": doe["dem_runs"],
             }
         )
-    result = {
-        "name": name,
-        "measured": str(measured_path),
-        "column": column.name,
-        "model": model.name,
-        "parameters": list(model.parameter_names),
-        "bounds": model.bounds.tolist(),
-        "why": why,
-        "answer": best["route"],
-        "routes": routes,
+    result = CalibratedResult(
+        name=name,
+        measured=str(measured_path),
+        column=column.name,
+        model=model.name,
+        parameters=list(model.parameter_names),
+        bounds=model.bounds.tolist(),
+        why=why,
+        answer=best["route"],
+        routes=routes,
         # the routes not told apart from the best on the shared packings, on answer_packings (none: no runoff)
-        "runoff": scored,
-        "answer_packings": answer_packings if scored else n_packings,
+        runoff=scored,
+        answer_packings=answer_packings if scored else n_packings,
         # 95% intervals of the model's parameters: the diagnosis' Laplace posterior (about its own fit)
-        "intervals": None if diagnosis is None else model_intervals(diagnosis, model),
+        intervals=None if diagnosis is None else model_intervals(diagnosis, model),
         # ... and the GNS inverse design's (about its optimum, through the GNS, with its error as noise)
-        "gns_intervals": None if gns is None else gns["extra"]["intervals"],
-        "gns_sensitivity": None if gns is None else gns["extra"].get("sensitivity"),
-        "gns_vs_doe": gns_vs_doe,
-        "transfer": None if transfer is None else transfer.to_dict(),
-        "prediction": prediction.to_dict(),
-        "measured_final_runout": float(column.runout[-1]),
-        "prediction_measured_a": column.aspect_ratio,
-        "size_scale": settings.size_scale,
-        "engine": (dem or {}).get("engine", "builtin"),
-        "runout": runout.to_config(),
-        "runout_stated": column.runout_method is not None,  # False: the file states none, the config's
-        "validation_packings": n_packings,
-        "calibration_packing": CALIBRATION_SEED,
-        "seconds": time.perf_counter() - started,
-    }
-    write_json(out_json, result)
+        gns_intervals=None if gns is None else gns["extra"]["intervals"],
+        gns_sensitivity=None if gns is None else gns["extra"].get("sensitivity"),
+        gns_vs_doe=gns_vs_doe,
+        transfer=None if transfer is None else transfer.to_dict(),
+        prediction=prediction.to_dict(),
+        measured_final_runout=float(column.runout[-1]),
+        prediction_measured_a=column.aspect_ratio,
+        size_scale=settings.size_scale,
+        engine=(dem or {}).get("engine", "builtin"),
+        runout=runout.to_config(),
+        runout_stated=column.runout_method is not None,  # False: the file states none, the config's
+        validation_packings=n_packings,
+        calibration_packing=CALIBRATION_SEED,
+        seconds=time.perf_counter() - started,
+    )
+    result.to_json(out_json)
     plot_calibrated(result, column, out_figure)
     plot_prediction(result, column, out_prediction)
     return result
@@ -398,7 +401,7 @@ def model_intervals(diagnosis: Diagnosis, model: Model) -> list[dict]:
 
 
 # -- figure and report section -----------------------------------------------------------------------
-def plot_calibrated(result: dict, column: MeasuredColumn, path: StrPath) -> None:
+def plot_calibrated(result: CalibratedResult, column: MeasuredColumn, path: StrPath) -> None:
     """Measured points, each route's mean DEM curve over the validation packings with its packing
     band (mean +- one std) and the single packings as thin lines; beside it, when the answer was
     chosen by a runoff, each contender's MSE on the shared packings and on all of the runoff's."""
@@ -407,14 +410,14 @@ def plot_calibrated(result: dict, column: MeasuredColumn, path: StrPath) -> None
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    scored = result.get("runoff") or []
+    scored = result.runoff
     if scored:
         fig, (ax, side) = plt.subplots(1, 2, figsize=(11, 4.8), gridspec_kw={"width_ratios": [2.3, 1]})
         plot_runoff(result, side)
     else:
         fig, ax = plt.subplots(figsize=(7.5, 4.8))
     colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for k, route in enumerate(result["routes"]):
+    for k, route in enumerate(result.routes):
         colour = colours[k % len(colours)]
         t = np.array(route["t_over_tstar"])
         for curve in route["curves"]:
@@ -431,7 +434,7 @@ def plot_calibrated(result: dict, column: MeasuredColumn, path: StrPath) -> None
     ax.set(
         xlabel="t / t*",
         ylabel="L* = (L - L_i) / L_i",
-        title=f"{result['name']}: calibrated {result['model']} model, DEM at size_scale {result['size_scale']:g}",
+        title=f"{result.name}: calibrated {result.model} model, DEM at size_scale {result.size_scale:g}",
     )
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left")
@@ -439,11 +442,11 @@ def plot_calibrated(result: dict, column: MeasuredColumn, path: StrPath) -> None
     save_figure(fig, path)
 
 
-def plot_runoff(result: dict, ax: Axes) -> None:
+def plot_runoff(result: CalibratedResult, ax: Axes) -> None:
     """On `ax`: each runoff contender's MSE on the packings every route shared (open) and on all the
     runoff's (filled, +- its jackknife SE), the answer's in bold."""
-    scored = result["runoff"]
-    first = {r["route"]: r["mse"] for r in result["routes"]}
+    scored = result.runoff
+    first = {r["route"]: r["mse"] for r in result.routes}
     y = np.arange(len(scored))
     ax.plot(
         [first[r["route"]] for r in scored],
@@ -455,16 +458,16 @@ def plot_runoff(result: dict, ax: Axes) -> None:
     )
     se = [r["mse_se"] if r["mse_se"] is not None else 0.0 for r in scored]
     ax.errorbar([r["mse"] for r in scored], y, xerr=se, fmt="o", color="tab:blue", capsize=3,
-                label=f"{result['answer_packings']} packings +- SE")  # fmt: skip
+                label=f"{result.answer_packings} packings +- SE")  # fmt: skip
     ax.set_yticks(y, [r["route"].split(", ", 1)[-1] for r in scored], fontsize=8)
     for tick, r in zip(ax.get_yticklabels(), scored):
-        tick.set_fontweight("bold" if r["route"] == result["answer"] else "normal")
+        tick.set_fontweight("bold" if r["route"] == result.answer else "normal")
     ax.set(xlabel="validated runout MSE", title="choosing the answer")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="best")
 
 
-def plot_prediction(result: dict, column: MeasuredColumn, path: StrPath) -> None:
+def plot_prediction(result: CalibratedResult, column: MeasuredColumn, path: StrPath) -> None:
     """Final runout L* and deposit height H_f / L_i of the calibrated model against the aspect ratio,
     the measured column's final L* on it, and the experimental scaling of Lube et al. (2005)."""
     import matplotlib
@@ -472,16 +475,16 @@ def plot_prediction(result: dict, column: MeasuredColumn, path: StrPath) -> None
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    p = result["prediction"]
+    p = result.prediction
     a = np.array(p["aspect_ratios"])
     runout = np.array([np.nan if v is None else v for v in p["final_runout"]])
     height = np.array([np.nan if v is None else v for v in p["height_over_L_i"]])
     fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
     fine = np.linspace(max(a.min(), 0.1), a.max(), 100)
     left.plot(fine, [expected_final_runout(x) for x in fine], "k:", lw=1, label="Lube et al. (2005) scaling")
-    left.plot(a, runout, "o-", color="tab:green", label=f"calibrated {result['model']} model (DEM)")
+    left.plot(a, runout, "o-", color="tab:green", label=f"calibrated {result.model} model (DEM)")
     measured = f"measured ({column.name}, at its last t/t*)"
-    left.plot([column.aspect_ratio], [result["measured_final_runout"]], "ks", ms=8, label=measured)
+    left.plot([column.aspect_ratio], [result.measured_final_runout], "ks", ms=8, label=measured)
     left.set(xlabel="aspect ratio a = H_i / L_i", ylabel="final runout L*", title="final runout")
     right.plot(a, height, "o-", color="tab:green")
     right.set(xlabel="aspect ratio a = H_i / L_i", ylabel="H_f / L_i", title="deposit height")
@@ -489,8 +492,8 @@ def plot_prediction(result: dict, column: MeasuredColumn, path: StrPath) -> None
         ax.grid(alpha=0.3)
     left.legend(fontsize=8)
     fig.suptitle(
-        f"{result['name']}: predictions of the calibrated model (L_i = {column.L_i:g} m, size_scale "
-        f"{result['size_scale']:g}, t/t* = {PREDICTION_TSTAR:g}, one packing each)",
+        f"{result.name}: predictions of the calibrated model (L_i = {column.L_i:g} m, size_scale "
+        f"{result.size_scale:g}, t/t* = {PREDICTION_TSTAR:g}, one packing each)",
         fontsize=10,
     )
     fig.tight_layout()

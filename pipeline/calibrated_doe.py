@@ -13,8 +13,9 @@ import logging
 import time
 
 from calibration.calibrated import read_model
-from calibration.design_runs import Model, SimulationSettings
+from calibration.design_runs import SimulationSettings
 from calibration.measured import load_column
+from calibration.model import Model
 from dem.atomic import StrPath, write_json
 from dem.progress import progress_logger
 from dem.run_store import keeps_runs

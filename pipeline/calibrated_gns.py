@@ -19,7 +19,7 @@ import logging
 from collections.abc import Sequence
 
 from calibration.calibrated import DatasetCase, model_dataset_cases, read_model
-from calibration.design_runs import Model
+from calibration.model import Model
 from dem.atomic import StrPath
 from dem.engines import simulate_case
 from dem.grid import assign_splits, case_from_row, case_id_of

@@ -5,13 +5,13 @@ writes those), and the answer's score as the report and the answer page (pipelin
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
 
 from calibration.calibrated import PREDICTION_TSTAR
+from calibration.calibrated_result import CalibratedResult
 from dem.atomic import StrPath, write_text
 
 
@@ -279,7 +279,7 @@ def run_section(json_paths: Sequence[StrPath], figure_paths: Sequence[StrPath], 
     """results/report/calibrated.md from every calibrated.json (workflow rule calibrated_section)."""
     results = []
     for path, figure in zip(json_paths, figure_paths, strict=True):
-        data = json.loads(Path(path).read_text())
+        data = CalibratedResult.from_json(path).to_dict()
         data["figure"] = str(figure)
         results.append(data)
     write_text(section_path, section_markdown(results, section_path))

@@ -18,10 +18,10 @@ import math
 import warnings
 from collections.abc import Iterable
 
-from calibration.design_runs import Model
 from calibration.geometry import InverseDesignError, check_geometry_of_dataset, nearest_dataset
 from calibration.measured import MeasuredColumn, MeasuredDataError, MeasuredDataWarning, load_column, read_measured
 from calibration.mechanisms import get_mechanisms
+from calibration.model import Model
 from calibration.residuals import MIN_RUNOUT_POINTS, MIN_SPARE_VALUES
 from dem.case import (
     CaseError,

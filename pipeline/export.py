@@ -12,13 +12,13 @@ The method is dem/vtk.py's (files, units, how the velocity is computed).
 
 from __future__ import annotations
 
-import json
 import logging
 from pathlib import Path
 
 import numpy as np
 
 from calibration.calibrated import CalibrationError, read_model
+from calibration.calibrated_result import CalibratedResult
 from calibration.design_runs import SimulationSettings
 from calibration.measured import load_column
 from calibration.objective import simulated_runout_at
@@ -53,30 +53,26 @@ def export_calibrated_vtk(
     repeated with the validation's case, packing seed and engine (dem: the config's dem section).
     A rerun whose runout departs from the recorded curve by more than RERUN_TOLERANCE is exported
     with a warning (the code or the engine changed since the validation). Written atomically."""
-    result = json.loads(Path(calibrated_path).read_text())
-    route = next(
-        (r for r in result["routes"] if r["route"] == result["answer"] and r["model"] == result["model"]), None
-    )
+    result = CalibratedResult.from_json(calibrated_path)
+    route = next((r for r in result.routes if r["route"] == result.answer and r["model"] == result.model), None)
     if route is None:
-        raise CalibrationError(
-            f"{calibrated_path}: no validated route {result['answer']!r} of the {result['model']} model"
-        )
+        raise CalibrationError(f"{calibrated_path}: no validated route {result.answer!r} of the {result.model} model")
     model, _ = read_model(model_path, channel_width)
     column = load_column(measured_path)
-    settings = SimulationSettings(size_scale=result["size_scale"])
-    runout = RunoutMethod.from_config(result["runout"])
+    settings = SimulationSettings(size_scale=result.size_scale)
+    runout = RunoutMethod.from_config(result.runout)
     theta = [route["parameters"][name] for name in model.parameter_names]
     outdir = Path(outdir)
     exports = []
     with atomic_dir(outdir) as tmp:
         for seed, recorded in zip(route["seeds"], route["curves"]):
             if recorded is None:
-                log.warning("%s: packing %d failed in the validation; not exported", result["answer"], seed)
+                log.warning("%s: packing %d failed in the validation; not exported", result.answer, seed)
                 continue
             try:
                 trajectory = simulate_case(model.case(column, theta, settings, seed), dem)
             except FAILURES as exc:
-                log.warning("%s: packing %d failed on rerun (%s); not exported", result["answer"], seed, exc)
+                log.warning("%s: packing %d failed on rerun (%s); not exported", result.answer, seed, exc)
                 continue
             t, curve = runout.curve(trajectory)
             gap = float(np.max(np.abs(simulated_runout_at(t, curve, column) - np.asarray(recorded))))
@@ -85,7 +81,7 @@ def export_calibrated_vtk(
             exports.append(export_trajectory(trajectory, tmp / f"packing_{seed}", f"packing_{seed}"))
             log.info(
                 "%s at %s, packing %d: %d frames, L* within %.2g of the validation's",
-                result["answer"],
+                result.answer,
                 theta,
                 seed,
                 len(exports[-1].frames),

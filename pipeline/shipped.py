@@ -27,9 +27,11 @@ from pathlib import Path
 import numpy as np
 
 from calibration.calibrated import Validation, validate
-from calibration.design_runs import Model, SimulationSettings
+from calibration.calibrated_result import CalibratedResult
+from calibration.design_runs import SimulationSettings
 from calibration.measured import load_column
 from calibration.mechanisms import get_mechanisms
+from calibration.model import Model
 from calibration.objective import runout_mse
 from dem.atomic import StrPath, write_json, write_text
 from dem.integrate import ENGINE_VERSION
@@ -78,25 +80,26 @@ class ShippedAnswer:
         return model
 
 
-def freeze(calibrated: dict, channel_width: float = 0.01) -> ShippedAnswer:
-    """The ShippedAnswer of a calibrated.json (read): the answer's route, scored on the runoff's
-    packings where it ran one, else on the validation's (pipeline.calibrated_section.answer_score)."""
-    score = answer_score(calibrated)
+def freeze(calibrated: CalibratedResult, channel_width: float = 0.01) -> ShippedAnswer:
+    """The ShippedAnswer of a calibrated.json (as CalibratedResult.from_json reads it): the answer's
+    route, scored on the runoff's packings where it ran one, else on the validation's
+    (pipeline.calibrated_section.answer_score)."""
+    score = answer_score(calibrated.to_dict())
     answer = score["route"]
     return ShippedAnswer(
-        name=calibrated["name"],
-        measured=calibrated["measured"],
-        model=calibrated["model"],
+        name=calibrated.name,
+        measured=calibrated.measured,
+        model=calibrated.model,
         route=answer["route"],
         parameters={k: float(v) for k, v in answer["parameters"].items()},
         mse=float(score["mse"]),
         mse_se=score["mse_se"],
         seeds=[int(s) for s in score["seeds"]],
         curves=score["curves"],
-        size_scale=float(calibrated["size_scale"]),
-        runout=calibrated["runout"],
+        size_scale=float(calibrated.size_scale),
+        runout=calibrated.runout,
         channel_width=channel_width,
-        engine=calibrated["engine"],
+        engine=calibrated.engine,
         engine_version=ENGINE_VERSION,
         dem_runs=int(answer["dem_runs"]),
     )
@@ -155,7 +158,7 @@ def with_answer_table(readme: str, answers: list[ShippedAnswer]) -> str:
 def main(argv: list[str]) -> None:
     """freeze <calibrated.json> <answer.json> | readme <README.md> <answer.json>..."""
     if argv[1] == "freeze":
-        write_json(argv[3], freeze(json.loads(Path(argv[2]).read_text())).to_dict())
+        write_json(argv[3], freeze(CalibratedResult.from_json(argv[2])).to_dict())
     elif argv[1] == "readme":
         readme = Path(argv[2])
         write_text(readme, with_answer_table(readme.read_text(), [read_answer(p) for p in argv[3:]]))

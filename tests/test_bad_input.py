@@ -27,9 +27,10 @@ import dem.engines
 from calibration.bayesopt import BOSettings, bayesian_optimisation
 from calibration.compare import bayesopt_on_dem, write_bayesopt
 from calibration.dem_scoring import dem_evaluate, dem_runs
-from calibration.design_runs import DEMRunner, Library, Model, SimulationSettings, build_library
+from calibration.design_runs import DEMRunner, Library, SimulationSettings, build_library
 from calibration.diagnosis import DiagnosisSettings
 from calibration.measured import MeasuredColumn, load_column
+from calibration.model import Model
 from calibration.observables import LibraryError, Observables
 from calibration.optimise import OptimisationError, PointFailed, one_at_a_time
 from calibration.residuals import MIN_RUNOUT_POINTS, DiagnosisError, NoiseModel, check_data, held_out_folds

@@ -19,9 +19,11 @@ from calibration.calibrated import (
     resolve_model,
     validate,
 )
-from calibration.design_runs import Model, SimulationSettings
+from calibration.calibrated_result import CalibratedResult
+from calibration.design_runs import SimulationSettings
 from calibration.measured import MeasuredColumn
 from calibration.mechanisms import bond_from_cohesion_energy, get_mechanisms
+from calibration.model import Model
 from calibration.objective import runout_mse
 from dem.atomic import write_json
 from dem.engines.liggghts import LiggghtsEngine
@@ -151,25 +153,28 @@ def test_the_stage_writes_its_answer_figure_and_report_section(tmp_path):
         out / "calibrated.json", out / "calibrated.png", out / "prediction.png", section, diagnosis_section,
         runout=RUNOUT.to_config(), dem=None, name="tiny",
     )  # fmt: skip
-    assert result["model"] == "base" and [r["key"] for r in result["routes"]] == ["model-bayesopt", "model-doe"]
+    assert result.model == "base" and [r["key"] for r in result.routes] == ["model-bayesopt", "model-doe"]
+    # the file is the record: read back and written again, the same bytes
+    CalibratedResult.from_json(out / "calibrated.json").to_json(tmp_path / "again.json")
+    assert (tmp_path / "again.json").read_bytes() == (out / "calibrated.json").read_bytes()
     # the runoff: two packings give no SE, so neither route is told apart: both run on a third
-    scored = {r["key"]: r for r in result["runoff"]}
-    assert set(scored) == {"model-bayesopt", "model-doe"} and result["answer_packings"] == 3
-    for r in result["routes"]:
+    scored = {r["key"]: r for r in result.runoff}
+    assert set(scored) == {"model-bayesopt", "model-doe"} and result.answer_packings == 3
+    for r in result.routes:
         more = scored[r["key"]]
         assert more["seeds"] == [5001, 5002, 5003] and more["curves"][:2] == r["curves"]
         assert more["shared_packings"] == 2 and more["parameters"] == r["parameters"]
         assert more["mse"] == pytest.approx(runout_mse(np.mean(more["curves"], axis=0), COLUMN.runout))
-    assert result["answer"] == min(result["runoff"], key=lambda r: r["mse"])["route"]
-    route = next(r for r in result["routes"] if r["route"] == result["answer"])
-    bo_route = result["routes"][0]
+    assert result.answer == min(result.runoff, key=lambda r: r["mse"])["route"]
+    route = next(r for r in result.routes if r["route"] == result.answer)
+    bo_route = result.routes[0]
     assert bo_route["parameters"] == bo["optimum"]
     assert bo_route["dem_runs"] == 4 and len(bo_route["extra"]["history"]["values"]) == 4
     assert route["mse"] == pytest.approx(runout_mse(np.array(route["mean"]), COLUMN.runout))
     assert (out / "calibrated.png").stat().st_size > 10_000 and (out / "prediction.png").stat().st_size > 10_000
-    transfer = result["transfer"]  # the answer again, grains 4 / 3.5 times finer: more grains, other curves
+    transfer = result.transfer  # the answer again, grains 4 / 3.5 times finer: more grains, other curves
     assert transfer["parameters"] == route["parameters"] and transfer["mean"] != route["mean"]
-    prediction = result["prediction"]
+    prediction = result.prediction
     assert prediction["aspect_ratios"] == [1.0, 2.0] and prediction["failed"] == {}
     assert 0 < prediction["final_runout"][0] < prediction["final_runout"][1]  # taller columns run further
     assert prediction["height_over_L_i"][0] < prediction["height_over_L_i"][1]
@@ -187,6 +192,55 @@ def test_the_stage_writes_its_answer_figure_and_report_section(tmp_path):
         "base, DoE (face-centred CCD, quadratic): 10 DEM runs (every DEM run ran); quadratic response surface" in text
     )
     assert "](../calibrated/doe_surface.png)" in text and "](../calibrated/bayesopt.png)" in text
+
+
+def calibrated_record():
+    """A calibrated.json as run_calibrated writes it (keys in its order), small: one route, which
+    failed on one packing (a None curve, a NaN MSE), its runoff, no diagnosis and no GNS route."""
+    route = {
+        "route": "base, BO on DEM", "parameters": {"friction": 0.5, "restitution": 0.6}, "seeds": [5001, 5002],
+        "t_over_tstar": [0.5, 1.0], "curves": [[0.2, 0.7], None], "failed": {"5002": "blew up"},
+        "mean": [0.2, 0.7], "std": [float("nan"), float("nan")], "mse": 0.01, "mse_each": [0.01, float("nan")],
+        "seconds": 3.5, "dem_runs": 4, "calibration_seconds": 12.0, "extra": {}, "mse_se": None,
+        "key": "model-bayesopt", "model": "base", "versus_answer": {"mse_difference": 0.0, "se": None},
+    }  # fmt: skip
+    shown = ("key", "route", "parameters", "seeds", "curves", "failed", "mse", "mse_se", "mse_each")
+    runoff = {key: route[key] for key in shown} | {"shared_packings": 2}
+    prediction = {
+        "aspect_ratios": [1.0, 2.0], "final_runout": [0.9, None], "final_height": [0.004, None],
+        "height_over_L_i": [0.4, None], "failed": {"2": "blew up"}, "seed": 5001, "seconds": 2.0,
+    }  # fmt: skip
+    return {
+        "name": "tiny", "measured": "tiny.csv", "column": "tiny", "model": "base",
+        "parameters": ["friction", "restitution"], "bounds": [[0.3, 0.9], [0.3, 0.9]], "why": "the config",
+        "answer": "base, BO on DEM", "routes": [route], "runoff": [runoff],
+        "answer_packings": 3, "intervals": None, "gns_intervals": None, "gns_sensitivity": None, "gns_vs_doe": [],
+        "transfer": None, "prediction": prediction, "measured_final_runout": 1.9, "prediction_measured_a": 2.0,
+        "size_scale": 4.0, "engine": "builtin", "runout": RUNOUT.to_config(), "runout_stated": False,
+        "validation_packings": 2, "calibration_packing": 0, "seconds": 41.0,
+    }  # fmt: skip
+
+
+def test_the_calibrated_record_round_trips_its_file_and_refuses_other_keys(tmp_path):
+    """calibrated.json read into a CalibratedResult and written again is the same bytes (NaN, None
+    and the keys' order included); a file with a key missing or one it does not know is refused,
+    naming the file and the key."""
+    record = calibrated_record()
+    write_json(tmp_path / "calibrated.json", record)  # what run_calibrated wrote before it had a class
+    result = CalibratedResult.from_json(tmp_path / "calibrated.json")
+    assert list(result.to_dict()) == list(record) and result.answer_packings == 3 and result.transfer is None
+    result.to_json(tmp_path / "again.json")
+    assert (tmp_path / "again.json").read_bytes() == (tmp_path / "calibrated.json").read_bytes()
+    without = {k: v for k, v in record.items() if k != "transfer"}
+    write_json(tmp_path / "old.json", without)
+    with pytest.raises(CalibrationError, match=r"old\.json: no key 'transfer'"):
+        CalibratedResult.from_json(tmp_path / "old.json")
+    write_json(tmp_path / "new.json", dict(record, figure="calibrated.png"))
+    with pytest.raises(CalibrationError, match=r"new\.json: unknown key 'figure'"):
+        CalibratedResult.from_json(tmp_path / "new.json")
+    (tmp_path / "list.json").write_text("[]")
+    with pytest.raises(CalibrationError, match=r"list\.json: not a calibrated record"):
+        CalibratedResult.from_json(tmp_path / "list.json")
 
 
 def test_the_routes_not_told_apart_from_the_best_are_the_contenders():

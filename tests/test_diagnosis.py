@@ -21,12 +21,13 @@ from scipy.optimize import minimize_scalar
 
 from calibration.decision import DecisionRule, decide
 from calibration.dem_scoring import DEMScore
-from calibration.design_runs import DEMRunner, DesignRuns, Library, Model, SimulationSettings
+from calibration.design_runs import DEMRunner, DesignRuns, Library, SimulationSettings
 from calibration.diagnosis import LIBRARY_SETTINGS, DiagnosisSettings, diagnose, mechanism_on
 from calibration.diagnosis_result import Diagnosis
 from calibration.emulator import GPEmulator, ParameterBox, latin_hypercube
 from calibration.measured import MeasuredColumn
 from calibration.mechanisms import MechanismError, bond_from_cohesion_energy, cohesion_energy_from_bond, get_mechanisms
+from calibration.model import Model
 from calibration.observables import Observables
 from calibration.residuals import DiagnosisError, check_data, held_out_folds, noise_model, residual_structure, runs_test
 from calibration.scoring import EmulatorFit, box_bounded_covariance, fit_emulated, predictive_chi2
@@ -469,7 +470,7 @@ CACHE = Path(__file__).parent / "diagnosis_cache"
 # What the design runs depend on: the engine and the code that turns a column and a model into runs
 # and reads them (a change to any of these, or to CI_SETTINGS, rebuilds the cached library).
 LIBRARY_SOURCES = ("dem/*.py", "dem/engines/*.py") + tuple(
-    f"calibration/{m}.py" for m in ("design_runs", "mechanisms", "measured", "observables", "synthetic")
+    f"calibration/{m}.py" for m in ("design_runs", "mechanisms", "measured", "model", "observables", "synthetic")
 )
 
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from calibration.calibrated import CALIBRATION_SEED, model_record
-from calibration.design_runs import Model
 from calibration.mechanisms import get_mechanisms
+from calibration.model import Model
 from calibration.objective import runout_mse
 from dem.integrate import SimulationError
 from doe.design import (

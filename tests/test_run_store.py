@@ -24,7 +24,7 @@ import pipeline.diagnosis
 import pipeline.inverse
 import pipeline.inverse_design
 from calibration.calibrated import model_record
-from calibration.design_runs import Model
+from calibration.model import Model
 from dem.case import CollapseCase
 from dem.engines import FAILURES, simulate_case
 from dem.packing import settle_column

@@ -19,4 +19,4 @@ result = run_calibrated(
     dem=snakemake.params.dem,
     name=snakemake.wildcards.name,
 )
-logging.info("%s: %s model, answer %s", result["name"], result["model"], result["answer"])
+logging.info("%s: %s model, answer %s", result.name, result.model, result.answer)
