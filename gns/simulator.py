@@ -23,6 +23,7 @@ from dem.fields import from_mapping
 from gns import features
 from gns.dataset import LAYOUT_KEYS
 from gns.graph import radius_graph
+from gns.memory import keep_freed_memory
 from gns.network import EncodeProcessDecode
 
 # entries of a dataset's parameter_ranges that are not DEM parameters: the layout, and the
@@ -154,6 +155,7 @@ class Context:
 class LearnedSimulator(nn.Module):
     def __init__(self, config: SimulatorConfig):
         super().__init__()
+        keep_freed_memory()  # every GNS process builds one: its steps then reuse their freed activations
         self.config = config
         c = config
         node_in = sum(width for _, width in c.node_layout)

@@ -155,7 +155,9 @@ class Trainer:
         self.warm_started = warm_start(self.simulator, settings.init_from) if settings.init_from else None
         if self.warm_started:
             log.info("warm start: %s", self.warm_started)
-        self.optimizer = torch.optim.Adam(self.simulator.parameters(), lr=settings.learning_rate)
+        # foreach: one kernel per operation over every weight tensor instead of a loop over them
+        # (torch picks it by itself only on CUDA); the same update
+        self.optimizer = torch.optim.Adam(self.simulator.parameters(), lr=settings.learning_rate, foreach=True)
         self.averaged = copy.deepcopy(self.simulator)  # the EMA of the weights (ema_decay)
         self.sampler = np.random.default_rng(settings.seed)
         self.noise = torch.Generator().manual_seed(settings.seed)
@@ -272,8 +274,9 @@ class Trainer:
         self.optimizer.step()
         with torch.no_grad():
             decay = s.ema_decay
-            for averaged, current in zip(self.averaged.parameters(), self.simulator.parameters()):
-                averaged.mul_(decay).add_(current, alpha=1.0 - decay)
+            averaged = list(self.averaged.parameters())
+            torch._foreach_mul_(averaged, decay)
+            torch._foreach_add_(averaged, list(self.simulator.parameters()), alpha=1.0 - decay)
         self.step += 1
         value = float(loss.detach())
         if not math.isfinite(value):

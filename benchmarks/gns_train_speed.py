@@ -1,0 +1,224 @@
+"""GNS training and rollout speed of this working tree against another commit, in one run; prints JSON.
+
+  python benchmarks/gns_train_speed.py --against <commit> [--repeats 3] [--train-steps 60]
+                                       [--threads 2] [--dataset metadata.json]
+
+Both trees time the same work, alternately (old, new, old, new, ...), each in a fresh process
+(`git worktree` of --against in a scratch folder; this checkout as it stands):
+- training: --train-steps steps of the calibrated model's GNS settings as config/config.yaml gives
+  them (gns, calibration.gns_*: latent 48, M = 3, batch 2, pushforward half the steps), after 5
+  warm-up steps; steps per wall second
+  and the minor page faults per step;
+- rollout: the no-gradient path the inverse design, the validation and the evaluation take: a test
+  trajectory rolled out from its first C frames to its last; ms per GNS step and faults per step;
+- batched rollout: the same, from 4 copies of its start side by side as 4 graphs of one batch, the
+  shape of the GNS inverse design's rollouts (one point, S = 4 packings);
+- the weights after the timed steps, hashed: the same hash in both trees says the change kept the
+  training's numbers, so its validation accuracy at equal steps is the old one by construction.
+The data: --dataset, or (default) a dataset made here from one builtin-DEM collapse of the
+scale_ladder column (quartz, a = 6, size_scale 5: 589 grains, frames 0.005 s apart, 4 t*), copied
+under 9 parameter sets (6 train, 2 valid, 1 test), which is what the step costs depend on (grains,
+edges, frames), not what they hold.
+Ratios are new / old of the medians over --repeats, and per pair (one old and one new run next to
+each other, the fairest comparison on a shared machine).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def model_settings() -> dict:
+    """The calibrated model's GNS settings from config/config.yaml (gns, calibration.gns_*), as the DAG
+    trains them, on the CPU."""
+    sys.path.insert(0, str(ROOT))
+    import yaml
+
+    from pipeline.calibrated_gns import model_gns_settings
+
+    config = yaml.safe_load((ROOT / "config/config.yaml").read_text())
+    gns, calibration = config["gns"], config["calibration"]
+    base = {k: v for k, v in gns.items() if k not in ("datasets", "threads", "per_dataset")}
+    base.update(gns.get("per_dataset", {}).get(gns["datasets"][0], {}))
+    settings = model_gns_settings(
+        base,
+        calibration["gns_steps"],
+        None,
+        calibration.get("gns_learning_rate"),
+        calibration["gns_latent_size"],
+        calibration["gns_learning_rate_decay_steps"],
+    )
+    return {**settings, "device": "cpu"}
+
+
+WORKER = r"""
+import hashlib, json, resource, sys, time
+import torch
+torch.set_num_threads(int(sys.argv[3]))
+from dem.trajectory import read_trajectory
+from gns.dataset import read_metadata, split_paths
+from gns.settings import TrainSettings
+from gns.train import Trainer
+from gns.rollout import rollout_trajectory
+settings = TrainSettings.from_config(json.loads(sys.argv[4]))
+trainer = Trainer(sys.argv[1], sys.argv[2], settings)
+faults = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+for _ in range(5):
+    trainer.train_step()
+steps = int(sys.argv[5])
+f0, t0 = faults(), time.perf_counter()
+for _ in range(steps):
+    trainer.train_step()
+train_s, train_faults = time.perf_counter() - t0, faults() - f0
+weights = hashlib.sha256(b"".join(p.detach().numpy().tobytes() for p in trainer.simulator.parameters())).hexdigest()
+model = trainer.averaged.eval()
+dem = read_trajectory(split_paths(read_metadata(sys.argv[1]), "test")[0])
+rollout_trajectory(model, dem, n_steps=2)
+f0, t0 = faults(), time.perf_counter()
+gns = rollout_trajectory(model, dem, on_invalid="flag")
+rollout_s, rollout_faults = time.perf_counter() - t0, faults() - f0
+n = int(gns.attrs["rollout_steps"])
+# the inverse design's shape: one point rolled out from S = 4 packings at once, 4 graphs in one batch
+from gns.rollout import context_from_trajectory, rollout
+from gns.simulator import Context
+one, s = context_from_trajectory(model, dem), 4
+context = Context(one.particle_type.repeat(s), one.radius.repeat(s), one.parameters.repeat(s, 1),
+                  one.layout.repeat(s, 1), torch.arange(s).repeat_interleave(dem.n_particles))
+start = torch.as_tensor(dem.positions[: model.config.n_input_frames]).repeat(1, s, 1)
+with torch.no_grad():
+    rollout(model, start, context, 2, checkpoint=False, on_invalid="flag")
+    f0, t0 = faults(), time.perf_counter()
+    rollout(model, start, context, n, checkpoint=False, on_invalid="flag")
+batch_s, batch_faults = time.perf_counter() - t0, faults() - f0
+print(json.dumps({"batch4_rollout_ms_per_step": 1e3 * batch_s / n, "batch4_rollout_faults_per_step": batch_faults / n,
+                  "train_steps_per_s": steps / train_s, "train_faults_per_step": train_faults / steps,
+                  "rollout_ms_per_step": 1e3 * rollout_s / n, "rollout_faults_per_step": rollout_faults / n,
+                  "rollout_steps": n, "weights_sha256": weights[:16]}))
+"""
+
+
+def make_dataset(folder: Path) -> str:
+    """One builtin-DEM collapse of the scale_ladder column at size_scale 5, as 9 cases (module docstring)."""
+    sys.path.insert(0, str(ROOT))
+    import yaml
+
+    from dem.collapse import simulate_collapse
+    from dem.grid import case_from_row
+    from dem.packing import settle_column
+    from dem.scale_ladder import case_rows
+    from dem.trajectory import Trajectory, write_trajectory
+    from gns.dataset import build_dataset
+
+    spec = dict(yaml.safe_load((ROOT / "config/config.yaml").read_text())["scale_ladder"])
+    spec.update(size_scales=[5], packings=1, duration_over_tstar=4, seed=1)
+    case = case_from_row(case_rows(spec)[0]).replace(output_interval=0.005)
+    dem = simulate_collapse(case, settle_column(case, threads=1), threads=1)
+    splits, k = {"train": [], "valid": [], "test": []}, 0
+    for split, n in (("train", 6), ("valid", 2), ("test", 1)):
+        for j in range(n):
+            attrs = dict(dem.attrs, friction=0.3 + 0.06 * k, restitution=0.3 + 0.06 * k)
+            path = folder / f"{split}_{j}.h5"
+            write_trajectory(path, Trajectory(dem.positions, dem.radius, dem.particle_type, attrs))
+            splits[split].append(str(path))
+            k += 1
+    build_dataset(splits, folder / "metadata.json", "gns_train_speed")
+    return str(folder / "metadata.json")
+
+
+def run_worker(tree: Path, dataset: str, scratch: Path, threads: int, steps: int, settings: dict) -> dict:
+    out = tempfile.mkdtemp(dir=scratch)
+    environment = dict(os.environ, PYTHONPATH=str(tree))
+    proc = subprocess.run(
+        [sys.executable, "-c", WORKER, dataset, out, str(threads), json.dumps(settings), str(steps)],
+        cwd=tree,
+        env=environment,
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    if proc.returncode != 0:
+        sys.exit(f"worker in {tree} failed:\n{proc.stderr[-3000:]}")
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--against", required=True, help="the old commit")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--train-steps", type=int, default=60)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--dataset", default=None)
+    args = parser.parse_args()
+    started = {
+        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
+        "load_average_1min_at_start": round(os.getloadavg()[0], 2),
+    }
+    with tempfile.TemporaryDirectory() as scratch_name:
+        scratch = Path(scratch_name)
+        old_tree = scratch / "old"
+        subprocess.run(
+            ["git", "worktree", "add", "--detach", str(old_tree), args.against],
+            cwd=ROOT,
+            check=True,
+            capture_output=True,
+        )
+        try:
+            dataset = args.dataset or make_dataset(scratch)
+            settings, runs = model_settings(), {"old": [], "new": []}
+            for _ in range(args.repeats):
+                for label, tree in (("old", old_tree), ("new", ROOT)):
+                    runs[label].append(run_worker(tree, dataset, scratch, args.threads, args.train_steps, settings))
+        finally:
+            subprocess.run(["git", "worktree", "remove", "--force", str(old_tree)], cwd=ROOT, check=False)
+    median = lambda label, key: statistics.median(r[key] for r in runs[label])  # noqa: E731
+    keys = (
+        "train_steps_per_s",
+        "train_faults_per_step",
+        "rollout_ms_per_step",
+        "rollout_faults_per_step",
+        "batch4_rollout_ms_per_step",
+        "batch4_rollout_faults_per_step",
+    )
+    result = {
+        "benchmark": "gns_train_speed",
+        **started,
+        "against": subprocess.run(
+            ["git", "rev-parse", "--short", args.against], cwd=ROOT, capture_output=True, text=True
+        ).stdout.strip(),
+        "threads": args.threads,
+        "train_steps": args.train_steps,
+        "settings": settings,
+        "old": {k: round(median("old", k), 3) for k in keys},
+        "new": {k: round(median("new", k), 3) for k in keys},
+        "train_speedup": round(median("new", "train_steps_per_s") / median("old", "train_steps_per_s"), 3),
+        "rollout_speedup": round(median("old", "rollout_ms_per_step") / median("new", "rollout_ms_per_step"), 3),
+        "batch4_rollout_speedup": round(
+            median("old", "batch4_rollout_ms_per_step") / median("new", "batch4_rollout_ms_per_step"), 3
+        ),
+        "train_speedup_per_pair": [
+            round(n["train_steps_per_s"] / o["train_steps_per_s"], 3) for o, n in zip(runs["old"], runs["new"])
+        ],
+        "rollout_speedup_per_pair": [
+            round(o["rollout_ms_per_step"] / n["rollout_ms_per_step"], 3) for o, n in zip(runs["old"], runs["new"])
+        ],
+        "same_weights_after_training": len({r["weights_sha256"] for r in runs["old"] + runs["new"]}) == 1,
+        "runs": runs,
+        "load_average_1min_at_end": round(os.getloadavg()[0], 2),
+    }
+    print(json.dumps(result, indent=1))
+
+
+if __name__ == "__main__":
+    main()
