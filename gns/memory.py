@@ -5,7 +5,7 @@ fresh pages from the kernel and gives them back when the block is freed, and it 
 heap past twice that threshold. A GNS step allocates and frees dozens of [E, latent] tensors (~2 MB
 each for the model's two 589-grain graphs), so each one was page-faulted in again, zeroed by the
 kernel first: ~6,000 faults per forward pass, about 45% of a no-gradient forward's time on this
-project's 2-core machines (benchmarks/gns_speed.py --train-steps). Raising both thresholds keeps the
+project's 2-core machines (docs/experiments/gns-training.md). Raising both thresholds keeps the
 freed blocks for the next step; the process then holds its peak heap until it ends.
 """
 
