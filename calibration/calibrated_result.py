@@ -48,7 +48,7 @@ class CalibratedResult:
     doe_dem_runs}]; [] without a GNS route.
     transfer: the answer validated one size_scale finer (Validation.to_dict(); None when
     calibration.finer_size_scale is off). prediction: the model at the answer on other aspect
-    ratios (calibration.calibrated.Prediction.to_dict()).
+    ratios (calibration.prediction.Prediction.to_dict()).
     measured_final_runout: the measured L* at its last t/t*; prediction_measured_a: the measured
     column's aspect ratio H_i / L_i.
     size_scale: coarse-graining factor of every DEM run; engine: the DEM engine; runout: the

@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from calibration.bayesopt import BOSettings, bayesian_optimisation
-from calibration.measured import MeasuredColumn
+from calibration.measured_column import MeasuredColumn
 from calibration.objective import objective
 from calibration.optimise import OptimisationHistory, PointFailed, one_at_a_time
 from dem.atomic import atomic_path, write_text

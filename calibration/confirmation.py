@@ -21,7 +21,7 @@ import numpy as np
 
 from calibration.calibrated import CalibrationError, Validation, validate
 from calibration.design_runs import SimulationSettings
-from calibration.measured import MeasuredColumn
+from calibration.measured_column import MeasuredColumn
 from calibration.model import Model
 from calibration.sensitivity import finite_or_none
 from dem.runout import RunoutMethod

@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from calibration.emulator import GPEmulator, latin_hypercube
-from calibration.measured import MeasuredColumn
+from calibration.measured_column import MeasuredColumn
 from calibration.model import Model
 from calibration.observables import LibraryError, Observables
 from dem.atomic import atomic_path

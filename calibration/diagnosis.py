@@ -56,7 +56,7 @@ from calibration.diagnosis_result import (
     ObservedData,
     SimulatorSummary,
 )
-from calibration.measured import MeasuredColumn
+from calibration.measured_column import MeasuredColumn
 from calibration.mechanisms import get_mechanisms
 from calibration.model import Model
 from calibration.observables import Observables

@@ -11,7 +11,7 @@ from collections.abc import Collection
 
 import numpy as np
 
-from calibration.measured import MeasuredColumn
+from calibration.measured_column import MeasuredColumn
 from dem.case import get_material
 
 GEOMETRY_TOLERANCE = 0.05  # relative distance to the nearest training case that warns

@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from calibration.geometry import InverseDesignError
-from calibration.measured import MeasuredColumn
+from calibration.measured_column import MeasuredColumn
 from calibration.objective import runout_mse
 from dem.runout import RunoutError, RunoutMethod
 from dem.trajectory import Trajectory

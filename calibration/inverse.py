@@ -46,7 +46,7 @@ from calibration.lbfgsb import (
     multistart_lbfgsb,
     starting_points,
 )
-from calibration.measured import MeasuredColumn
+from calibration.measured_column import MeasuredColumn
 from calibration.objective import runout_mse
 from calibration.optimise import OptimisationResult, PointFailed
 from calibration.sensitivity import finite_or_none, sensitivity_record, untrusted_slopes

@@ -21,7 +21,7 @@ from calibration.mechanisms import BASE_BOUNDS, BASE_PARAMETERS, Mechanism
 if TYPE_CHECKING:
     from numpy.typing import ArrayLike
 
-    from calibration.measured import MeasuredColumn
+    from calibration.measured_column import MeasuredColumn
     from dem.case import CollapseCase
 
 

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from calibration.measured import MeasuredColumn
+from calibration.measured_column import MeasuredColumn
 from dem.runout import RunoutMethod, runout_at
 
 if TYPE_CHECKING:

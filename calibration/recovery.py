@@ -31,7 +31,7 @@ import numpy as np
 from calibration.compare import case_like
 from calibration.gns_objective import DESIGN_NAMES
 from calibration.inverse import BOUNDS, inverse_design
-from calibration.measured import MeasuredColumn, own_material_fields
+from calibration.measured_column import MeasuredColumn, own_material_fields
 from dem.case import Material
 from dem.runout import RunoutMethod, runout_at
 from dem.trajectory import Trajectory

@@ -31,7 +31,7 @@ from scipy.stats import chi2 as chi2_distribution
 from scipy.stats import norm
 
 from calibration.design_runs import Library
-from calibration.measured import MeasuredColumn
+from calibration.measured_column import MeasuredColumn
 from calibration.model import Model
 from calibration.observables import Observables
 

@@ -26,7 +26,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from calibration.design_runs import Library, SimulationSettings
-from calibration.measured import OPTIONAL_FIELDS, REQUIRED_FIELDS, MeasuredColumn
+from calibration.measured import OPTIONAL_FIELDS, REQUIRED_FIELDS
+from calibration.measured_column import MeasuredColumn
 from calibration.mechanisms import Mechanism
 from calibration.model import Model
 from calibration.observables import Observables

@@ -30,7 +30,7 @@ from numpy.typing import ArrayLike
 from dem.atomic import atomic_path
 
 if TYPE_CHECKING:
-    from calibration.measured import MeasuredColumn
+    from calibration.measured_column import MeasuredColumn
     from dem.case import CollapseCase
 
 
@@ -179,7 +179,7 @@ def three_level_factorial(factors: Sequence[Factor], centre_replicates: int = 3,
 
 
 def design_cases(design: pd.DataFrame, measured: MeasuredColumn, **case_fields: Any) -> dict[str, CollapseCase]:
-    """{run_id: CollapseCase} for a design on a measured column (calibration.measured.MeasuredColumn).
+    """{run_id: CollapseCase} for a design on a measured column (calibration.measured_column.MeasuredColumn).
 
     case_fields: further CollapseCase fields shared by every run (size_scale, duration_over_tstar...).
     """

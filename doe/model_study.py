@@ -26,7 +26,7 @@ import pandas as pd
 
 from calibration.calibrated import CALIBRATION_SEED, model_runout
 from calibration.design_runs import SimulationSettings
-from calibration.measured import MeasuredColumn
+from calibration.measured_column import MeasuredColumn
 from calibration.model import Model
 from calibration.objective import runout_mse
 from dem.engines import FAILURES, failure_reason

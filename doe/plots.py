@@ -15,7 +15,7 @@ from dem.plots import plt, save_figure
 if TYPE_CHECKING:
     import pandas as pd
 
-    from calibration.measured import MeasuredColumn
+    from calibration.measured_column import MeasuredColumn
     from doe.regression import SurfaceFit
 
 SURFACE_POINTS = 101  # per axis
@@ -152,7 +152,7 @@ def plot_surface_pairs(
 def plot_runout_comparison(measured: MeasuredColumn, curves: dict, path: str | os.PathLike, title: str = "") -> None:
     """Runout L*(t/t*) of simulated runs against the measured points (Fig. 11 of the paper).
 
-    measured: calibration.measured.MeasuredColumn; curves: {label: (t_over_tstar [T], L* [T])}.
+    measured: calibration.measured_column.MeasuredColumn; curves: {label: (t_over_tstar [T], L* [T])}.
     Error bars show the measured noise level where the file gives one.
     """
     fig, ax = plt.subplots(figsize=(6.4, 4.4))

@@ -31,7 +31,7 @@ from doe.design import design_cases
 from doe.regression import RegressionError, analyse, prediction_expression
 
 if TYPE_CHECKING:
-    from calibration.measured import MeasuredColumn
+    from calibration.measured_column import MeasuredColumn
     from dem.case import CollapseCase
     from doe.design import Factor
 

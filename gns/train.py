@@ -17,7 +17,7 @@ Outputs in `out_dir`:
   model_best.pt       the validated model (the exponential moving average of the weights,
                       ema_decay) with the lowest validation runout MSE so far (the paper keeps
                       the best validated model; it validated every 500 steps)
-  metrics.csv, loss_curve.png
+  metrics.csv, loss_curve.png  the rows logged and validated so far, and their figure (gns/train_metrics.py)
 Validation, every `validate_every` steps: the one-step loss on fixed windows of the valid split
 and a full rollout of every valid trajectory, scored by the runout MSE against its DEM curve.
 """
@@ -25,7 +25,6 @@ and a full rollout of every valid trajectory, scored by the runout MSE against i
 from __future__ import annotations
 
 import copy
-import csv
 import dataclasses
 import logging
 import math
@@ -45,6 +44,7 @@ from gns.dataset import read_metadata, split_paths
 from gns.graph import graph_summary, radius_graph
 from gns.settings import TrainSettings, simulator_config
 from gns.simulator import CheckpointError, LearnedSimulator, SimulatorConfig, model_payload, warm_start
+from gns.train_metrics import METRICS_COLUMNS, write_metrics
 
 log = logging.getLogger(__name__)
 
@@ -100,20 +100,6 @@ def resolve_device(name: str) -> torch.device:
 
 class Trainer:
     """State of one training run; `run()` trains to settings.steps, resuming when it can."""
-
-    COLUMNS = (
-        "step",
-        "learning_rate",
-        "train_loss",
-        "train_pushforward_loss",
-        "edges_per_node",
-        "particles_per_graph",
-        "steps_per_s",
-        "valid_one_step_loss",
-        "valid_position_mse",
-        "valid_runout_mse",
-        "valid_rollouts_failed",
-    )
 
     def __init__(
         self,
@@ -385,13 +371,13 @@ class Trainer:
             validated = self.step % s.validate_every == 0 or self.step == s.steps
             if validated or self.step % s.checkpoint_every == 0:
                 self.save_checkpoint()
-                self.write_metrics(figure=validated)
+                write_metrics(self.history, self.out_dir, self.best, figure=validated)
         if self.best["step"] is None:  # every validation rollout failed: keep the last model, say so
             log.warning("no validation rollout succeeded; model_best.pt holds the last model")
             self.save_best()
         # a finished run resumed (e.g. Snakemake reran the job and removed its outputs) writes them again
         self.write_best()
-        self.write_metrics()
+        write_metrics(self.history, self.out_dir, self.best)
         return {
             "step": self.step,
             "resumed_from": self.resumed_from,
@@ -404,7 +390,7 @@ class Trainer:
     def log_row(self, steps: int, seconds: float) -> dict:
         acc = self.accumulated
         mean = lambda kind: acc[kind + "loss"] / acc[kind + "count"] if acc[kind + "count"] else math.nan  # noqa: E731
-        row = {key: math.nan for key in self.COLUMNS}
+        row = {key: math.nan for key in METRICS_COLUMNS}
         row.update(
             step=self.step,
             learning_rate=self.settings.learning_rate_at(self.step),
@@ -458,48 +444,6 @@ class Trainer:
         self.out_dir.mkdir(parents=True, exist_ok=True)
         with atomic_path(self.out_dir / "model_best.pt") as tmp:
             torch.save(self.best_payload, tmp)
-
-    def write_metrics(self, figure: bool = True) -> None:
-        with atomic_path(self.out_dir / "metrics.csv") as tmp:
-            with open(tmp, "w", newline="") as f:
-                writer = csv.DictWriter(f, fieldnames=self.COLUMNS)
-                writer.writeheader()
-                writer.writerows({k: row.get(k, math.nan) for k in self.COLUMNS} for row in self.history)
-        if figure:
-            plot_loss_curve(self.history, self.out_dir / "loss_curve.png", self.best)
-
-
-def plot_loss_curve(history: list[dict], path: str | os.PathLike, best: dict | None = None) -> None:
-    """Training loss and validation metrics against step."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from dem.plots import save_figure
-
-    fig, (ax_loss, ax_runout) = plt.subplots(1, 2, figsize=(10, 3.8))
-    column = lambda key: np.array([row.get(key, math.nan) for row in history], float)  # noqa: E731
-    step = column("step")
-    for key, style in (("train_loss", "-"), ("train_pushforward_loss", "-"), ("valid_one_step_loss", "o-")):
-        ok = np.isfinite(column(key))
-        if ok.any():
-            ax_loss.plot(step[ok], column(key)[ok], style, label=key.replace("_", " "), ms=3)
-    ax_loss.set(xlabel="step", ylabel="one-step loss (normalised acceleration MSE)", yscale="log")
-    ax_loss.legend(fontsize=8)
-    ok = np.isfinite(column("valid_runout_mse"))
-    if ok.any():
-        ax_runout.plot(step[ok], column("valid_runout_mse")[ok], "o-", ms=3, label="valid runout MSE")
-        ax_runout.set(yscale="log")
-    if best and best.get("step") is not None:
-        ax_runout.axvline(best["step"], color="0.5", ls=":", label=f"best (step {best['step']})")
-    ax_runout.set(xlabel="step", ylabel="runout MSE (L*) on the valid split")
-    if ax_runout.get_legend_handles_labels()[0]:
-        ax_runout.legend(fontsize=8)
-    for ax in (ax_loss, ax_runout):
-        ax.grid(alpha=0.3)
-    fig.tight_layout()
-    save_figure(fig, path)
 
 
 def train(

@@ -25,7 +25,6 @@ import numpy as np
 
 from calibration.calibrated import (
     CALIBRATION_SEED,
-    PREDICTION_TSTAR,
     CalibrationError,
     bayesopt_model,
     calibration_box,
@@ -33,7 +32,6 @@ from calibration.calibrated import (
     diagnosis_parameters,
     model_record,
     mse_jackknife,
-    predict,
     read_model,
     resolve_model,
     runoff,
@@ -45,8 +43,10 @@ from calibration.confirmation import confirm
 from calibration.design_runs import SimulationSettings
 from calibration.diagnosis_result import Diagnosis
 from calibration.inverse_result import read_result
-from calibration.measured import MeasuredColumn, expected_final_runout, load_column
+from calibration.measured import load_column
+from calibration.measured_column import MeasuredColumn, expected_final_runout
 from calibration.model import Model
+from calibration.prediction import PREDICTION_TSTAR, predict
 from dem.atomic import StrPath, write_json
 from dem.plots import save_figure
 from dem.progress import progress_logger

@@ -10,8 +10,8 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-from calibration.calibrated import PREDICTION_TSTAR
 from calibration.calibrated_result import CalibratedResult
+from calibration.prediction import PREDICTION_TSTAR
 from dem.atomic import StrPath, write_text
 
 

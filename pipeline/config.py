@@ -19,7 +19,8 @@ import warnings
 from collections.abc import Iterable
 
 from calibration.geometry import InverseDesignError, check_geometry_of_dataset, nearest_dataset
-from calibration.measured import MeasuredColumn, MeasuredDataError, MeasuredDataWarning, load_column, read_measured
+from calibration.measured import MeasuredDataError, MeasuredDataWarning, load_column, read_measured
+from calibration.measured_column import MeasuredColumn
 from calibration.mechanisms import get_mechanisms
 from calibration.model import Model
 from calibration.residuals import MIN_RUNOUT_POINTS, MIN_SPARE_VALUES

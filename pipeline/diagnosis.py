@@ -23,7 +23,8 @@ from pathlib import Path
 from calibration.design_runs import Library
 from calibration.diagnosis import LIBRARY_SETTINGS, DiagnosisSettings, diagnose
 from calibration.diagnosis_result import Diagnosis, Evidence
-from calibration.measured import MeasuredColumn, MeasuredDataWarning, read_measured
+from calibration.measured import MeasuredDataWarning, read_measured
+from calibration.measured_column import MeasuredColumn
 from calibration.observables import Observables
 from dem.atomic import StrPath, write_json, write_text
 from dem.progress import progress_logger

@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from calibration.measured import MeasuredColumn, load_column
+from calibration.measured import load_column
+from calibration.measured_column import MeasuredColumn
 from calibration.objective import objective, runout_mse
 from dem.atomic import StrPath, write_json, write_text
 from dem.engines import simulate_case

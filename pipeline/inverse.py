@@ -36,7 +36,8 @@ from calibration.compare import (
     write_table,
 )
 from calibration.inverse_result import read_result
-from calibration.measured import MeasuredColumn, load_column
+from calibration.measured import load_column
+from calibration.measured_column import MeasuredColumn
 from calibration.objective import objective
 from dem.atomic import StrPath, write_text
 from dem.progress import progress_logger

@@ -21,7 +21,8 @@ from calibration.gns_objective import GNSObjective
 from calibration.inverse import inverse_design
 from calibration.inverse_plots import plot_deposits, plot_paths
 from calibration.inverse_result import InverseResult, write_result
-from calibration.measured import MeasuredColumn, load_column
+from calibration.measured import load_column
+from calibration.measured_column import MeasuredColumn
 from calibration.recovery import plot_recovery, recovery_study
 from dem.atomic import StrPath, write_json
 from dem.run_store import keeps_runs

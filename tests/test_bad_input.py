@@ -29,7 +29,8 @@ from calibration.compare import bayesopt_on_dem, write_bayesopt
 from calibration.dem_scoring import dem_evaluate, dem_runs
 from calibration.design_runs import DEMRunner, Library, SimulationSettings, build_library
 from calibration.diagnosis import DiagnosisSettings
-from calibration.measured import MeasuredColumn, load_column
+from calibration.measured import load_column
+from calibration.measured_column import MeasuredColumn
 from calibration.model import Model
 from calibration.observables import LibraryError, Observables
 from calibration.optimise import OptimisationError, PointFailed, one_at_a_time

@@ -21,7 +21,7 @@ from calibration.calibrated import (
 )
 from calibration.calibrated_result import CalibratedResult
 from calibration.design_runs import SimulationSettings
-from calibration.measured import MeasuredColumn
+from calibration.measured_column import MeasuredColumn
 from calibration.mechanisms import bond_from_cohesion_energy, get_mechanisms
 from calibration.model import Model
 from calibration.objective import runout_mse

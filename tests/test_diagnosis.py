@@ -25,7 +25,7 @@ from calibration.design_runs import DEMRunner, DesignRuns, Library, SimulationSe
 from calibration.diagnosis import LIBRARY_SETTINGS, DiagnosisSettings, diagnose, mechanism_on
 from calibration.diagnosis_result import Diagnosis
 from calibration.emulator import GPEmulator, ParameterBox, latin_hypercube
-from calibration.measured import MeasuredColumn
+from calibration.measured_column import MeasuredColumn
 from calibration.mechanisms import MechanismError, bond_from_cohesion_energy, cohesion_energy_from_bond, get_mechanisms
 from calibration.model import Model
 from calibration.observables import Observables
@@ -470,7 +470,8 @@ CACHE = Path(__file__).parent / "diagnosis_cache"
 # What the design runs depend on: the engine and the code that turns a column and a model into runs
 # and reads them (a change to any of these, or to CI_SETTINGS, rebuilds the cached library).
 LIBRARY_SOURCES = ("dem/*.py", "dem/engines/*.py") + tuple(
-    f"calibration/{m}.py" for m in ("design_runs", "mechanisms", "measured", "model", "observables", "synthetic")
+    f"calibration/{m}.py"
+    for m in ("design_runs", "mechanisms", "measured", "measured_column", "model", "observables", "synthetic")
 )
 
 

@@ -29,7 +29,7 @@ from calibration.lbfgsb import (
     multistart_lbfgsb,
     step_vanishes,
 )
-from calibration.measured import MeasuredColumn
+from calibration.measured_column import MeasuredColumn
 from calibration.recovery import observation_times, packing_scatter, recover_case
 from dem.collapse import simulate_collapse
 from dem.runout import METHODS, RunoutMethod, runout_at, runout_curve

@@ -7,14 +7,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from calibration.measured import (
-    MeasuredColumn,
-    MeasuredDataError,
-    MeasuredDataWarning,
-    expected_final_runout,
-    load_column,
-    read_measured,
-)
+from calibration.measured import MeasuredDataError, MeasuredDataWarning, load_column, read_measured
+from calibration.measured_column import MeasuredColumn, expected_final_runout
 from calibration.synthetic import write_measured_csv
 from dem.case import CaseError
 from dem.runout import RunoutMethod

@@ -22,7 +22,7 @@ import yaml
 
 from calibration.design_runs import Library
 from calibration.diagnosis import DiagnosisSettings
-from calibration.measured import MeasuredColumn
+from calibration.measured_column import MeasuredColumn
 from calibration.observables import LibraryError, Observables
 from calibration.residuals import DiagnosisError
 from calibration.synthetic import noisy_columns
