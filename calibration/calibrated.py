@@ -15,9 +15,8 @@ measurement, beside each packing's own MSE and the packing scatter. A run that f
 an engine error) is reported with its packing and never averaged in. The same validation one
 size_scale finer says how far the answer transfers (`validate` with finer settings).
 
-Answer (`contenders`, `runoff`): the lowest of several noisy few-packing scores is an optimistic
-estimate of its own MSE, so the routes not told apart from the best (paired difference within 2 SE)
-are validated on more packings, the first ones shared, and the answer is the lowest there.
+Which route is the answer: calibration/answer_choice.py (the routes not told apart from the best
+run on more packings, and the lowest there answers).
 
 What the answer predicts for columns of other aspect ratios: calibration/prediction.py.
 """
@@ -335,65 +334,6 @@ def validate(
         dem_runs=dem_runs,
         calibration_seconds=calibration_seconds,
     )
-
-
-def contenders(routes: Sequence[dict], measured: ArrayLike, best: dict, z: float = 2.0) -> list[dict]:
-    """The routes (Validation dicts on the same packings) not told apart from `best`: their MSE minus
-    best's, paired packing by packing (mse_jackknife), within z standard errors; with no error (fewer
-    than 3 packings both ran) every route that ran is one; a route with no packing in common with
-    best's is none. `best` comes first."""
-    close = [best]
-    for route in routes:
-        if route is best:
-            continue
-        difference, se = mse_jackknife(route["curves"], measured, best["curves"])
-        if math.isfinite(difference) and (se is None or difference <= z * se):
-            close.append(route)
-    return close
-
-
-def runoff(
-    routes: Sequence[dict],
-    model: Model,
-    column: MeasuredColumn,
-    settings: SimulationSettings,
-    runout: RunoutMethod,
-    dem_config: dict | None,
-    n_packings: int,
-    progress: Callable[[float], None] | None = None,
-) -> list[dict]:
-    """Each route (a Validation dict of `model` with its parameters and curves on the first packings)
-    run on the validation packings after its own up to n_packings in all and scored on all of them:
-    [{key, route, parameters, seeds, curves, failed, mse, mse_se, mse_each, shared_packings}] in the
-    order given (failed: {seed: reason}; curves None where a run failed). progress: callable(fraction
-    done)."""
-    out = []
-    for j, route in enumerate(routes):
-        shared = len(route["seeds"])
-        theta = [route["parameters"][name] for name in model.parameter_names]
-        within = None if progress is None else (lambda f, j=j: progress((j + f) / len(routes)))
-        more = validate(
-            route["route"], model, column, theta, settings, runout, dem_config, n_packings - shared,
-            progress=within, first_packing=shared,
-        )  # fmt: skip
-        curves = list(route["curves"]) + more.curves
-        mse, se = mse_jackknife(curves, column.runout)
-        failed = {int(seed): why for seed, why in route["failed"].items()} | more.failed
-        out.append(
-            {
-                "key": route.get("key"),
-                "route": route["route"],
-                "parameters": route["parameters"],
-                "seeds": list(route["seeds"]) + more.seeds,
-                "curves": curves,
-                "failed": failed,
-                "mse": mse,
-                "mse_se": se,
-                "mse_each": list(route["mse_each"]) + more.mse_each,
-                "shared_packings": shared,
-            }
-        )
-    return out
 
 
 def bayesopt_model(

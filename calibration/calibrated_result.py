@@ -37,7 +37,7 @@ class CalibratedResult:
     `model`, where given `own_dem_runs`, and `versus_answer`: {mse_difference, se}, its MSE minus
     the answer's paired packing by packing, with its jackknife SE, None under 3 packings).
     runoff: the routes not told apart from the best, scored on answer_packings packings
-    (calibration.calibrated.runoff's entries); [] when none ran. answer_packings: the packings the
+    (calibration.answer_choice.runoff's entries); [] when none ran. answer_packings: the packings the
     answer was chosen on (validation_packings without a runoff).
     intervals: 95% intervals of the parameters, the diagnosis' Laplace posterior ([{name, value,
     std, low, high, identifiable, why}]; None without a diagnosis). gns_intervals: the GNS inverse

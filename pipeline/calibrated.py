@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import logging
-import math
 import time
 from collections.abc import Sequence
 from dataclasses import asdict
@@ -23,18 +22,17 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from calibration.answer_choice import choose_answer, gns_versus_doe
 from calibration.calibrated import (
     CALIBRATION_SEED,
     CalibrationError,
     bayesopt_model,
     calibration_box,
-    contenders,
     diagnosis_parameters,
     model_record,
     mse_jackknife,
     read_model,
     resolve_model,
-    runoff,
     validate,
 )
 from calibration.calibrated_result import CalibratedResult
@@ -279,7 +277,7 @@ def run_calibrated(
     """The answer for one measured column (workflow rule calibrated): of the validated routes
     (validation_paths, written by run_validation) those of the model (model.json) compete: those
     within 2 SE of the lowest validated MSE run on answer_packings packings in all (the first
-    shared; calibration.calibrated.runoff) and the lowest there is the answer; it is validated
+    shared; calibration.answer_choice) and the lowest there is the answer; it is validated
     again one size_scale finer and predicts other aspect ratios. Returns the CalibratedResult it
     writes to out_json (calibration/calibrated_result.py).
 
@@ -305,17 +303,12 @@ def run_calibrated(
         raise CalibrationError(
             f"{name}: no route calibrated the {model.name} model (routes: {[r['key'] for r in routes]})"
         )
-    best = min(answers, key=lambda r: r["mse"] if math.isfinite(r["mse"]) else math.inf)
-    # the lowest of a few noisy scores flatters itself: the routes not told apart from it run on
-    # more packings (the first ones shared) and the lowest there is the answer
     answer_packings = section.get("answer_packings") or n_packings
-    close = contenders(answers, column.runout, best)
-    scored = []
-    if answer_packings > n_packings and len(close) > 1:
-        label = f"{name}: {len(close)} routes within 2 SE of the best, on {answer_packings} packings"
-        scored = runoff(close, model, column, settings, runout, dem, answer_packings, progress_logger(label, log))
-        winner = min(scored, key=lambda r: r["mse"] if math.isfinite(r["mse"]) else math.inf)
-        best = next(r for r in answers if r["key"] == winner["key"])
+    label = f"{name}: the routes within 2 SE of the best, on {answer_packings} packings"
+    best, scored = choose_answer(
+        answers, model, column, settings, runout, dem, n_packings, answer_packings, progress_logger(label, log)
+    )
+    if scored:
         log.info("%s: on %d packings %s", name, answer_packings, {r["route"]: round(r["mse"], 4) for r in scored})
     theta = [best["parameters"][parameter] for parameter in model.parameter_names]
     log.info("%s: %s model, answer %s at %s (MSE %.4g)", name, model.name, best["route"], theta, best["mse"])
@@ -335,27 +328,6 @@ def run_calibrated(
         route["versus_answer"] = dict(
             zip(("mse_difference", "se"), mse_jackknife(route["curves"], column.runout, best["curves"]))
         )
-    # the paper's claim, against each DoE route: the GNS route no worse than a DoE at no more DEM runs
-    # (on the runoff's packings where both ran there, else on the validation's)
-    runoff_curves = {r["key"]: r["curves"] for r in scored}
-    gns_vs_doe = []
-    for doe in [r for r in routes if r["key"].startswith("model-doe")] if gns is not None else []:
-        mine, theirs = gns["curves"], doe["curves"]
-        if gns["key"] in runoff_curves and doe["key"] in runoff_curves:
-            mine, theirs = runoff_curves[gns["key"]], runoff_curves[doe["key"]]
-        difference, se = mse_jackknife(mine, column.runout, theirs)
-        gns_vs_doe.append(
-            {
-                "doe_key": doe["key"],
-                "doe_route": doe["route"],
-                "mse_difference": difference,
-                "se": se,
-                "packings": len(mine),
-                "gns_dem_runs": gns["dem_runs"],
-                "gns_own_dem_runs": gns.get("own_dem_runs"),  # without the base GNS's (shared with the paper's route)
-                "doe_dem_runs": doe["dem_runs"],
-            }
-        )
     result = CalibratedResult(
         name=name,
         measured=str(measured_path),
@@ -374,7 +346,7 @@ def run_calibrated(
         # ... and the GNS inverse design's (about its optimum, through the GNS, with its error as noise)
         gns_intervals=None if gns is None else gns["extra"]["intervals"],
         gns_sensitivity=None if gns is None else gns["extra"].get("sensitivity"),
-        gns_vs_doe=gns_vs_doe,
+        gns_vs_doe=gns_versus_doe(routes, scored, column.runout),
         transfer=None if transfer is None else transfer.to_dict(),
         prediction=prediction.to_dict(),
         measured_final_runout=float(column.runout[-1]),

@@ -1,16 +1,17 @@
 """The calibrated model (calibration/calibrated.py, pipeline/calibrated.py): which model, its
 parameters, and the validation on several packings, on tiny coarse-grained columns (77 grains)."""
 
+import math
 from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+from calibration.answer_choice import choose_answer, contenders, gns_versus_doe
 from calibration.calibrated import (
     CalibrationError,
     calibration_box,
-    contenders,
     model_dataset_cases,
     model_record,
     model_runout,
@@ -262,6 +263,29 @@ def test_the_routes_not_told_apart_from_the_best_are_the_contenders():
     # two packings give no standard error: nothing is told apart
     two = [{"route": r["route"], "curves": r["curves"][:2]} for r in (best, far)]
     assert len(contenders(two, measured, two[0])) == 2
+
+
+def test_without_a_runoff_the_answer_is_the_lowest_validated_route_and_the_gns_is_held_against_each_doe():
+    """No runoff (answer_packings not above the validation's): the lowest finite MSE answers, a route
+    whose runs all failed (NaN) never; the GNS route against each DoE route, GNS minus DoE."""
+    rng = np.random.default_rng(5)
+    chaos = rng.normal(0, 0.1, (4, 4))
+
+    def route(key, offset, mse, runs):
+        curves = (COLUMN.runout + offset + chaos).tolist()
+        return {"key": key, "route": key, "curves": curves, "mse": mse, "dem_runs": runs}
+
+    gns, doe, failed = (
+        route("model-inverse", 0.4, 0.2, 36),
+        route("model-doe-ff", 0.0, 0.01, 50),
+        route("x", 0, math.nan, 9),
+    )
+    answer, scored = choose_answer([gns, failed, doe], None, COLUMN, None, None, None, 4, 4)
+    assert answer is doe and scored == []
+    (versus,) = gns_versus_doe([gns, failed, doe], scored, COLUMN.runout)
+    assert versus["doe_key"] == "model-doe-ff" and versus["packings"] == 4
+    assert versus["mse_difference"] > 0 and versus["gns_dem_runs"] == 36 and versus["doe_dem_runs"] == 50
+    assert gns_versus_doe([failed, doe], [], COLUMN.runout) == []  # no GNS route
 
 
 def config_with(model, engine="builtin", diagnosis_enabled=True):
