@@ -313,7 +313,7 @@ def size_scales_speed(args) -> dict:
     from dem.scale_ladder import case_rows
     from gns.settings import TrainSettings
     from gns.simulator import load_simulator
-    from pipeline.config import validate_config
+    from pipeline.config import gns_dataset_settings, validate_config
 
     config = validate_config(
         yaml.safe_load(Path(args.config).read_text()), ROOT / "workflow/schemas/config.schema.yaml"
@@ -328,10 +328,7 @@ def size_scales_speed(args) -> dict:
         dt_frame, model = trained.config.dt_frame, str(args.model)
         settings = None
     else:
-        section = {k: v for k, v in config["gns"].items() if k not in ("datasets", "threads", "per_dataset")}
-        settings = TrainSettings.from_config(
-            {**section, **config["gns"].get("per_dataset", {}).get(gns_dataset, {}), "device": "cpu"}
-        )
+        settings = TrainSettings.from_config({**gns_dataset_settings(config, gns_dataset), "device": "cpu"})
         dt_frame = config["datasets"][gns_dataset].get("output_interval")  # None: t* / 25
         model = f"random weights, the architecture of {Path(args.config).name} gns (dataset {gns_dataset})"
     cases = [case_from_row(row).replace(output_interval=dt_frame) for row in case_rows(spec)]

@@ -28,15 +28,15 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from gns_speed import machine  # noqa: E402 - the date, machine and load every GNS benchmark prints
 
 
 def model_settings() -> dict:
@@ -46,13 +46,12 @@ def model_settings() -> dict:
     import yaml
 
     from pipeline.calibrated_gns import model_gns_settings
+    from pipeline.config import gns_dataset_settings, gns_datasets
 
     config = yaml.safe_load((ROOT / "config/config.yaml").read_text())
-    gns, calibration = config["gns"], config["calibration"]
-    base = {k: v for k, v in gns.items() if k not in ("datasets", "threads", "per_dataset")}
-    base.update(gns.get("per_dataset", {}).get(gns["datasets"][0], {}))
+    calibration = config["calibration"]
     settings = model_gns_settings(
-        base,
+        gns_dataset_settings(config, gns_datasets(config)[0]),
         calibration["gns_steps"],
         None,
         calibration.get("gns_learning_rate"),
@@ -160,11 +159,7 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--dataset", default=None)
     args = parser.parse_args()
-    started = {
-        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
-        "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores",
-        "load_average_1min_at_start": round(os.getloadavg()[0], 2),
-    }
+    started = machine()
     with tempfile.TemporaryDirectory() as scratch_name:
         scratch = Path(scratch_name)
         old_tree = scratch / "old"

@@ -227,6 +227,15 @@ def gns_datasets(config: dict) -> list[str]:
     return config["gns"].get("datasets", sorted(config["datasets"]))
 
 
+def gns_dataset_settings(config: dict, dataset: str) -> dict:
+    """The training settings of one dataset's GNS (gns.train.TrainSettings' keys): the gns section
+    without the stage's own keys (datasets, threads, per_dataset), gns.per_dataset[dataset] laid
+    over it."""
+    section = config["gns"]
+    base = {k: v for k, v in section.items() if k not in ("datasets", "threads", "per_dataset")}
+    return {**base, **section.get("per_dataset", {}).get(dataset, {})}
+
+
 def check_gns(config: dict) -> None:
     """gns.datasets and gns.per_dataset name datasets."""
     datasets = sorted(config["datasets"])

@@ -75,7 +75,7 @@ def dataset_cases(dataset):
 
 # Helpers of the stages, kept here so that no stage file mixes functions with rules (snakemake
 # --lint). They run after every .smk is parsed (input functions, params), or, for gns_test_cases,
-# at parse time of runout.smk; so they may read names the stage files define (GNS_SETTINGS,
+# at parse time of runout.smk; so they may read names the stage files define (GNS,
 # DOE_NAMES, ...).
 
 
@@ -102,7 +102,7 @@ def gns_settings(dataset):
             CALIBRATION["gns_latent_size"],
             CALIBRATION["gns_learning_rate_decay_steps"],
         )
-    return {**GNS_SETTINGS, **GNS.get("per_dataset", {}).get(dataset, {})}
+    return pipeline.config.gns_dataset_settings(config, dataset)
 
 
 def gns_init(dataset):

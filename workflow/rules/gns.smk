@@ -6,7 +6,6 @@
 # not a declared output, so a failed job does not delete it.
 GNS = config["gns"]
 GNS_THREADS = GNS["threads"]
-GNS_SETTINGS = {k: v for k, v in GNS.items() if k not in ("datasets", "threads", "per_dataset")}
 GNS_DATASETS = pipeline.config.gns_datasets(config)  # gns.datasets, checked in common.smk
 
 # gns_settings and gns_test_cases: common.smk
