@@ -44,18 +44,24 @@ def main():
     # nonlinear in mu_r and mu together) was DEM-scored at an optimum its emulator had not yet
     # settled on, and tied with side-wall friction or cohesion (seeds 2024 and 7)
     parser.add_argument("--rounds", type=int, default=3, help="DEM scoring rounds (refinement)")
+    parser.add_argument(
+        "--max-rounds", type=int, default=None, help="most rounds, while the evidence is unsettled (default: --rounds)"
+    )
     parser.add_argument("--n-base", type=int, default=10)
     parser.add_argument("--n-per-mechanism", type=int, default=8)
-    parser.add_argument("--quick", action="store_true", help="CI-sized: size_scale 5, small design, 1 round")
+    parser.add_argument(
+        "--quick", action="store_true", help="CI-sized: size_scale 5, small design, 1 round (2 where unsettled)"
+    )
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
     if args.quick:
-        args.size_scale, args.n_base, args.n_per_mechanism, args.rounds = 5.0, 6, 5, 1
+        args.size_scale, args.n_base, args.n_per_mechanism, args.rounds, args.max_rounds = 5.0, 6, 5, 1, 2
     settings = DiagnosisSettings(
         simulation=SimulationSettings(size_scale=args.size_scale),
         n_base=args.n_base,
         n_per_mechanism=args.n_per_mechanism,
         n_rounds=args.rounds,
+        max_rounds=args.max_rounds,
         seed=0,
     )
     mechanisms = [m.mechanism for m in settings.models()[1:]]
@@ -78,6 +84,7 @@ def main():
                     "n_base": args.n_base,
                     "n_per_mechanism": args.n_per_mechanism,
                     "rounds": args.rounds,
+                    "max_rounds": args.max_rounds,
                     "seed": args.seed,
                     "runout_noise": 0.05,
                     "profile_noise_m": 5e-4,

@@ -79,10 +79,15 @@ def main():
     parser.add_argument("--aspect-ratios", type=float, nargs="+", default=[1.0, 2.0, 4.0])
     parser.add_argument("--seed", type=int, default=16, help="draws the truths, the noise and the ladder's noise")
     parser.add_argument("--rounds", type=int, default=2, help="DEM scoring rounds (refinement)")
+    parser.add_argument(
+        "--max-rounds", type=int, default=None, help="most rounds, while the evidence is unsettled (default: --rounds)"
+    )
     parser.add_argument("--n-base", type=int, default=10)
     parser.add_argument("--n-per-mechanism", type=int, default=8)
     parser.add_argument("--ladder", type=int, default=len(LADDER), help="weaker magnitudes tried per mechanism")
-    parser.add_argument("--quick", action="store_true", help="smoke run: a = 1 and 2, small design, 1 round, 1 rung")
+    parser.add_argument(
+        "--quick", action="store_true", help="smoke run: a = 1 and 2, small design, 1 round (2 where unsettled), 1 rung"
+    )
     parser.add_argument("--cases", nargs="+", choices=CASES, default=list(CASES), help="the hidden cases to diagnose")
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s")
@@ -90,11 +95,13 @@ def main():
         sys.exit("liggghts is not on PATH (Debian: apt-get install liggghts)")
     if args.quick:
         args.aspect_ratios, args.n_base, args.n_per_mechanism, args.rounds, args.ladder = [1.0, 2.0], 6, 5, 1, 1
+        args.max_rounds = 2
     settings = DiagnosisSettings(
         simulation=SimulationSettings(size_scale=args.size_scale),
         n_base=args.n_base,
         n_per_mechanism=args.n_per_mechanism,
         n_rounds=args.rounds,
+        max_rounds=args.max_rounds,
         seed=0,
     )
     started = time.perf_counter()
@@ -152,6 +159,7 @@ def main():
                     "n_base": args.n_base,
                     "n_per_mechanism": args.n_per_mechanism,
                     "rounds": args.rounds,
+                    "max_rounds": args.max_rounds,
                     "seed": args.seed,
                     "cases": args.cases,
                     "runout_noise": 0.05,

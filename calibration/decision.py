@@ -4,7 +4,7 @@
 model and the runner-up by stated BIC margins, predicts the held-out data better than the base
 model by a stated gain and no worse than the runner-up (beyond the chance scatter of a held-out
 chi^2), the emulators rank it first too, and the data raised no warning; otherwise "none", with the
-checks that failed.
+checks that failed. `unsettled` says when such a "none" is worth another round of DEM evidence.
 """
 
 from __future__ import annotations
@@ -91,3 +91,13 @@ def decide(
             f"is not decisive: {', '.join(failed)} failed"
         )
     return "none", checks, f"No cause named: {why}."
+
+
+def unsettled(cause: str, checks: Mapping[str, bool]) -> bool:
+    """Whether a verdict (`decide`'s cause and checks) is worth another DEM scoring round: "none",
+    though a candidate beats the base model by the BIC margin in DEM runs and the data raised no
+    warning. Such a candidate explains the data far beyond their noise, yet fails a margin that
+    depends on how close its DEM runs lie to its optimum (held out, against the runner-up, the
+    emulators' ranking); a round of refinement moves them closer. A "none" because no candidate
+    beats the base model is settled: refining cannot create the evidence."""
+    return cause == "none" and checks["bic_beats_base"] and checks["data_without_warnings"]

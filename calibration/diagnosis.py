@@ -19,7 +19,10 @@ compared on calibration/observables.py's observables, emulated by calibration/em
    the fold fit's box-bounded Laplace covariance Sigma carried to the held-out values by the
    emulator's Jacobian J, so a parameter the fold's data leave free widens its prediction. The
    runs then join the emulators (which become exact there) and, over `n_rounds`, the optima are
-   refined.
+   refined. After those, up to `max_rounds`, one more round while the evidence is unsettled: a
+   candidate beats the base model by the rule's BIC margin, yet another check fails (a candidate
+   fitted a little off its optimum can fail the held-out or runner-up margin by a fraction of the
+   scatter a round of refinement removes).
 4. Residuals of the calibrated base model (its DEM runs), grouped by time phase, column and
    deposit region and put in words (calibration/residuals.py), and drawn
    (calibration/diagnosis_report.py).
@@ -44,7 +47,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from calibration.decision import DecisionRule, decide
+from calibration.decision import DecisionRule, decide, unsettled
 from calibration.dem_scoring import DEMRuns, DEMScore, dem_evaluate, dem_runs
 from calibration.design_runs import DEMRunner, Library, SimulationSettings, build_library
 from calibration.diagnosis_result import (
@@ -95,6 +98,7 @@ class DiagnosisSettings:
     n_per_mechanism: int = 8  # ... of each extension
     n_packings: int = 2  # packings of every DEM scoring run
     n_rounds: int = 1  # DEM scoring rounds; each but the last refines the emulators
+    max_rounds: int | None = None  # most rounds, where the evidence is unsettled (`unsettled`); None: n_rounds
     dem_top: int = 2  # candidates (best emulator BIC) scored in the DEM
     runout_noise: float | None = None  # std of L* when the file states none
     profile_noise: float | None = None  # std of the deposit height (m)
@@ -103,6 +107,11 @@ class DiagnosisSettings:
     rule: DecisionRule = field(default_factory=DecisionRule)
     seed: int = 0
     runout: RunoutMethod = field(default_factory=RunoutMethod)  # the config's `runout` section
+
+    @property
+    def last_round(self) -> int:
+        """The most DEM scoring rounds: max_rounds, or n_rounds where none is set."""
+        return self.n_rounds if self.max_rounds is None else self.max_rounds
 
     def models(self) -> list[Model]:
         """The base model, then the base model plus each candidate mechanism."""
@@ -181,8 +190,21 @@ def diagnose(
     notes += [f"column {c.name!r}: {d}" for c in observables.columns for d in c.runout_defaults(settings.runout)]
     folds = held_out_folds(observables)
     library = library.copy()  # runs added while refining belong to these data, not to the shared library
-    scores, final, runs, noise = _dem_rounds(settings, models, observables, folds, library, runner, noise, progress)
-    dem = {n: dem_evaluate(r, observables, folds, noise) for n, r in runs.items()}
+
+    def verdict(runs: dict[str, DEMRuns], final: dict[str, ModelScore], noise: NoiseModel):
+        dem = {n: dem_evaluate(r, observables, folds, noise) for n, r in runs.items()}
+        emulator_best = min((final[m.name] for m in models[1:]), key=lambda s: s.bic).model
+        switched_on = {m.name: mechanism_on(m, dem[m.name].parameters) for m in models[1:] if m.name in dem}
+        return dem, decide(dem, settings.rule, data_warnings, emulator_best, switched_on)
+
+    def settled(runs: dict[str, DEMRuns], final: dict[str, ModelScore], noise: NoiseModel) -> bool:
+        _, (cause, checks, _) = verdict(runs, final, noise)
+        return not unsettled(cause, checks)
+
+    scores, final, runs, noise, rounds = _dem_rounds(
+        settings, models, observables, folds, library, runner, noise, settled, progress
+    )
+    dem, (cause, checks, verdict_text) = verdict(runs, final, noise)
     notes += [  # recorded in the library (failed) and in each model's DEM score (failed_runs) too
         f"design run of {f['model']} at {f['parameters']} on packing {f['packing']} failed and is left out: "
         f"{f['reason']}"
@@ -193,9 +215,6 @@ def diagnose(
         for n, r in runs.items()
         for f in r.failed
     ]
-    emulator_best = min((final[m.name] for m in models[1:]), key=lambda s: s.bic).model
-    switched_on = {m.name: mechanism_on(m, dem[m.name].parameters) for m in models[1:] if m.name in dem}
-    cause, checks, verdict = decide(dem, settings.rule, data_warnings, emulator_best, switched_on)
     base_dem = dem["base"]
     structure = residual_structure(observables, base_dem.observed_mean, base_dem.sigma, models[0].n_parameters)
     best = min((n for n in dem if n != "base"), key=lambda n: dem[n].bic)
@@ -210,10 +229,10 @@ def diagnose(
     return Diagnosis(
         name=name,
         cause=cause,
-        verdict=verdict,
+        verdict=verdict_text,
         checks=checks,
         decision_rule=settings.rule,
-        simulator=_simulator(settings, library, list(dem)),
+        simulator=_simulator(settings, library, list(dem), rounds),
         settings=settings.to_dict(),
         columns=[_column(c, observables) for c in observables.columns],
         observables=ObservedData(
@@ -253,6 +272,8 @@ def _checked_inputs(
         )
     if settings.n_packings < 1 or settings.n_rounds < 1 or settings.dem_top < 1:
         raise DiagnosisError("n_packings, n_rounds and dem_top must be at least 1")
+    if settings.last_round < settings.n_rounds:
+        raise DiagnosisError(f"max_rounds = {settings.max_rounds} is below n_rounds = {settings.n_rounds}")
     if settings.n_packings > len(settings.simulation.packing_seeds):
         raise DiagnosisError(
             f"n_packings = {settings.n_packings} exceeds the {len(settings.simulation.packing_seeds)} "
@@ -281,25 +302,29 @@ def _dem_rounds(
     library: Library,
     runner: DEMRunner,
     noise: NoiseModel,
+    settled: Callable[[dict[str, DEMRuns], dict[str, ModelScore], NoiseModel], bool],
     progress: Callable[[float], None] | None = None,
-) -> tuple[dict[str, ModelScore], dict[str, ModelScore], dict[str, DEMRuns], NoiseModel]:
+) -> tuple[dict[str, ModelScore], dict[str, ModelScore], dict[str, DEMRuns], NoiseModel, int]:
     """The DEM scoring rounds: each runs the base model and the `dem_top` candidates (emulator BIC)
     in the DEM at their emulator optima; the runs join `library` (modified), and the models are
-    fitted again. Returns (the fits the last round ran, the final fits, the last round's runs, the
-    noise model with their packing scatter). progress: callable(fraction of the fits and DEM runs
-    done) or None."""
+    fitted again. `n_rounds` rounds, then more up to `settings.last_round` until settled(the
+    round's runs, the final fits, the noise model) holds. Returns (the fits the last round ran,
+    the final fits, the last round's runs, the noise model with their packing scatter, the rounds
+    run). progress: callable(fraction of the fits and DEM runs done, counted over the most
+    rounds; 1 after the last) or None."""
     by_name = {m.name: m for m in models}
     n_dem = 1 + min(settings.dem_top, len(models) - 1)  # models run in the DEM per round
-    steps, done = 1 + settings.n_rounds * (n_dem + 1), [0]
+    steps, done = 1 + settings.last_round * (n_dem + 1), [0]
 
-    def step():
+    def step(last: bool = False):
         done[0] += 1
         if progress is not None:
-            progress(done[0] / steps)
+            progress(1.0 if last else done[0] / steps)
 
     final = _score_all(models, library, observables, noise, folds, settings.seed)
     step()
-    for round_ in range(settings.n_rounds):
+    round_ = 0
+    while True:
         scores = final  # the emulator optima this round runs in the DEM (reported with its DEM scores)
         leading = sorted((scores[m.name] for m in models[1:]), key=lambda s: s.bic)[: settings.dem_top]
         runs = {}
@@ -317,8 +342,11 @@ def _dem_rounds(
         # rescored on the emulators that now hold these runs: the next round's optima, and after
         # the last round the emulators' final word, which the DEM ranking must agree with
         final = _score_all(models, library, observables, noise, folds, settings.seed)
-        step()
-    return scores, final, runs, noise
+        round_ += 1
+        last = round_ >= settings.last_round or (round_ >= settings.n_rounds and settled(runs, final, noise))
+        step(last)
+        if last:
+            return scores, final, runs, noise, round_
 
 
 def _evidence(
@@ -345,7 +373,9 @@ def _evidence(
     )
 
 
-def _simulator(settings: DiagnosisSettings, library: Library, scored_in_dem: list[str]) -> SimulatorSummary:
+def _simulator(
+    settings: DiagnosisSettings, library: Library, scored_in_dem: list[str], rounds: int
+) -> SimulatorSummary:
     """The DEM runs behind a diagnosis: design runs per model, refinement runs, DEM scoring."""
     return SimulatorSummary(
         description=SIMULATOR,
@@ -357,7 +387,7 @@ def _simulator(settings: DiagnosisSettings, library: Library, scored_in_dem: lis
         refinement_runs=int(sum(np.sum(r.stage == "refine") for r in library.runs.values())),
         scored_in_dem=scored_in_dem,
         packings_per_dem_score=settings.n_packings,
-        rounds=settings.n_rounds,
+        rounds=rounds,
     )
 
 
