@@ -31,7 +31,9 @@ import numpy as np
 from dem.case import CollapseCase
 from dem.collapse import simulate_collapse, state_from_packing
 from dem.engines import get_engine
-from dem.integrate import ContactLaw, _forces, _move, build_pairs, frame_steps, record, run
+from dem.forces import ContactLaw, _forces
+from dem.integrate import _move, frame_steps, record, run
+from dem.neighbours import build_pairs
 from dem.packing import blowup_box, settle_column, walls_open
 from dem.runout import RunoutMethod
 from dem.trajectory import write_trajectory

@@ -21,7 +21,8 @@ import numpy as np
 
 from dem.atomic import StrPath, atomic_path
 from dem.case import CollapseCase
-from dem.integrate import ENGINE_VERSION, ContactLaw, State, record
+from dem.forces import ContactLaw
+from dem.integrate import ENGINE_VERSION, State, record
 from dem.packing import blowup_box, check_grain_count, settle_column, walls_open
 from dem.trajectory import GRAIN, Trajectory, engine_attrs
 

@@ -1,7 +1,7 @@
 """Contact law: linear spring-dashpot with tangential history and a Coulomb limit.
 
 Pure functions of overlap and relative velocity (jax-md style), compiled with numba and lifted
-over particle pairs and particle-wall pairs by dem.integrate. The same law in every engine
+over particle pairs and particle-wall pairs by dem.forces. The same law in every engine
 (ARCHITECTURE.md, "Engines"): kn (N/m), kt = ratio * kn, normal damping from restitution,
 tangential damping = ratio * normal damping, Coulomb friction mu |Fn|.
 

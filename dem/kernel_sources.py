@@ -1,8 +1,9 @@
 """The builtin engine's numba kernels, cached on disk under a digest of the code compiled into them.
 
 Numba's own cache (cache=True) is checked against the source file of the decorated function only.
-A kernel of dem.integrate inlines dem.contact's contact law and links dem.neighbours' pair list,
-so after an edit of either it would go on loading its old machine code. `kernel` compiles like
+A kernel of dem.integrate links dem.forces' force kernels, which inline dem.contact's contact law,
+and dem.neighbours' pair list, so after an edit of any of them it would go on loading its old
+machine code. `kernel` compiles like
 nb.njit(cache=True) but adds to each cache entry's key the digest of the kernel's module and of
 the kernel modules it imports (transitively): changed code misses the cache and is compiled, in
 every process, with no cache files to delete and so nothing for two processes to race on.
@@ -17,8 +18,8 @@ The key is set through numba internals (a dispatcher's `_cache`, Cache._index_ke
 tests/test_kernel_cache.py fails should a numba release stop honouring it.
 
 A module whose code or constants a kernel compiles in belongs in KERNEL_MODULES. dem.integrate
-imports dem.case too, but only for Python-side defaults (GRAVITY, CollapseCase), none of it
-compiled.
+and dem.forces import dem.case too, but only for Python-side code (GRAVITY, sphere_mass,
+CollapseCase), none of it compiled.
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from pathlib import Path
 import numba as nb
 from numba.core.caching import FunctionCache
 
-KERNEL_MODULES = ("dem.contact", "dem.integrate", "dem.neighbours")
+KERNEL_MODULES = ("dem.contact", "dem.forces", "dem.integrate", "dem.neighbours")
 PACKAGE = Path(__file__).parent
 
 

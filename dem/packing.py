@@ -18,7 +18,8 @@ from collections.abc import Callable
 import numpy as np
 
 from dem.case import FILL_HEIGHT_FACTOR, MAX_DT_OVER_CONTACT_TIME, CaseError, CollapseCase
-from dem.integrate import ENGINE_VERSION, ContactLaw, SimulationError, State, run
+from dem.forces import ContactLaw
+from dem.integrate import ENGINE_VERSION, SimulationError, State, run
 from dem.run_store import active_store, run_key
 from dem.trajectory import GRAIN, Trajectory, TrajectoryError, engine_attrs
 

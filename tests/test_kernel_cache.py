@@ -1,6 +1,7 @@
-"""Numba's on-disk cache follows the kernels' code (dem.kernel_sources): dem/integrate.py's kernels
-inline dem/contact.py's contact law, so a regression there must reach the next process's runs and
-its ENGINE_VERSION, while a comment or docstring edit changes neither."""
+"""Numba's on-disk cache follows the kernels' code (dem.kernel_sources): dem/forces.py's kernels
+inline dem/contact.py's contact law and dem/integrate.py's kernels link them, so a regression there
+must reach the next process's runs and its ENGINE_VERSION, while a comment or docstring edit
+changes neither."""
 
 import json
 import os
@@ -18,7 +19,8 @@ PROBE = """
 import json, math
 import dem
 from dem.contact import restitution_factor
-from dem.integrate import ENGINE_VERSION, ContactLaw, State, run
+from dem.forces import ContactLaw
+from dem.integrate import ENGINE_VERSION, State, run
 
 radius, density, kn = 212.5e-6, 2650.0, 1e3
 factor = restitution_factor(0.5)

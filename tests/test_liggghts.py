@@ -14,7 +14,8 @@ from dem.engines import EngineError, get_engine, liggghts_hertz
 from dem.engines.base import runout_agreement
 from dem.engines.liggghts import DATA, FRAMES, read_dump_file, read_dump_frames, render_deck
 from dem.engines.liggghts_hertz import LiggghtsHertzEngine, poured_column
-from dem.integrate import ContactLaw, State, frame_steps, run
+from dem.forces import ContactLaw
+from dem.integrate import State, frame_steps, run
 from dem.packing import settle_column, walls_open
 from dem.runout import runout_curve
 from dem.trajectory import Trajectory

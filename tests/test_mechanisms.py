@@ -6,7 +6,8 @@ import pytest
 
 from dem.case import GRAVITY, CollapseCase
 from dem.collapse import simulate_collapse
-from dem.integrate import ContactLaw, State, run
+from dem.forces import ContactLaw
+from dem.integrate import State, run
 
 RADIUS = 212.5e-6
 DENSITY = 2650.0

@@ -8,7 +8,8 @@ import pytest
 
 from dem.case import GRAVITY
 from dem.collapse import simulate_collapse, state_from_packing
-from dem.integrate import ContactLaw, SimulationError, State, mechanical_energy, record, run, usable_threads
+from dem.forces import ContactLaw
+from dem.integrate import SimulationError, State, mechanical_energy, record, run, usable_threads
 from dem.packing import blowup_box, settle_column, walls_open, walls_with_gate
 from dem.runout import runout_curve
 from tests.same_bits import run_in_fresh_processes, sha256_arrays
