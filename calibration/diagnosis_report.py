@@ -1,5 +1,5 @@
 """Figures of the discrepancy diagnosis (read only the Diagnosis, calibration/diagnosis_result.py); the
-report section is pipeline/diagnosis.py's."""
+report section is pipeline/diagnosis_section.py's."""
 
 from __future__ import annotations
 

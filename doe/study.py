@@ -1,7 +1,8 @@
 """The DoE calibration study of one measured column: design rows for the DEM stage, responses from
 the DEM runs, the analysis, and the validation case at each model's optimum.
 
-The stage layer (pipeline/doe.py) calls these for the Snakemake jobs and writes the report section.
+The stage layer (pipeline/doe.py) calls these for the Snakemake jobs; pipeline/doe_section.py writes the
+report section.
 
 A run that failed (dem.engines.FAILURES: here a trajectory that cannot be read, or holds no runout
 front) is kept in the responses with its reason (column `failure`, mse NaN) and left out of the

@@ -29,7 +29,8 @@ from dem.collapse import simulate_collapse
 from dem.runout import RunoutError, RunoutMethod
 from dem.trajectory import read_attrs, read_trajectory, write_trajectory
 from gns.dataset import build_dataset
-from pipeline.inverse import report_section, run_bayesopt, run_comparison, run_dem_at, run_dem_point, write_section
+from pipeline.inverse import run_bayesopt, run_comparison, run_dem_at, run_dem_point
+from pipeline.inverse_section import report_section, write_section
 
 RUNOUT = RunoutMethod()  # the config's default: every stage here reads L* by it
 

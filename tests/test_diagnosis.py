@@ -44,7 +44,8 @@ from dem.engines.liggghts_hertz import MAX_OVERLAP, hertz_parameters, sjkr_energ
 from dem.kernel_sources import code_of
 from dem.runout import RunoutMethod, runout_curve
 from dem.trajectory import Trajectory
-from pipeline.diagnosis import read_diagnosis, run_diagnosis, run_section, write_diagnosis
+from pipeline.diagnosis import read_diagnosis, run_diagnosis, write_diagnosis
+from pipeline.diagnosis_section import run_section
 
 MECHANISMS = {m.name: m for m in get_mechanisms()}
 

@@ -1,5 +1,5 @@
 """DoE: the factorial design, response-surface regression, ANOVA effect table, pure error, optimum;
-the stage's jobs (pipeline/doe.py) on synthetic trajectories."""
+the stage's jobs (pipeline/doe.py, pipeline/doe_section.py) on synthetic trajectories."""
 
 import json
 
@@ -151,10 +151,11 @@ def test_study_on_synthetic_trajectories(tmp_path):
     L*(t; mu, e) = g(mu, e) L*_measured(t), so the MSE is (g - 1)^2 mean(L*_measured^2)."""
     from test_objective import front_trajectory
 
+    from dem.atomic import write_json
     from dem.runout import RunoutError, RunoutMethod
     from dem.trajectory import write_trajectory
     from doe.study import collect_responses, read_responses, run_analysis, write_responses
-    from pipeline.doe import report_section, write_json
+    from pipeline.doe_section import report_section
 
     connected = RunoutMethod("connected_front")  # front_trajectory builds a connected-deposit front
 
@@ -218,10 +219,11 @@ def test_study_on_synthetic_trajectories(tmp_path):
 def test_stage_jobs_on_synthetic_trajectories(tmp_path):
     """pipeline.doe's entry functions, one per Snakemake job, on the files the rules name: design
     table, responses + analysis (runout recorded) + surface, a real DEM validation run at the
-    optimum with the configured engine, section from the files alone."""
+    optimum with the configured engine, section from the files alone (pipeline.doe_section)."""
     from test_objective import front_trajectory
 
     import pipeline.doe
+    import pipeline.doe_section
     from dem.runout import RunoutMethod
     from dem.trajectory import read_trajectory, write_trajectory
     from doe.design import read_design
@@ -278,7 +280,7 @@ def test_stage_jobs_on_synthetic_trajectories(tmp_path):
     assert mse == pytest.approx(objective(validation, measured, connected), rel=1e-12) and mse > 0
 
     section = tmp_path / "results/report/doe.md"
-    text = pipeline.doe.write_section(
+    text = pipeline.doe_section.write_section(
         ["quartz"],
         [measured_path],
         [folder / "analysis.json"],

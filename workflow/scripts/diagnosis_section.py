@@ -2,7 +2,7 @@
 
 import logging
 
-from pipeline.diagnosis import run_section
+from pipeline.diagnosis_section import run_section
 
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
 results = run_section(snakemake.params.names, snakemake.input, snakemake.output[0])

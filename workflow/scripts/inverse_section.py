@@ -2,7 +2,7 @@
 
 import logging
 
-from pipeline.inverse import write_section
+from pipeline.inverse_section import write_section
 
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
 i = snakemake.input
