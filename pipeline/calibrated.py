@@ -31,7 +31,6 @@ from calibration.calibrated import (
     diagnosis_parameters,
     model_record,
     mse_jackknife,
-    read_model,
     resolve_model,
     validate,
 )
@@ -41,7 +40,6 @@ from calibration.confirmation import confirm
 from calibration.design_runs import SimulationSettings
 from calibration.diagnosis_result import Diagnosis
 from calibration.inverse_result import read_result
-from calibration.measured import load_column
 from calibration.measured_column import MeasuredColumn, expected_final_runout
 from calibration.model import Model
 from calibration.prediction import PREDICTION_TSTAR, predict
@@ -50,6 +48,7 @@ from dem.plots import save_figure
 from dem.progress import progress_logger
 from dem.run_store import keeps_runs
 from pipeline.benchmarks import benchmark_seconds
+from pipeline.calibrated_column import CalibratedColumn
 from pipeline.diagnosis import read_diagnosis
 
 if TYPE_CHECKING:
@@ -60,31 +59,19 @@ BASE = ("friction", "restitution")
 
 
 @keeps_runs("out_json")
-def run_model_bayesopt(
-    measured_path: StrPath,
-    model_path: StrPath,
-    out_json: StrPath,
-    out_figure: StrPath,
-    section: dict,
-    diagnosis_section: dict,
-    *,
-    runout: dict | None,
-    dem: dict | None,
-    name: str = "",
-) -> dict:
+def run_model_bayesopt(job: CalibratedColumn, out_json: StrPath, out_figure: StrPath, section: dict) -> dict:
     """The Bayesian-optimisation route of the model of one measured column (workflow rule
     calibrated_bayesopt): section["budget"] DEM runs on packing CALIBRATION_SEED -> bayesopt.json
     (route, the optimum, the history of every run, dem_runs, seconds) and its figure (the runs in
     the (mu, e) plane, the best so far against the runs)."""
     started = time.perf_counter()
-    column = load_column(measured_path)
-    model, _ = read_model(model_path, diagnosis_section["channel_width"])
+    model, name = job.model, job.name
     history = bayesopt_model(
         model,
-        column,
-        SimulationSettings(size_scale=diagnosis_section["size_scale"]),
-        column.runout_reading(runout),
-        dem,
+        job.column,
+        job.settings,
+        job.runout,
+        job.dem,
         budget=section["budget"],
         n_initial=section["n_initial"],
         seed=section["seed"],
@@ -195,31 +182,17 @@ def route_optimum(key: str, source: StrPath, model: Model) -> tuple[str, Model, 
 
 @keeps_runs("out_json")
 def run_validation(
-    key: str,
-    source: StrPath,
-    model_path: StrPath,
-    measured_path: StrPath,
-    out_json: StrPath,
-    section: dict,
-    diagnosis_section: dict,
-    *,
-    runout: dict | None,
-    dem: dict | None,
-    cost: dict | None = None,
-    name: str = "",
+    job: CalibratedColumn, key: str, source: StrPath, out_json: StrPath, section: dict, cost: dict | None = None
 ) -> dict:
     """Validate one route's optimum of one measured column (workflow rule calibrated_validate):
     DEM runs at it on section["validation_packings"] packings no calibration used -> the
     Validation as JSON, with the route's key and the model it calibrates. cost: {"files":
     [benchmark TSV of the route's jobs], "dem_runs": n} where the route's own file does not say."""
-    column = load_column(measured_path)
-    model, _ = read_model(model_path, diagnosis_section["channel_width"])
+    column, model, settings, reading, dem, name = job.column, job.model, job.settings, job.runout, job.dem, job.name
     label, route_model, theta, runs, seconds, extra = route_optimum(key, source, model)
     if cost and cost.get("files"):
         seconds = benchmark_seconds(cost["files"])[0]
     runs = (cost or {}).get("dem_runs") or runs
-    settings = SimulationSettings(size_scale=diagnosis_section["size_scale"])
-    reading = column.runout_reading(runout)
     if key == "model-inverse" and section.get("gns_confirm_candidates"):
         # the GNS's few best distinct points run by the DEM first: the DEM, not the GNS's bits, chooses
         points, values = gns_points(read_result(source), route_model.parameter_names)
@@ -260,19 +233,13 @@ def run_validation(
 
 @keeps_runs("out_json")
 def run_calibrated(
-    measured_path: StrPath,
-    model_path: StrPath,
+    job: CalibratedColumn,
     validation_paths: Sequence[StrPath],
     diagnosis_path: StrPath | None,
     out_json: StrPath,
     out_figure: StrPath,
     out_prediction: StrPath,
     section: dict,
-    diagnosis_section: dict,
-    *,
-    runout: dict | None,
-    dem: dict | None,
-    name: str = "",
 ) -> CalibratedResult:
     """The answer for one measured column (workflow rule calibrated): of the validated routes
     (validation_paths, written by run_validation) those of the model (model.json) compete: those
@@ -283,19 +250,12 @@ def run_calibrated(
 
     section: the config's `calibration` section (validation_packings, answer_packings (absent or not
     above validation_packings: no runoff), finer_size_scale, predict_aspect_ratios);
-    diagnosis_section: the config's `diagnosis` section (its size_scale and channel width are the
-    calibrated model's: parameters fitted at one scale are effective values of that scale); runout,
-    dem: the config's runout and dem sections. diagnosis_path: diagnosis.json
-    (its Laplace posterior of the model gives intervals) or None.
+    diagnosis_path: diagnosis.json (its Laplace posterior of the model gives intervals) or None.
     """
     started = time.perf_counter()
-    column = load_column(measured_path)
+    column, model, why, name = job.column, job.model, job.why, job.name
+    settings, runout, dem = job.settings, job.runout, job.dem
     diagnosis = read_diagnosis(diagnosis_path) if diagnosis_path else None
-    model, why = read_model(model_path, diagnosis_section["channel_width"])
-    settings = SimulationSettings(size_scale=diagnosis_section["size_scale"])
-    for note in column.runout_defaults(runout):
-        log.info("%s: %s", name, note)
-    runout = column.runout_reading(runout)  # the column's stated method, else the config's
     n_packings = section["validation_packings"]
     routes = [json.loads(Path(path).read_text()) for path in validation_paths]
     answers = [r for r in routes if r["model"] == model.name]
@@ -330,7 +290,7 @@ def run_calibrated(
         )
     result = CalibratedResult(
         name=name,
-        measured=str(measured_path),
+        measured=str(job.measured_path),
         column=column.name,
         model=model.name,
         parameters=list(model.parameter_names),

@@ -12,9 +12,7 @@ from __future__ import annotations
 import logging
 import time
 
-from calibration.calibrated import read_model
 from calibration.design_runs import SimulationSettings
-from calibration.measured import load_column
 from calibration.model import Model
 from dem.atomic import StrPath, write_json
 from dem.progress import progress_logger
@@ -23,41 +21,31 @@ from dem.runout import RunoutMethod
 from doe.model_study import CCD, FULL_FACTORIAL, SURFACE, design_runs, model_doe
 from doe.plots import plot_surface_pairs
 from doe.study import write_responses
+from pipeline.calibrated_column import CalibratedColumn
 
 log = logging.getLogger(__name__)
 
 
 @keeps_runs("out_json")
 def run_model_doe(
-    measured_path: StrPath,
-    model_path: StrPath,
+    job: CalibratedColumn,
     out_json: StrPath,
     out_responses: StrPath,
     out_figure: StrPath,
     section: dict,
-    diagnosis_section: dict,
-    *,
-    runout: dict | None,
-    dem: dict | None,
-    name: str = "",
     out_full_factorial: tuple[StrPath, StrPath] | None = None,
 ) -> dict:
     """DoE calibration of the calibrated model of one measured column (workflow rule calibrated_doe).
 
-    model_path: model.json (calibration.calibrated.model_record); section: the config's
-    `calibration` section (doe_centre_replicates, default 3); diagnosis_section: the config's
-    `diagnosis` section (its size_scale and channel width are the calibrated model's); runout, dem:
-    the config's runout and dem sections. Writes the CCD's result JSON (route, parameters, optimum in
-    natural units, dem_runs, seconds: its runs' wall time and its fit's, and the DoE summary), the
-    responses table of every run (ccd: the run is the CCD's) and the CCD's figure; out_full_factorial
-    (result JSON, figure): the 3-level full factorial's too, from the same runs and its own. Returns
-    the CCD's result.
+    section: the config's `calibration` section (doe_centre_replicates, default 3). Writes the
+    CCD's result JSON (route, parameters, optimum in natural units, dem_runs, seconds: its runs'
+    wall time and its fit's, and the DoE summary), the responses table of every run (ccd: the run
+    is the CCD's) and the CCD's figure; out_full_factorial (result JSON, figure): the 3-level full
+    factorial's too, from the same runs and its own. Returns the CCD's result.
     """
     started = time.perf_counter()
-    column = load_column(measured_path)
-    model, why = read_model(model_path, diagnosis_section["channel_width"])
-    settings = SimulationSettings(size_scale=diagnosis_section["size_scale"])
-    runout = column.runout_reading(runout)  # the column's stated method, else the config's
+    column, model, why, name = job.column, job.model, job.why, job.name
+    settings, runout, dem = job.settings, job.runout, job.dem
     designs = f"{CCD}{f' and {FULL_FACTORIAL}' if out_full_factorial else ''}"
     log.info("%s: DoE (%s) of the %s model %s", name, designs, model.name, list(model.parameter_names))
     responses, studies = model_doe(
@@ -75,7 +63,9 @@ def run_model_doe(
     results = {}
     for design, (path, figure) in outputs.items():
         summary, fit = studies[design]
-        results[design] = design_result(name, measured_path, column.name, model, why, settings, runout, dem, summary)
+        results[design] = design_result(
+            name, job.measured_path, column.name, model, why, settings, runout, dem, summary
+        )
         write_json(path, results[design])
         title = f"{name}: {model.name} model, DoE ({design})"
         plot_surface_pairs(fit, design_runs(responses, design), figure, title=title)

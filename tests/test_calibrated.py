@@ -30,6 +30,7 @@ from dem.atomic import write_json
 from dem.engines.liggghts import LiggghtsEngine
 from dem.runout import RunoutMethod
 from pipeline.calibrated import choose_model, run_calibrated, run_model_bayesopt, run_validation
+from pipeline.calibrated_column import CalibratedColumn
 from pipeline.calibrated_doe import run_model_doe
 from pipeline.calibrated_section import run_section, transfer_holds
 from pipeline.config import ConfigError, check_calibration
@@ -126,33 +127,24 @@ def test_the_stage_writes_its_answer_figure_and_report_section(tmp_path):
     record = choose_model(None, out / "model.json", "base", 0.01, name="tiny")
     assert record["model"] == "base" and record["parameters"] == ["friction", "restitution"]
     diagnosis_section = {"size_scale": 4.0, "channel_width": 0.01}
-    bo = run_model_bayesopt(
-        csv, out / "model.json", out / "bayesopt.json", out / "bayesopt.png", section, diagnosis_section,
-        runout=RUNOUT.to_config(), dem=None, name="tiny",
-    )  # fmt: skip
+    job = CalibratedColumn.read(
+        csv, out / "model.json", diagnosis_section, runout=RUNOUT.to_config(), dem=None, name="tiny"
+    )
+    bo = run_model_bayesopt(job, out / "bayesopt.json", out / "bayesopt.png", section)
     assert (out / "bayesopt.png").stat().st_size > 10_000
     assert bo["dem_runs"] == 4 and bo["value"] == min(bo["history"]["values"])
-    validation = run_validation(
-        "model-bayesopt", out / "bayesopt.json", out / "model.json", csv, out / "validation.json", section,
-        diagnosis_section, runout=RUNOUT.to_config(), dem=None, name="tiny",
-    )  # fmt: skip
+    validation = run_validation(job, "model-bayesopt", out / "bayesopt.json", out / "validation.json", section)
     assert (
         validation["key"] == "model-bayesopt" and validation["model"] == "base" and validation["seeds"] == [5001, 5002]
     )
     # the DoE route (a 3 x 3 face-centred design + 1 centre replicate) beside it
-    run_model_doe(
-        csv, out / "model.json", out / "doe.json", out / "doe_responses.csv", out / "doe_surface.png",
-        {"doe_centre_replicates": 1}, diagnosis_section, runout=RUNOUT.to_config(), dem=None, name="tiny",
-    )  # fmt: skip
-    doe = run_validation(
-        "model-doe", out / "doe.json", out / "model.json", csv, out / "validation_doe.json", section,
-        diagnosis_section, runout=RUNOUT.to_config(), dem=None, name="tiny",
-    )  # fmt: skip
+    doe_files = out / "doe.json", out / "doe_responses.csv", out / "doe_surface.png"
+    run_model_doe(job, *doe_files, {"doe_centre_replicates": 1})
+    doe = run_validation(job, "model-doe", out / "doe.json", out / "validation_doe.json", section)
     assert doe["dem_runs"] == 10 and 0 <= doe["extra"]["r_squared"] <= 1
     result = run_calibrated(
-        csv, out / "model.json", [out / "validation.json", out / "validation_doe.json"], None,
-        out / "calibrated.json", out / "calibrated.png", out / "prediction.png", section, diagnosis_section,
-        runout=RUNOUT.to_config(), dem=None, name="tiny",
+        job, [out / "validation.json", out / "validation_doe.json"], None,
+        out / "calibrated.json", out / "calibrated.png", out / "prediction.png", section,
     )  # fmt: skip
     assert result.model == "base" and [r["key"] for r in result.routes] == ["model-bayesopt", "model-doe"]
     # the file is the record: read back and written again, the same bytes

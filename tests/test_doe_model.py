@@ -243,6 +243,7 @@ def test_both_designs_come_from_one_campaign_and_fit_their_own_runs(monkeypatch)
 def test_the_stage_writes_the_doe_result_responses_and_figure(tmp_path):
     """Base model (mu, e): the 3 x 3 design + 1 centre replicate = 10 real DEM runs."""
     from doe.study import read_responses
+    from pipeline.calibrated_column import CalibratedColumn
     from pipeline.calibrated_doe import run_model_doe
 
     csv = tmp_path / "tiny.csv"
@@ -253,10 +254,11 @@ def test_the_stage_writes_the_doe_result_responses_and_figure(tmp_path):
     model_json = tmp_path / "model.json"
     model_json.write_text(json.dumps(model_record(Model(), "the config asks for the base model (mu, e)", "tiny")))
     out = tmp_path / "calibrated" / "tiny"
+    job = CalibratedColumn.read(
+        csv, model_json, {"size_scale": 4.0, "channel_width": 0.01}, runout=RUNOUT.to_config(), dem=None, name="tiny"
+    )
     result = run_model_doe(
-        csv, model_json, out / "doe.json", out / "doe_responses.csv", out / "doe_surface.png",
-        {"doe_centre_replicates": 1}, {"size_scale": 4.0, "channel_width": 0.01},
-        runout=RUNOUT.to_config(), dem=None, name="tiny",
+        job, out / "doe.json", out / "doe_responses.csv", out / "doe_surface.png", {"doe_centre_replicates": 1},
         out_full_factorial=(out / "doe_full_factorial.json", out / "doe_full_factorial_surface.png"),
     )  # fmt: skip
     written = json.loads((out / "doe.json").read_text())

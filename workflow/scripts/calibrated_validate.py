@@ -3,19 +3,23 @@
 import logging
 
 from pipeline.calibrated import run_validation
+from pipeline.calibrated_column import CalibratedColumn
 
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
-result = run_validation(
-    snakemake.wildcards.route,
-    snakemake.input.source,
-    snakemake.input.model,
+job = CalibratedColumn.read(
     snakemake.input.measured,
-    snakemake.output[0],
-    snakemake.params.settings,
+    snakemake.input.model,
     snakemake.params.diagnosis,
     runout=snakemake.params.runout,
     dem=snakemake.params.dem,
-    cost=snakemake.params.cost,
     name=snakemake.wildcards.name,
+)
+result = run_validation(
+    job,
+    snakemake.wildcards.route,
+    snakemake.input.source,
+    snakemake.output[0],
+    snakemake.params.settings,
+    cost=snakemake.params.cost,
 )
 logging.info("%s: %s, validated MSE %.4g", snakemake.wildcards.name, result["route"], result["mse"])
