@@ -65,6 +65,16 @@ def model_gns_settings(
     }
 
 
+def model_gns_columns(config: dict) -> list[str]:
+    """The measured columns whose calibrated model gets a GNS route of its own (a dataset, a GNS,
+    an inverse design): with the calibrated stage and calibration.gns on and a model other than
+    the base one, each column the base GNS calibrates (inverse.measured), in name order."""
+    section = config["calibration"]
+    if not (section["enabled"] and section["gns"]) or section["model"] == "base":
+        return []
+    return [name for name in sorted(config["measured"]) if name in config["inverse"]["measured"]]
+
+
 def case_splits(section: dict) -> list[dict]:
     """[{case_id, split}] of a calibrated model's GNS dataset (section: the config's `calibration`):
     known before the model is, so the DAG's shape does not wait for the diagnosis."""

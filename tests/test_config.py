@@ -12,6 +12,7 @@ import pytest
 import yaml
 
 import dem.grid
+import pipeline.cases
 import pipeline.config
 from dem.grid import case_table
 from pipeline.config import ConfigError, check_cross_keys, check_doe, check_gns, validate_config
@@ -412,3 +413,38 @@ def test_a_dataset_material_or_column_that_is_not_one_is_refused_naming_the_key(
 
     with pytest.raises(ConfigError, match=message):
         validated(edit=edit)
+
+
+def test_one_case_table_holds_every_dem_run_of_the_dag():
+    """pipeline.cases.case_table: the datasets' cases, the DoE's design runs, the scale ladder and
+    the calibrated model's GNS dataset, each under its own dataset, every key once; no rule file
+    adds to it after common.smk built it."""
+    tiny = derived(validated("tiny_all.yaml"), ())
+    table = pipeline.cases.case_table(tiny)
+    by_dataset = {}
+    for key, row in table.items():
+        assert key == f"{row['dataset']}/{row['case_id']}"
+        by_dataset.setdefault(row["dataset"], []).append(row)
+    # 5 dataset cases, a 3 x 3 factorial + 1 centre replicate, 1 ladder run, config gns_cases 3
+    assert {d: len(rows) for d, rows in by_dataset.items()} == {
+        "tiny_column": 5,
+        "doe_tiny": 10,
+        "scale_ladder": 1,
+        "calibrated_tiny": 3,
+    }
+    assert table == {**case_table(tiny), **{k: v for k, v in table.items() if not k.startswith("tiny_column/")}}
+    doe = by_dataset["doe_tiny"]
+    levels = (0.3, 0.6, 0.9)
+    assert {(r["friction"], r["restitution"]) for r in doe} == {(m, e) for m in levels for e in levels}
+    assert all(r["size_scale"] == 4 and r["L_i"] == 0.01 and r["aspect_ratio"] == 2.0 for r in doe)
+    assert by_dataset["scale_ladder"][0]["case_id"] == "scale4_packing0"
+    # the calibrated model's cases: ids and splits now, parameters from model.json when they run
+    model_rows = by_dataset["calibrated_tiny"]
+    assert sorted(r["split"] for r in model_rows) == ["test", "train", "valid"]
+    assert all(r["calibrated"] == "tiny" and "friction" not in r for r in model_rows)
+    # off with the base model: no GNS route of a model, no dataset for it
+    base = dict(tiny, calibration=dict(tiny["calibration"], model="base"))
+    assert not [k for k in pipeline.cases.case_table(base) if k.startswith("calibrated_")]
+    for rules in (ROOT / "workflow" / "rules").glob("*.smk"):
+        text = rules.read_text()
+        assert not re.search(r"\bCASES\s*(\[[^\]]*\]\s*=|\.update|\.setdefault)", text), rules.name

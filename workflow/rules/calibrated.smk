@@ -3,24 +3,10 @@
 # runs, so a new measured curve needs no hand edit), its parameters by the diagnosis' fit and by
 # Bayesian optimisation on DEM runs, every optimum validated on several packings. The report's first
 # section, results/report/calibrated.md. Outputs under results/calibrated/<name>/.
-CALIBRATION = config["calibration"]
-CALIBRATED_NAMES = sorted(config["measured"]) if CALIBRATION["enabled"] else []
-CHANNEL_WIDTH = config["diagnosis"]["channel_width"]
-# The GNS route of the model, for every column with a base-model GNS (inverse.measured): a GNS
-# dataset "calibrated_<name>" whose case ids and splits are known now and whose parameters come
-# from model.json when its jobs run (dataset_cases, gns_settings, gns_init: common.smk).
-MODEL_GNS_NAMES = (
-    [n for n in CALIBRATED_NAMES if n in INVERSE_NAMES] if CALIBRATION["gns"] and CALIBRATION["model"] != "base" else []
-)
-MODEL_DATASETS.update(
-    {
-        f"calibrated_{n}": {
-            "name": n,
-            "rows": [dict(row, dataset=f"calibrated_{n}") for row in pipeline.calibrated_gns.case_splits(CALIBRATION)],
-        }
-        for n in MODEL_GNS_NAMES
-    }
-)
+# CALIBRATION, CALIBRATED_NAMES, CHANNEL_WIDTH: common.smk. The GNS route of the model, for every
+# column with a base-model GNS (MODEL_GNS_NAMES, common.smk): a GNS dataset "calibrated_<name>" of
+# the case table, whose case ids and splits are known now and whose parameters come from
+# model.json when its jobs run (dataset_cases, gns_settings, gns_init: common.smk).
 
 
 # Which model each column is calibrated as: the config's, or (auto) the diagnosis' answer, written

@@ -1,12 +1,14 @@
-# Shared by every stage: the validated config, the case table, and the two lists each stage
-# appends to. Logic lives in pipeline/config.py (validation) and dem/grid.py (the case table);
-# this file only calls them.
+# Shared by every stage: the validated config, the case table, the sections and column lists the
+# stages share, and the two lists each stage appends to. Logic lives in pipeline/config.py
+# (validation) and pipeline/cases.py (the case table); this file only calls them.
 import os
 from pathlib import Path
 
 import dem.grid
 import dem.runout
+import doe.design
 import pipeline.calibrated_gns
+import pipeline.cases
 import pipeline.config
 import pipeline.dem
 from snakemake.io import get_flag_value, is_flagged
@@ -22,15 +24,31 @@ config.update(pipeline.config.validate_config(config, Path(workflow.basedir, "wo
 # --configfile does not (Snakemake's overwrite_config holds both: config_settings.config is --config's).
 config.update(pipeline.config.derive_columns(config, ((workflow.config_settings.config or {}).get("measured") or {})))
 
-# The case table, built once: {case_key: row}, case_key = "<dataset>/<case_id>".
-# A row holds every CollapseCase field of the case plus dataset, case_id and split.
-CASES = dem.grid.case_table(config)
 DATASETS = sorted(config["datasets"])
 # Keys that name another key's entries (gns.datasets, doe.measured, inverse.*: a dataset, a
 # `measured` entry, a GNS) and the size guard (dem.min_grains_across: every dataset case, DoE and
 # diagnosis column) checked once, before any job runs. On the way it resolves the dataset
 # whose GNS calibrates each inverse.measured column: {name: dataset} (inverse.smk).
-INVERSE_DATASET = pipeline.config.check_cross_keys(config, CASES)
+INVERSE_DATASET = pipeline.config.check_cross_keys(config, dem.grid.case_table(config))
+# The case table, built once (pipeline.cases.case_table): {"<dataset>/<case_id>": row} of every DEM
+# run of the DAG: the datasets' cases, the DoE's design runs (dataset doe_<name>), the scale
+# ladder's and the calibrated models' GNS datasets (calibrated_<name>: case ids and splits, their
+# parameters read from model.json when their jobs run). A row holds every CollapseCase field of the
+# case plus dataset, case_id and split. No later file adds to it.
+CASES = pipeline.cases.case_table(config)
+# The sections and column lists of the stages, read here so that the helpers below read nothing a
+# later rule file defines.
+DOE = config["doe"]
+DOE_NAMES = DOE["measured"]
+DOE_DESIGN = doe.design.design_from_config(DOE)
+DOE_RUNS = list(DOE_DESIGN["run_id"])
+INVERSE = config["inverse"]
+INVERSE_NAMES = INVERSE["measured"]
+CALIBRATION = config["calibration"]
+CALIBRATED_NAMES = sorted(config["measured"]) if CALIBRATION["enabled"] else []
+CHANNEL_WIDTH = config["diagnosis"]["channel_width"]
+# The columns whose calibrated model has a GNS route: its dataset calibrated_<name> (the case table).
+MODEL_GNS_NAMES = pipeline.calibrated_gns.model_gns_columns(config)
 # How every stage reads L* off a run (dem.runout.RunoutMethod), read once here and passed to every
 # rule that scores a runout as a param, so changing it reruns exactly those rules. In the class's
 # key order: Snakemake compares params as written, so keys reordered in a config would rerun them.
@@ -39,9 +57,6 @@ RUNOUT = dem.runout.RunoutMethod.from_config(config["runout"]).to_config()
 # recovery targets): the same engine and solver paths as the case table's runs.
 DEM_ENGINE = {"engine": config["dem"]["engine"], "solvers": config["dem"]["solvers"]}
 
-# The GNS datasets of calibrated models, {dataset: {"name": measured column, "rows": [{case_id,
-# split, dataset}]}}: filled by calibrated.smk (their parameters come from model.json at run time).
-MODEL_DATASETS = {}
 # Every stage appends the files `rule all` must build ...
 FINAL_TARGETS = []
 # ... and its report fragment: (title, "results/report/<stage>.md"), in report order.
@@ -66,17 +81,19 @@ def case_row(wildcards):
 
 
 def dataset_cases(dataset):
-    """Rows of one dataset, in case_id order. A calibrated model's GNS dataset (MODEL_DATASETS,
-    calibrated.smk) has case ids and splits only: its parameters come from its model.json."""
-    if dataset in MODEL_DATASETS:
-        return MODEL_DATASETS[dataset]["rows"]
-    return [row for key, row in CASES.items() if row["dataset"] == dataset]
+    """Rows of one dataset, in case_id order. A calibrated model's GNS dataset has case ids and
+    splits only: its parameters come from its model.json."""
+    return pipeline.cases.dataset_rows(CASES, dataset)
+
+
+def model_column(dataset):
+    """The measured column whose calibrated model's GNS dataset `dataset` is; None for any other."""
+    rows = dataset_cases(dataset)
+    return rows[0].get("calibrated") if rows else None
 
 
 # Helpers of the stages, kept here so that no stage file mixes functions with rules (snakemake
-# --lint). They run after every .smk is parsed (input functions, params), or, for gns_test_cases,
-# at parse time of runout.smk; so they may read names the stage files define (GNS,
-# DOE_NAMES, ...).
+# --lint). They read only the names above, so any stage may call them at parse time.
 
 
 def dataset_trajectories(dataset):
@@ -91,8 +108,8 @@ def gns_settings(dataset):
     """Training settings of one dataset: the gns section with gns.per_dataset[dataset] laid over it
     (gns.smk); a calibrated model's GNS dataset takes the settings of the base GNS of its column
     for calibration.gns_steps, from scratch or warm-started from that GNS (gns_init)."""
-    if dataset in MODEL_DATASETS:
-        base = gns_settings(INVERSE_DATASET[MODEL_DATASETS[dataset]["name"]])
+    if model_column(dataset):
+        base = gns_settings(INVERSE_DATASET[model_column(dataset)])
         init = gns_init(dataset)
         return pipeline.calibrated_gns.model_gns_settings(
             base,
@@ -108,9 +125,9 @@ def gns_settings(dataset):
 def gns_init(dataset):
     """[the GNS a dataset's training starts from]: the base GNS of the column of a calibrated
     model's GNS dataset with calibration.gns_warm_start; [] otherwise: from scratch (gns.smk)."""
-    if dataset not in MODEL_DATASETS or not CALIBRATION["gns_warm_start"]:
+    if not model_column(dataset) or not CALIBRATION["gns_warm_start"]:
         return []
-    return [inverse_gns(MODEL_DATASETS[dataset]["name"], "model")]
+    return [inverse_gns(model_column(dataset), "model")]
 
 
 def dem_resources(wildcards, stage, threads, attempt):
@@ -123,7 +140,7 @@ def critical_priority(dataset):
     inverse-design column and the calibrated model's GNS (DEM runs -> diagnosis -> the model's DEM
     runs -> its GNS -> inverse design -> validation): first in the queue, so that the many shorter
     jobs fill the other core around them (dem.smk, dataset.smk, gns.smk)."""
-    if dataset in MODEL_DATASETS:
+    if model_column(dataset):
         return MODEL_CHAIN_PRIORITY
     return 10 if dataset in INVERSE_DATASET.values() else 0
 

@@ -89,4 +89,9 @@ rule dem_figure:
 
 
 if config["dem"]["figures"]:
-    FINAL_TARGETS += [f"results/dem/{row['dataset']}/figures/{row['case_id']}.png" for row in CASES.values()]
+    # the datasets' cases: the DoE's, the ladder's and the calibrated models' runs have figures of their own
+    FINAL_TARGETS += [
+        f"results/dem/{row['dataset']}/figures/{row['case_id']}.png"
+        for row in CASES.values()
+        if row["dataset"] in DATASETS
+    ]

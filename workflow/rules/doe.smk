@@ -3,23 +3,11 @@
 # the DEM stage's own rules (case-table dataset "doe_<name>", case_id = run_id), the response-
 # surface regression and ANOVA, a DEM validation run at each model's optimum, figures, and the
 # report section results/report/doe.md. Outputs under results/doe/<name>/.
+# DOE, DOE_NAMES (checked in common.smk: each a `measured` entry, no dataset named doe_<name>),
+# DOE_DESIGN and DOE_RUNS: common.smk; the design runs are rows of its case table (doe_<name>).
 import doe.design
-import doe.study
-from calibration.measured import load_column
 
-DOE = config["doe"]
-DOE_NAMES = DOE["measured"]
-DOE_DESIGN = doe.design.design_from_config(DOE)
-DOE_RUNS = list(DOE_DESIGN["run_id"])
 DOE_CASE_FIELDS = {"size_scale": DOE["size_scale"], "duration_over_tstar": DOE["duration_over_tstar"]}
-
-# doe.measured is checked in common.smk (each a `measured` entry; no dataset named doe_<name>)
-for _name in DOE_NAMES:
-    # the design runs join the case table, so dem_deck/dem_packing/dem_run build them like any case
-    for _row in doe.study.case_rows(
-        DOE_DESIGN, load_column(config["measured"][_name]), f"doe_{_name}", **DOE_CASE_FIELDS
-    ):
-        CASES[f"doe_{_name}/{_row['case_id']}"] = _row
 
 
 wildcard_constraints:

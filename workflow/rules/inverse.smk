@@ -5,8 +5,7 @@
 # posterior), a DEM validation run at the GNS optimum, Bayesian optimisation directly on DEM runs,
 # and the comparison with the DoE (when the DoE calibrates the same column). For every dataset in
 # inverse.recovery_datasets: recovery of synthetic DEM targets. Report: results/report/inverse.md.
-INVERSE = config["inverse"]
-INVERSE_NAMES = INVERSE["measured"]
+# INVERSE, INVERSE_NAMES: common.smk.
 INVERSE_RECOVERY = INVERSE["recovery_datasets"]
 # BO on DEM is not bound to a GNS's trained range: it searches the paper's box unless told otherwise
 INVERSE_BO_BOUNDS = [INVERSE["friction"] or [0.3, 0.9], INVERSE["restitution"] or [0.3, 0.9]]

@@ -6,12 +6,9 @@
 # size_scale. Outputs under results/scale_ladder/. Off while size_scales is empty.
 import dem.scale_ladder
 
-LADDER = config["scale_ladder"]
 # checked in common.smk (each run a valid case, the size guard at the coarsest scale, the dataset
-# name free); the runs join the case table, so dem_deck/dem_packing/dem_run build them like any case
-LADDER_ROWS = dem.scale_ladder.case_rows(LADDER)
-for _row in LADDER_ROWS:
-    CASES[f"{_row['dataset']}/{_row['case_id']}"] = _row
+# name free); the runs are rows of its case table, so dem_deck/dem_packing/dem_run build them
+LADDER_ROWS = dataset_cases(dem.scale_ladder.DATASET)
 
 
 rule scale_ladder:

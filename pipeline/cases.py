@@ -1,0 +1,64 @@
+"""The case table: every DEM run the DAG makes, one row each, built in one place (`case_table`).
+
+A row is a dem.grid case-table row (every CollapseCase field of the case, plus dataset, case_id and
+split), keyed "<dataset>/<case_id>". Four kinds of run fill it, each under a dataset of its own:
+
+  - the configured datasets (datasets.<name>, dem.grid.case_table): the GNS training data;
+  - the DoE's design runs of each column of doe.measured (dataset "doe_<name>", case_id = run_id,
+    split "doe"; doe.study.case_rows);
+  - the scale ladder (dataset "scale_ladder", split "scale_ladder"; dem.scale_ladder.case_rows);
+  - the GNS dataset of each column's calibrated model (dataset "calibrated_<name>"): case ids and
+    splits only, and "calibrated": the column's name. Its parameters are the model's, which the
+    diagnosis chooses when its jobs run (calibrated_model's model.json), so they cannot be in the
+    table the DAG is planned from.
+
+The DEM stage's rules build every row but the calibrated model's from its row alone
+(workflow/rules/dem.smk); those the calibrated stage runs from its model.json (calibrated.smk).
+"""
+
+from __future__ import annotations
+
+from calibration.measured import load_column
+from dem import grid, scale_ladder
+from doe.design import design_from_config
+from doe.study import case_rows as doe_case_rows
+from pipeline.calibrated_gns import case_splits, model_gns_columns
+
+
+def doe_dataset(name: str) -> str:
+    """The case-table dataset of the DoE design runs of measured column `name`."""
+    return f"doe_{name}"
+
+
+def model_dataset(name: str) -> str:
+    """The case-table dataset of the GNS dataset of measured column `name`'s calibrated model."""
+    return f"calibrated_{name}"
+
+
+def case_table(config: dict) -> dict[str, dict]:
+    """{"<dataset>/<case_id>": row} of every DEM run of the validated, cross-checked `config`
+    (pipeline.config.validate_config, check_cross_keys): its datasets, then the DoE's runs, the
+    scale ladder's and the calibrated models' GNS datasets. A bad dataset case raises ConfigError
+    naming the dataset, the case and the field; a bad DoE or ladder run, CaseError naming the field."""
+    table = grid.case_table(config)
+    rows = []
+    doe = config["doe"]
+    if doe["measured"]:
+        design = design_from_config(doe)
+        fields = {"size_scale": doe["size_scale"], "duration_over_tstar": doe["duration_over_tstar"]}
+        for name in doe["measured"]:
+            rows += doe_case_rows(design, load_column(config["measured"][name]), doe_dataset(name), **fields)
+    rows += scale_ladder.case_rows(config["scale_ladder"])
+    for name in model_gns_columns(config):
+        rows += [dict(row, dataset=model_dataset(name), calibrated=name) for row in case_splits(config["calibration"])]
+    for row in rows:
+        key = f"{row['dataset']}/{row['case_id']}"
+        if key in table:  # check_cross_keys keeps the derived datasets' names free
+            raise ValueError(f"case table: {key} twice")
+        table[key] = row
+    return table
+
+
+def dataset_rows(table: dict[str, dict], dataset: str) -> list[dict]:
+    """The rows of one dataset of the case table, in the table's (case_id) order."""
+    return [row for row in table.values() if row["dataset"] == dataset]
