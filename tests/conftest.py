@@ -6,6 +6,10 @@ import pytest
 import torch
 
 from dem.case import CollapseCase
+from dem.collapse import simulate_collapse
+from dem.trajectory import write_trajectory
+from gns.dataset import build_dataset
+from tests.test_compare import tiny_case
 
 
 @pytest.fixture
@@ -30,6 +34,25 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+# The tiny column's DEM runs (mu, e) of the GNS inverse-design tests (tests/test_inverse.py,
+# tests/test_gns_recovery.py): spread over the paper's box; the last is the valid and test split.
+TINY_RUNS = [(0.3, 0.3), (0.9, 0.9), (0.45, 0.8), (0.6, 0.5), (0.75, 0.65), (0.85, 0.4)]
+
+
+@pytest.fixture(scope="module")
+def tiny_dataset(tmp_path_factory):
+    """Tiny DEM runs (TINY_RUNS) as a dataset: (metadata path, [trajectories])."""
+    folder = tmp_path_factory.mktemp("inverse")
+    trajectories, paths = [], []
+    for k, (mu, e) in enumerate(TINY_RUNS):
+        trajectory = simulate_collapse(tiny_case(mu, e, seed=k))
+        paths.append(str(folder / f"case_{k}.h5"))
+        write_trajectory(paths[-1], trajectory)
+        trajectories.append(trajectory)
+    build_dataset({"train": paths[:-1], "valid": paths[-1:], "test": paths[-1:]}, folder / "metadata.json", "tiny")
+    return str(folder / "metadata.json"), trajectories
 
 
 TINY_ALL = "config/tiny_all.yaml"  # every stage at its smallest (tests/test_pipeline_end_to_end.py)
