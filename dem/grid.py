@@ -168,9 +168,10 @@ def case_from_row(row: dict) -> CollapseCase:
 
 
 # --- deck: the engine-neutral description of one case ------------------------------------------
-def write_deck(row: dict, path: str | os.PathLike) -> CollapseCase:
-    """Write the case's deck JSON {"row": row, "case": CollapseCase.to_dict()} atomically."""
-    case = case_from_row(row)
+def write_deck(row: dict, path: str | os.PathLike, case: CollapseCase | None = None) -> CollapseCase:
+    """Write the case's deck JSON {"row": row, "case": CollapseCase.to_dict()} atomically; case:
+    the row's case where the row alone does not give it (None: case_from_row(row))."""
+    case = case_from_row(row) if case is None else case
     write_text(path, json.dumps({"row": row, "case": case.to_dict()}, indent=1, sort_keys=True) + "\n")
     return case
 

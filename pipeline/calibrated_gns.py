@@ -4,9 +4,10 @@ trained on it (rule gns_train: from scratch, or warm-started from the base model
 column with calibration.gns_warm_start), and the
 inverse design over all of the model's parameters with its Laplace posterior.
 
-  - `run_model_case` (rule calibrated_case): one DEM case of the dataset -> trajectory HDF5 that
-    records every parameter of the model (a mechanism's as its own attribute, e.g. bond_number);
-  - `build_model_dataset` (rule calibrated_dataset): the dataset's metadata JSON;
+  - `model_case` (rule dem_deck, through pipeline.dem.write_deck): one case of the dataset, the
+    DEM stage's rules run it; its trajectory records every parameter of the model (a mechanism's
+    as its own attribute, e.g. bond_number);
+  - `model_parameter_names` (rule dataset, through pipeline.dataset.build): the GNS's inputs;
   - the inverse design (rule calibrated_inverse): pipeline/calibrated_inverse.py, apart so that the
     DEM jobs here load no torch.
 
@@ -16,15 +17,11 @@ The methods are calibration/calibrated.py's (the design).
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
 
-from calibration.calibrated import DatasetCase, model_dataset_cases, read_model
-from calibration.model import Model
+from calibration.calibrated import model_dataset_cases, read_model
 from dem.atomic import StrPath
-from dem.engines import simulate_case
+from dem.case import CollapseCase
 from dem.grid import assign_splits, case_from_row, case_id_of
-from dem.trajectory import Trajectory, write_trajectory
-from pipeline.dataset import build
 
 log = logging.getLogger(__name__)
 
@@ -101,44 +98,23 @@ def start_packing_cases(section: dict) -> list[str]:
     return [train[round(k * (len(train) - 1) / max(wanted - 1, 1))] for k in range(wanted)]
 
 
-def dataset_design(model: Model, template_row: dict, section: dict) -> list[DatasetCase]:
-    """The model's GNS dataset design: section is the config's `calibration` section (gns_cases,
-    seed); template_row: a case-table row of the base model's GNS dataset of the column."""
-    return model_dataset_cases(model, case_from_row(template_row), section["gns_cases"], section["seed"])
+def model_case(model_json: StrPath, row: dict) -> tuple[CollapseCase, dict[str, float]]:
+    """The case of one case-table row of a calibrated model's GNS dataset (pipeline.cases.model_rows:
+    its template row, gns_cases, design_seed and channel_width) under the model of model_json, and
+    the model's parameters there, {name: value} (the trajectory records them: the GNS's inputs)."""
+    model, _ = read_model(model_json, row["channel_width"])
+    design = model_dataset_cases(model, case_from_row(row["template"]), row["gns_cases"], row["design_seed"])
+    cases = {c.case_id: c for c in design}
+    if row["case_id"] not in cases:
+        raise KeyError(f"{model_json}: the {model.name} dataset has no case {row['case_id']} (it has {len(cases)})")
+    case = cases[row["case_id"]]
+    log.info("%s: %s", row["case_id"], case.parameters)
+    return case.case, case.parameters
 
 
-def run_model_case(
-    model_json: StrPath,
-    template_row: dict,
-    case_id: str,
-    out_path: StrPath,
-    section: dict,
-    channel_width: float,
-    *,
-    dem: dict | None,
-) -> Trajectory:
-    """One DEM case of the model's GNS dataset, written to out_path with every model parameter as
-    a trajectory attribute (the GNS takes them as node features)."""
-    model, _ = read_model(model_json, channel_width)
-    cases = {c.case_id: c for c in dataset_design(model, template_row, section)}
-    if case_id not in cases:
-        raise KeyError(f"{model_json}: the {model.name} dataset has no case {case_id} (it has {len(cases)})")
-    case = cases[case_id]
-    log.info("%s: %s", case_id, case.parameters)
-    trajectory = simulate_case(case.case, dem)
-    trajectory.attrs.update(case.parameters)
-    write_trajectory(out_path, trajectory)
-    return trajectory
-
-
-def build_model_dataset(
-    model_json: StrPath,
-    splits: dict[str, Sequence[str]],
-    out_path: StrPath,
-    name: str,
-    channel_width: float,
-) -> dict:
-    """The metadata JSON of the model's GNS dataset; the GNS takes every parameter of the model."""
-    model, why = read_model(model_json, channel_width)
-    log.info("dataset %s of the %s model (%s)", name, model.name, why)
-    return build(splits, out_path, name, model.parameter_names)
+def model_parameter_names(model_json: StrPath) -> tuple[str, ...]:
+    """The parameters of the model of model_json, in its order: those its GNS dataset varies (the
+    channel width changes a mechanism's fields, not its name)."""
+    model, why = read_model(model_json)
+    log.info("the %s model (%s): parameters %s", model.name, why, list(model.parameter_names))
+    return tuple(model.parameter_names)

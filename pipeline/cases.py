@@ -7,13 +7,15 @@ split), keyed "<dataset>/<case_id>". Four kinds of run fill it, each under a dat
   - the DoE's design runs of each column of doe.measured (dataset "doe_<name>", case_id = run_id,
     split "doe"; doe.study.case_rows);
   - the scale ladder (dataset "scale_ladder", split "scale_ladder"; dem.scale_ladder.case_rows);
-  - the GNS dataset of each column's calibrated model (dataset "calibrated_<name>"): case ids and
-    splits only, and "calibrated": the column's name. Its parameters are the model's, which the
-    diagnosis chooses when its jobs run (calibrated_model's model.json), so they cannot be in the
-    table the DAG is planned from.
+  - the GNS dataset of each column's calibrated model (dataset "calibrated_<name>", `model_rows`).
+    Its parameters are the model's, which the diagnosis chooses when its jobs run
+    (calibrated_model's model.json), so the table the DAG is planned from holds what gives them
+    then: the case id and split, "calibrated" (the column's name), the template row (the first case
+    of the base GNS's dataset of the column: its geometry, grain scale and frames), gns_cases,
+    design_seed and channel_width (pipeline.calibrated_gns.model_case).
 
-The DEM stage's rules build every row but the calibrated model's from its row alone
-(workflow/rules/dem.smk); those the calibrated stage runs from its model.json (calibrated.smk).
+The DEM stage's rules (workflow/rules/dem.smk) build every row; a calibrated model's deck reads
+its model.json too.
 """
 
 from __future__ import annotations
@@ -35,11 +37,27 @@ def model_dataset(name: str) -> str:
     return f"calibrated_{name}"
 
 
-def case_table(config: dict) -> dict[str, dict]:
+def model_rows(config: dict, name: str, template: dict) -> list[dict]:
+    """The rows of the GNS dataset of measured column `name`'s calibrated model; template: the
+    case-table row its cases take their column from (the base GNS's dataset's first)."""
+    section = config["calibration"]
+    fixed = {
+        "dataset": model_dataset(name),
+        "calibrated": name,
+        "template": template,
+        "gns_cases": section["gns_cases"],
+        "design_seed": section["seed"],
+        "channel_width": config["diagnosis"]["channel_width"],
+    }
+    return [dict(row, **fixed) for row in case_splits(section)]
+
+
+def case_table(config: dict, inverse_datasets: dict[str, str]) -> dict[str, dict]:
     """{"<dataset>/<case_id>": row} of every DEM run of the validated, cross-checked `config`
-    (pipeline.config.validate_config, check_cross_keys): its datasets, then the DoE's runs, the
-    scale ladder's and the calibrated models' GNS datasets. A bad dataset case raises ConfigError
-    naming the dataset, the case and the field; a bad DoE or ladder run, CaseError naming the field."""
+    (pipeline.config.validate_config, check_cross_keys; inverse_datasets: what the latter returns,
+    {column: the dataset of its base GNS}): its datasets, then the DoE's runs, the scale ladder's
+    and the calibrated models' GNS datasets. A bad dataset case raises ConfigError naming the
+    dataset, the case and the field; a bad DoE or ladder run, CaseError naming the field."""
     table = grid.case_table(config)
     rows = []
     doe = config["doe"]
@@ -50,7 +68,7 @@ def case_table(config: dict) -> dict[str, dict]:
             rows += doe_case_rows(design, load_column(config["measured"][name]), doe_dataset(name), **fields)
     rows += scale_ladder.case_rows(config["scale_ladder"])
     for name in model_gns_columns(config):
-        rows += [dict(row, dataset=model_dataset(name), calibrated=name) for row in case_splits(config["calibration"])]
+        rows += model_rows(config, name, dataset_rows(table, inverse_datasets[name])[0])
     for row in rows:
         key = f"{row['dataset']}/{row['case_id']}"
         if key in table:  # check_cross_keys keeps the derived datasets' names free

@@ -39,9 +39,21 @@ BASE_MEMORY_MB = 1000  # a DEM process with numba and h5py loaded
 MIN_RUNTIME_MIN = 10
 
 
-def write_deck(row: dict, path: StrPath) -> CollapseCase:
-    """Write one case's deck (engine-neutral JSON) from its case-table row; returns the case."""
-    case = grid.write_deck(row, path)
+def write_deck(row: dict, path: StrPath, model_json: StrPath | None = None) -> CollapseCase:
+    """Write one case's deck (engine-neutral JSON) from its case-table row; returns the case.
+    model_json: a calibrated model's GNS dataset's row is a case of that model (pipeline.cases);
+    its deck's row then holds the model's parameters there ("parameters": {name: value}), which
+    the trajectory records."""
+    if row.get("calibrated"):
+        if model_json is None:
+            raise ValueError(f"{row['dataset']}/{row['case_id']}: a calibrated model's case needs its model.json")
+        # imported here: the decks of every other case load no calibration code
+        from pipeline.calibrated_gns import model_case
+
+        case, parameters = model_case(model_json, row)
+        case = grid.write_deck(dict(row, parameters=parameters), path, case)
+    else:
+        case = grid.write_deck(row, path)
     log.info(
         "deck %s: %d grains, dt %.3g s, %d frames every %.3g s",
         case.name,
@@ -56,8 +68,10 @@ def write_deck(row: dict, path: StrPath) -> CollapseCase:
 def job_resources(row: dict, stage: str, threads: int = 1, attempt: int = 1) -> dict:
     """{"runtime": minutes, "mem_mb": MB} that the DEM job `stage` ("settle" or "collapse") of a
     case-table row asks for: it scales with grains x steps, so a full-scale case asks for hours
-    where a coarse one asks for minutes. A second thread counts as 0.7 of one (measured 1.7x)."""
-    case = grid.case_from_row(row)
+    where a coarse one asks for minutes. A second thread counts as 0.7 of one (measured 1.7x). A
+    calibrated model's case asks for its template's: the model changes the contacts, not the
+    grains or the frames."""
+    case = grid.case_from_row(row.get("template", row))
     if stage == "settle":
         steps = SETTLE_TSTAR_REQUESTED * case.t_star / settle_time_step(case)
     elif stage == "collapse":
@@ -128,7 +142,7 @@ def run_case(
     files the engine resumes from: a killed builtin run goes on from its checkpoint) and removed
     afterwards unless `keep_work`.
     """
-    case, _ = grid.read_deck(deck_path)
+    case, row = grid.read_deck(deck_path)
     packing = read_trajectory(packing_path)
     dem_engine = get_engine(engine, {"solvers": dict(solvers), "threads": threads})
     log.info(
@@ -141,10 +155,9 @@ def run_case(
     )
 
     clear_work_dir(work_dir, keep=dem_engine.resume_files)
-    # writes the output atomically, only once the engine's output reads whole
-    trajectory = dem_engine.simulate(
-        case, packing, work_dir, progress=progress_logger(f"collapse {case.name}", log), output=out_path
-    )
+    trajectory = dem_engine.simulate(case, packing, work_dir, progress=progress_logger(f"collapse {case.name}", log))
+    trajectory.attrs.update(row.get("parameters", {}))  # a calibrated model's: the GNS's inputs
+    write_trajectory(out_path, trajectory)  # atomic, once the engine's output reads whole
     if not keep_work:
         shutil.rmtree(work_dir)
     log.info(

@@ -4,6 +4,7 @@ or a GNS that is not there fails with a ConfigError naming the key, before any j
 The schema checks themselves are tested in test_grid.py (and the runout section in test_runout.py).
 """
 
+import json
 import re
 import warnings
 from pathlib import Path
@@ -14,6 +15,10 @@ import yaml
 import dem.grid
 import pipeline.cases
 import pipeline.config
+import pipeline.dem
+from calibration.calibrated import model_dataset_cases, model_record
+from calibration.mechanisms import get_mechanisms
+from calibration.model import Model
 from dem.grid import case_table
 from pipeline.config import ConfigError, check_cross_keys, check_doe, check_gns, validate_config
 
@@ -420,7 +425,7 @@ def test_one_case_table_holds_every_dem_run_of_the_dag():
     the calibrated model's GNS dataset, each under its own dataset, every key once; no rule file
     adds to it after common.smk built it."""
     tiny = derived(validated("tiny_all.yaml"), ())
-    table = pipeline.cases.case_table(tiny)
+    table = pipeline.cases.case_table(tiny, {"tiny": "tiny_column"})
     by_dataset = {}
     for key, row in table.items():
         assert key == f"{row['dataset']}/{row['case_id']}"
@@ -438,13 +443,36 @@ def test_one_case_table_holds_every_dem_run_of_the_dag():
     assert {(r["friction"], r["restitution"]) for r in doe} == {(m, e) for m in levels for e in levels}
     assert all(r["size_scale"] == 4 and r["L_i"] == 0.01 and r["aspect_ratio"] == 2.0 for r in doe)
     assert by_dataset["scale_ladder"][0]["case_id"] == "scale4_packing0"
-    # the calibrated model's cases: ids and splits now, parameters from model.json when they run
+    # the calibrated model's cases: ids, splits and what gives their parameters once model.json is written
     model_rows = by_dataset["calibrated_tiny"]
     assert sorted(r["split"] for r in model_rows) == ["test", "train", "valid"]
     assert all(r["calibrated"] == "tiny" and "friction" not in r for r in model_rows)
+    assert all(r["template"] == by_dataset["tiny_column"][0] for r in model_rows)
     # off with the base model: no GNS route of a model, no dataset for it
     base = dict(tiny, calibration=dict(tiny["calibration"], model="base"))
-    assert not [k for k in pipeline.cases.case_table(base) if k.startswith("calibrated_")]
+    assert not [k for k in pipeline.cases.case_table(base, {"tiny": "tiny_column"}) if k.startswith("calibrated_")]
     for rules in (ROOT / "workflow" / "rules").glob("*.smk"):
         text = rules.read_text()
         assert not re.search(r"\bCASES\s*(\[[^\]]*\]\s*=|\.update|\.setdefault)", text), rules.name
+
+
+def test_a_calibrated_models_deck_is_a_case_of_its_model_json(tmp_path):
+    """dem_deck on a calibrated model's row: the case of the model's design at that case id (the
+    template's column, the model's parameters there), which the deck's row records; without its
+    model.json the row is refused."""
+    tiny = derived(validated("tiny_all.yaml"), ())
+    rows = pipeline.cases.dataset_rows(pipeline.cases.case_table(tiny, {"tiny": "tiny_column"}), "calibrated_tiny")
+    with pytest.raises(ValueError, match="needs its model.json"):
+        pipeline.dem.write_deck(rows[1], tmp_path / "refused.json")
+    model = Model(get_mechanisms(["cohesion"], tiny["diagnosis"]["channel_width"])[0])
+    model_json = tmp_path / "model.json"
+    model_json.write_text(json.dumps(model_record(model, "test", "tiny")))
+    case = pipeline.dem.write_deck(rows[1], tmp_path / "deck.json", model_json)
+    read_case, row = dem.grid.read_deck(tmp_path / "deck.json")
+    section = tiny["calibration"]
+    design = model_dataset_cases(
+        model, dem.grid.case_from_row(rows[1]["template"]), section["gns_cases"], section["seed"]
+    )
+    assert read_case == case == design[1].case
+    assert row["parameters"] == design[1].parameters and set(row["parameters"]) == set(model.parameter_names)
+    assert (case.L_i, case.aspect_ratio) == (0.01, 2.0) and case.friction == row["parameters"]["friction"]

@@ -113,59 +113,9 @@ rule calibrated_bayesopt:
         "../scripts/calibrated_bayesopt.py"
 
 
-# The GNS route: one DEM case of the model's GNS dataset on the column of the base GNS's dataset.
-rule calibrated_case:
-    input:
-        model="results/calibrated/{name}/model.json",
-    output:
-        "results/dem/calibrated_{name}/trajectories/{case_id}.h5",
-    log:
-        "results/logs/calibrated/calibrated_case/{name}/{case_id}.log",
-    benchmark:
-        "results/benchmarks/calibrated/calibrated_case/{name}/{case_id}.tsv"
-    priority: MODEL_CHAIN_PRIORITY
-    conda:
-        "../envs/pipeline.yaml"
-    threads: config["dem"]["threads"]
-    resources:
-        runtime=240,
-        mem_mb=2000,
-    params:
-        template=lambda w: dataset_cases(INVERSE_DATASET[w.name])[0],
-        settings=CALIBRATION,
-        channel_width=CHANNEL_WIDTH,
-        dem=DEM_ENGINE,
-    script:
-        "../scripts/calibrated_case.py"
-
-
-ruleorder: calibrated_case > dem_run
-
-
-rule calibrated_dataset:
-    input:
-        model="results/calibrated/{name}/model.json",
-        trajectories=lambda w: [p for paths in dataset_trajectories(f"calibrated_{w.name}").values() for p in paths],
-    output:
-        "results/datasets/calibrated_{name}/metadata.json",
-    log:
-        "results/logs/calibrated/calibrated_dataset/{name}.log",
-    benchmark:
-        "results/benchmarks/calibrated/calibrated_dataset/{name}.tsv"
-    priority: MODEL_CHAIN_PRIORITY
-    conda:
-        "../envs/pipeline.yaml"
-    resources:
-        runtime=60,
-        mem_mb=2000,
-    params:
-        splits=lambda w: dataset_trajectories(f"calibrated_{w.name}"),
-        channel_width=CHANNEL_WIDTH,
-    script:
-        "../scripts/calibrated_dataset.py"
-
-
-ruleorder: calibrated_dataset > dataset
+# The GNS route: the model's GNS dataset calibrated_<name> (rows of the case table, on the column of
+# the base GNS's dataset) is run by the DEM stage's rules and built by the dataset stage's, each
+# reading model.json (model_json, common.smk).
 
 
 # The model's GNS is trained, rolled out and scored by the GNS stage's own rules (gns.smk) on the

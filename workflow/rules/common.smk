@@ -32,10 +32,10 @@ DATASETS = sorted(config["datasets"])
 INVERSE_DATASET = pipeline.config.check_cross_keys(config, dem.grid.case_table(config))
 # The case table, built once (pipeline.cases.case_table): {"<dataset>/<case_id>": row} of every DEM
 # run of the DAG: the datasets' cases, the DoE's design runs (dataset doe_<name>), the scale
-# ladder's and the calibrated models' GNS datasets (calibrated_<name>: case ids and splits, their
-# parameters read from model.json when their jobs run). A row holds every CollapseCase field of the
-# case plus dataset, case_id and split. No later file adds to it.
-CASES = pipeline.cases.case_table(config)
+# ladder's and the calibrated models' GNS datasets (calibrated_<name>: their parameters read from
+# model.json when their decks are written). A row holds every CollapseCase field of the case plus
+# dataset, case_id and split (a calibrated model's: what gives them). No later file adds to it.
+CASES = pipeline.cases.case_table(config, INVERSE_DATASET)
 # The sections and column lists of the stages, read here so that the helpers below read nothing a
 # later rule file defines.
 DOE = config["doe"]
@@ -92,6 +92,12 @@ def model_column(dataset):
     return rows[0].get("calibrated") if rows else None
 
 
+def model_json(dataset):
+    """[the model.json whose model gives the cases of `dataset`]: a calibrated model's GNS dataset's
+    (dem.smk, dataset.smk); [] for any other."""
+    return [f"results/calibrated/{model_column(dataset)}/model.json"] if model_column(dataset) else []
+
+
 # Helpers of the stages, kept here so that no stage file mixes functions with rules (snakemake
 # --lint). They read only the names above, so any stage may call them at parse time.
 
@@ -145,6 +151,10 @@ def critical_priority(dataset):
     return 10 if dataset in INVERSE_DATASET.values() else 0
 
 
+# The jobs whose time a DEM run costs: its settle and its collapse (its deck is a JSON written locally).
+DEM_JOB_RULES = ("dem_packing", "dem_run")
+
+
 # The longest path of all: a measured column's diagnosis decides the model whose GNS dataset is run
 # and trained from scratch (diagnosis.smk, calibrated.smk); it goes before the base GNS's jobs.
 MODEL_CHAIN_PRIORITY = 15
@@ -175,9 +185,7 @@ def inverse_benchmarks(name):
     """Benchmark files of every job each calibration route of `name` ran (the comparison's times; inverse.smk)."""
     dataset = INVERSE_DATASET[name]
     cases = [row["case_id"] for row in dataset_cases(dataset)]
-    dem_jobs = lambda ds, ids: [
-        f"results/benchmarks/dem/{rule}/{ds}/{c}.tsv" for rule in ("dem_packing", "dem_run") for c in ids
-    ]
+    dem_jobs = lambda ds, ids: [f"results/benchmarks/dem/{rule}/{ds}/{c}.tsv" for rule in DEM_JOB_RULES for c in ids]
     files = {
         "start": [f"results/benchmarks/inverse/inverse_start/{name}.tsv"],
         "gns_dataset": dem_jobs(dataset, cases) + [f"results/benchmarks/dataset/dataset/{dataset}.tsv"],
@@ -237,7 +245,7 @@ def calibrated_cost(name, route):
     if route in ("base-inverse", "model-inverse"):
         base = inverse_benchmarks(name)  # the paper's GNS route: its dataset, training and start run
         files = base["gns_dataset"] + base["gns_training"] + base["start"]
-        runs = len(dataset_cases(INVERSE_DATASET[name]))
+        runs = len(dataset_cases(INVERSE_DATASET[name]))  # each DEM run: its deck, packing and collapse
         if route == "base-inverse":
             return {"files": files + [f"results/benchmarks/inverse/inverse_design/{name}.tsv"], "dem_runs": runs}
         # a model's GNS warm-started from the base GNS also costs that GNS's dataset and training; from
@@ -245,8 +253,8 @@ def calibrated_cost(name, route):
         borrowed_files, borrowed_runs = (files, runs) if CALIBRATION["gns_warm_start"] else (base["start"], 0)
         dataset = f"calibrated_{name}"
         cases = [row["case_id"] for row in dataset_cases(dataset)]
-        own_files = [f"results/benchmarks/calibrated/calibrated_case/{name}/{c}.tsv" for c in cases] + [
-            f"results/benchmarks/calibrated/calibrated_dataset/{name}.tsv",
+        own_files = [f"results/benchmarks/dem/{rule}/{dataset}/{c}.tsv" for rule in DEM_JOB_RULES for c in cases] + [
+            f"results/benchmarks/dataset/dataset/{dataset}.tsv",
             f"results/benchmarks/gns/gns_train/{dataset}.tsv",
             f"results/benchmarks/calibrated/calibrated_inverse/{name}.tsv",
         ]

@@ -4,7 +4,8 @@
 
 rule dataset:
     input:
-        lambda w: [p for paths in dataset_trajectories(w.dataset).values() for p in paths],
+        trajectories=lambda w: [p for paths in dataset_trajectories(w.dataset).values() for p in paths],
+        model=lambda w: model_json(w.dataset),
     output:
         "results/datasets/{dataset}/metadata.json",
     log:

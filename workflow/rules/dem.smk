@@ -3,9 +3,13 @@
 
 # The settled packing comes from the builtin settling step for every engine, so all engines start
 # from the same grains; dem_run hands it to the engine named by config dem.engine (dem.engines).
+# A calibrated model's case (dataset calibrated_<name>) is a case of the model the diagnosis chose:
+# its deck waits for that model.json (model_json, common.smk).
 
 
 rule dem_deck:
+    input:
+        model=lambda w: model_json(w.dataset),
     output:
         "results/dem/{dataset}/decks/{case_id}.json",
     log:

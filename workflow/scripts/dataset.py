@@ -1,9 +1,10 @@
-"""Build one dataset's metadata JSON (splits, normalisation statistics) from its trajectories."""
+"""Build one dataset's metadata JSON (splits, normalisation statistics) from its trajectories (and,
+for a calibrated model's GNS dataset, its model.json)."""
 
 import logging
 
 from pipeline.dataset import build
 
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
-build(snakemake.params.splits, snakemake.output[0], snakemake.wildcards.dataset)
+build(snakemake.params.splits, snakemake.output[0], snakemake.wildcards.dataset, *snakemake.input.model)
 logging.info("wrote %s", snakemake.output[0])
