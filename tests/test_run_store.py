@@ -31,6 +31,7 @@ from dem.packing import settle_column
 from dem.run_store import active_store, kept_runs, runs_folder
 from dem.runout import RunoutMethod
 from dem.trajectory import Trajectory, TrajectoryError, read_trajectory
+from pipeline.calibrated_column import CalibratedColumn
 
 ROOT = Path(__file__).resolve().parents[1]
 # 77 grains, 1 t*: a third of a second a run
@@ -97,21 +98,29 @@ def test_a_failed_run_is_not_stored_and_fails_again_and_an_interrupted_block_kee
 
 
 # -- a job killed midway -------------------------------------------------------------------------------
+# what workflow/scripts/calibrated_doe.py runs, in a process of its own (doe_job's JSON as argument)
 KILLABLE_DOE = (
-    "import json, sys; from pipeline.calibrated_doe import run_model_doe; "
-    "a = json.loads(sys.argv[1]); run_model_doe(*a['args'], **a['kwargs'])"
+    "import json, sys; from pipeline.calibrated_column import CalibratedColumn; "
+    "from pipeline.calibrated_doe import run_model_doe; a = json.loads(sys.argv[1]); "
+    "run_model_doe(CalibratedColumn.read(*a['column'], **a['kwargs']), *a['args'])"
 )
 DOE_TIMINGS = ("seconds", "dem_seconds", "analysis_time_s")
 
 
 def doe_job(csv: Path, model_json: Path, out: Path) -> dict:
-    """run_model_doe's arguments for the base model's 3 x 3 CCD + 1 centre replicate (10 runs) into `out`."""
+    """The calibrated_doe job of the base model's 3 x 3 CCD + 1 centre replicate (10 runs) into
+    `out`, as JSON: CalibratedColumn.read's arguments ("column", "kwargs") and run_model_doe's rest."""
     outputs = [str(out / name) for name in ("doe.json", "doe_responses.csv", "doe_surface.png")]
-    settings = [{"doe_centre_replicates": 1}, {"size_scale": 4.0, "channel_width": 0.01}]
     return {
-        "args": [str(csv), str(model_json), *outputs, *settings],
+        "column": [str(csv), str(model_json), {"size_scale": 4.0, "channel_width": 0.01}],
         "kwargs": {"runout": RunoutMethod().to_config(), "dem": None, "name": "tiny"},
+        "args": [*outputs, {"doe_centre_replicates": 1}],
     }
+
+
+def run_doe_job(job: dict) -> dict:
+    """Run a doe_job as workflow/scripts/calibrated_doe.py does."""
+    return pipeline.calibrated_doe.run_model_doe(CalibratedColumn.read(*job["column"], **job["kwargs"]), *job["args"])
 
 
 def counts(**runs: int) -> str:
@@ -136,7 +145,7 @@ def test_a_killed_doe_job_rerun_reuses_its_finished_runs_and_writes_what_an_unin
     model_json = tmp_path / "model.json"
     model_json.write_text(json.dumps(model_record(Model(), "the config asks for the base model (mu, e)", "tiny")))
     reference = doe_job(csv, model_json, tmp_path / "reference")
-    pipeline.calibrated_doe.run_model_doe(*reference["args"], **reference["kwargs"])
+    run_doe_job(reference)
 
     killed = tmp_path / "killed"
     runs = runs_folder(killed / "doe.json")
@@ -164,8 +173,7 @@ def test_a_killed_doe_job_rerun_reuses_its_finished_runs_and_writes_what_an_unin
 
     caplog.clear()
     with caplog.at_level("INFO", logger="dem.run_store"):
-        rerun = doe_job(csv, model_json, killed)
-        pipeline.calibrated_doe.run_model_doe(*rerun["args"], **rerun["kwargs"])
+        run_doe_job(doe_job(csv, model_json, killed))
     # the finished runs read back, not run again (nor their packings settled); the rest run, the one
     # in flight among them (from its packing, where that was stored)
     reused = counts(collapse=len(collapses), packing=len(packings) - len(collapses))

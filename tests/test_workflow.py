@@ -287,7 +287,7 @@ def test_paper_config_dry_run_has_700_cases(tmp_path):
     stats = job_stats(proc.stdout)
     for rule in ("dem_deck", "dem_packing", "dem_run", "dem_figure"):
         assert stats[rule] >= 700, stats
-    assert stats["dataset"] == 4 and stats["report"] == 1
+    assert stats["dataset"] == 5 and stats["report"] == 1  # 4 datasets and the calibrated model's GNS dataset
 
 
 def test_slurm_profile_dry_run(tmp_path):
