@@ -15,7 +15,6 @@ from dem.atomic import StrPath, write_text
 from dem.grid import write_case_table
 from dem.runout import RunoutMethod
 from gns.dataset import DEM_PARAMETERS, SPLITS, build_dataset, load_dataset_metadata, plot_dataset
-from pipeline.calibrated_gns import model_parameter_names
 
 log = logging.getLogger(__name__)
 # where the DEM stage writes a case's trajectory; the same path as in dataset.smk
@@ -27,7 +26,12 @@ def build(splits: Mapping[str, Sequence[str]], out_path: StrPath, name: str, mod
     trajectories, {"train"|"valid"|"test": [HDF5 paths]}. The DEM parameters the GNS takes: the
     paper's (mu, e), or for a calibrated model's GNS dataset every parameter of the model of
     model_json. Returns the metadata dict."""
-    parameters = DEM_PARAMETERS if model_json is None else model_parameter_names(model_json)
+    if model_json is None:
+        parameters = DEM_PARAMETERS
+    else:  # imported here: the datasets of the paper's (mu, e) load no calibration code
+        from pipeline.calibrated_gns import model_parameter_names
+
+        parameters = model_parameter_names(model_json)
     splits = {k: list(v) for k, v in splits.items()}
     log.info("dataset %s: %s cases", name, {k: len(v) for k, v in splits.items()})
     metadata = build_dataset(splits, out_path, name, tuple(parameters))
