@@ -3,9 +3,13 @@
 import math
 
 import pytest
+from scipy.optimize import minimize_scalar
 
+from calibration.mechanisms import get_mechanisms
+from calibration.model import Model
 from dem.case import GRAVITY, CollapseCase
 from dem.collapse import simulate_collapse
+from dem.engines.liggghts_hertz import MAX_OVERLAP, hertz_parameters, sjkr_energy_density, sjkr_pull_off_force
 from dem.forces import ContactLaw
 from dem.integrate import State, run
 
@@ -13,6 +17,7 @@ RADIUS = 212.5e-6
 DENSITY = 2650.0
 FLOOR_ONLY = (-1.0, 2.0, 0.0, math.inf)
 BIG_BOX = (-2.0, 3.0, -1.0, 2.0)
+COHESION = next(m for m in get_mechanisms() if m.name == "cohesion")
 
 
 def case_with(**changes):
@@ -99,3 +104,42 @@ def test_lifting_gate_lets_grains_out_from_below_only():
             assert lifted.positions[k, out, 1].max() <= speed * t + 2 * lifted.radius.max()
     instant = simulate_collapse(base)
     assert lifted.positions[-1, :, 0].max() < instant.positions[-1, :, 0].max()
+
+
+def test_sjkr_pull_off_force_is_the_minimum_of_hertz_plus_sjkr():
+    """The Hertz + SJKR pull-off force (closed form) against the numerical minimum of
+    F(delta) = 4/3 E* sqrt(R*) delta^1.5 - k A(delta), with A = 2 pi R* delta; a case's cohesion (a
+    Bond number) becomes the k whose pull-off force of a mean pair is that many mean-grain weights,
+    within 1% also with the exact sphere-sphere intersection area SJKR uses, resting within
+    MAX_OVERLAP of d."""
+
+    def pull_off(e_star, r_eff, k, area):  # the numerical minimum, as a pulled pair feels it
+        hertz = lambda delta: 4 / 3 * e_star * math.sqrt(r_eff) * delta**1.5  # noqa: E731
+        found = minimize_scalar(
+            lambda delta: hertz(delta) - k * area(delta),
+            bounds=(0.0, 0.1 * r_eff),
+            method="bounded",
+            options={"xatol": 1e-15},
+        )
+        return -found.fun, found.x
+
+    e_star, r_eff, k = 2.0e6, 5.3e-4, 2.0e5
+    force, overlap = pull_off(e_star, r_eff, k, lambda delta: 2 * math.pi * r_eff * delta)
+    assert force == pytest.approx(sjkr_pull_off_force(k, e_star, r_eff), rel=1e-9)
+    assert overlap == pytest.approx(math.pi**2 * k**2 * r_eff / e_star**2, rel=1e-4)
+    assert sjkr_energy_density(force, e_star, r_eff) == pytest.approx(k, rel=1e-9)
+    # Bond number 30 through the cohesion candidate and the deck's parameters
+    case = Model(COHESION).at(CollapseCase("quartz", 0.02, 2.0, 0.5, 0.6, size_scale=5), [0.5, 0.6, 30])
+    params = hertz_parameters(case)
+    weight = case.sphere_mass(case.diameter) * 9.81
+    r_eff, radius = case.diameter / 4, case.diameter / 2  # a mean pair
+
+    def lens_area(delta):  # SJKR's area (LIGGGHTS cohesion_model_sjkr.h), equal spheres 2 R - delta apart
+        dist = 2 * radius - delta
+        return -math.pi / 4 * (dist - 2 * radius) * dist * dist * (dist + 2 * radius) / dist**2
+
+    k, e_star = params.cohesion_energy_density, params.effective_modulus
+    assert sjkr_pull_off_force(k, e_star, r_eff) == pytest.approx(30 * weight, rel=1e-9)
+    assert pull_off(e_star, r_eff, k, lens_area)[0] == pytest.approx(30 * weight, rel=0.01)
+    resting = 9 / 4 * math.pi**2 * k**2 * r_eff / e_star**2  # where Hertz balances SJKR
+    assert resting == pytest.approx(MAX_OVERLAP * case.diameter, rel=1e-9)  # the load that sets E here
