@@ -47,7 +47,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration.measured_column import MeasuredColumn, expected_final_runout
+from calibration.measured_column import MeasuredColumn
+from calibration.scaling_laws import quasi_2d_runout
 from dem.case import MATERIALS, CaseError, Material
 from dem.runout import METHODS
 
@@ -415,7 +416,7 @@ def _check_runout_units(path, column: MeasuredColumn, line: int) -> None:
     at least 25x that final runout, which no front reaches at any time (a runout more than 4x away
     from it already warns): curves of any length are judged for percent.
     """
-    expected = expected_final_runout(column.aspect_ratio)
+    expected = quasi_2d_runout(column.aspect_ratio)
     reached = float(np.max(column.runout))
     if reached > 4 * expected and expected / 4 <= reached / 100 <= 4 * expected + 1:
         raise MeasuredDataError(

@@ -144,13 +144,3 @@ def own_material_fields(material: Material) -> dict:
     if isinstance(material.to_config(), str):  # a material of the table goes by its name alone
         return {}
     return {"grain_diameter": material.diameter, "density": material.density, "solid_fraction": material.solid_fraction}
-
-
-def expected_final_runout(aspect_ratio: float) -> float:
-    """Final runout L*_f (-) of a dry 2D column collapse from the experimental scaling laws
-    (Lube et al. 2005; Lajeunesse et al. 2005): about 1.2 a for a < 2.8, 1.9 a^(2/3) above.
-
-    Only an order-of-magnitude guide (the CSV reader's unit check, the prediction figure's reference
-    curve): friction changes it by tens of %.
-    """
-    return 1.2 * aspect_ratio if aspect_ratio < 2.8 else 1.9 * aspect_ratio ** (2.0 / 3.0)

@@ -40,9 +40,10 @@ from calibration.confirmation import confirm
 from calibration.design_runs import SimulationSettings
 from calibration.diagnosis_result import Diagnosis
 from calibration.inverse_result import read_result
-from calibration.measured_column import MeasuredColumn, expected_final_runout
+from calibration.measured_column import MeasuredColumn
 from calibration.model import Model
 from calibration.prediction import PREDICTION_TSTAR, predict
+from calibration.scaling_laws import DISC_2D_SOURCE, QUASI_2D_SOURCE, disc_2d_runout, quasi_2d_height, quasi_2d_runout
 from dem.atomic import StrPath, write_json
 from dem.plots import save_figure
 from dem.progress import progress_logger
@@ -401,7 +402,8 @@ def plot_runoff(result: CalibratedResult, ax: Axes) -> None:
 
 def plot_prediction(result: CalibratedResult, column: MeasuredColumn, path: StrPath) -> None:
     """Final runout L* and deposit height H_f / L_i of the calibrated model against the aspect ratio,
-    the measured column's final L* on it, and the experimental scaling of Lube et al. (2005)."""
+    the measured column's final L* on it, the experimental scaling of a quasi-2D channel and, for
+    contrast, that of true-2D discs (calibration.scaling_laws)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -413,11 +415,13 @@ def plot_prediction(result: CalibratedResult, column: MeasuredColumn, path: StrP
     height = np.array([np.nan if v is None else v for v in p["height_over_L_i"]])
     fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
     fine = np.linspace(max(a.min(), 0.1), a.max(), 100)
-    left.plot(fine, [expected_final_runout(x) for x in fine], "k:", lw=1, label="Lube et al. (2005) scaling")
+    left.plot(fine, [quasi_2d_runout(x) for x in fine], "k:", lw=1, label=f"{QUASI_2D_SOURCE} (dry sand)")
+    left.plot(fine, [disc_2d_runout(x) for x in fine], ":", color="tab:gray", lw=1, label=DISC_2D_SOURCE)
     left.plot(a, runout, "o-", color="tab:green", label=f"calibrated {result.model} model (DEM)")
     measured = f"measured ({column.name}, at its last t/t*)"
     left.plot([column.aspect_ratio], [result.measured_final_runout], "ks", ms=8, label=measured)
     left.set(xlabel="aspect ratio a = H_i / L_i", ylabel="final runout L*", title="final runout")
+    right.plot(fine, [quasi_2d_height(x) for x in fine], "k:", lw=1)
     right.plot(a, height, "o-", color="tab:green")
     right.set(xlabel="aspect ratio a = H_i / L_i", ylabel="H_f / L_i", title="deposit height")
     for ax in (left, right):

@@ -1,6 +1,7 @@
 """The calibrated model (calibration/calibrated.py, pipeline/calibrated.py): which model, its
 parameters, and the validation on several packings, on tiny coarse-grained columns (77 grains)."""
 
+import math
 from dataclasses import replace
 from types import SimpleNamespace
 
@@ -24,6 +25,7 @@ from calibration.measured_column import MeasuredColumn
 from calibration.mechanisms import bond_from_cohesion_energy, get_mechanisms
 from calibration.model import Model
 from calibration.objective import runout_mse
+from calibration.scaling_laws import check_scaling
 from dem.atomic import write_json
 from dem.engines.liggghts import LiggghtsEngine
 from dem.runout import RunoutMethod
@@ -179,6 +181,11 @@ def test_the_stage_writes_its_answer_figure_and_report_section(tmp_path):
     assert not transfer_holds({"mse": 0.25}, {"mse": 0.05, "shared_mse": 0.1})
     assert "How the answer was chosen" in text and "on the mean of 3 packings" in text
     assert "| final L* | " in text and "](../calibrated/prediction.png)" in text
+    # the predictions held against the channel law, as a fraction of it per a and in one figure
+    check = check_scaling(prediction["aspect_ratios"], prediction["final_runout"], prediction["height_over_L_i"])
+    fractions = " | ".join(f"{v:.2f}" for v in check.runout_fraction())
+    assert f"| fraction of that law | {fractions} |" in text and "**Scaling check**" in text
+    assert f"off by a factor of {math.exp(check.runout_error):.2g} on average" in text
     assert (
         "base, DoE (face-centred CCD, quadratic): 10 DEM runs (every DEM run ran); quadratic response surface" in text
     )

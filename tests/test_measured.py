@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from calibration.measured import MeasuredDataError, MeasuredDataWarning, load_column, read_measured
-from calibration.measured_column import MeasuredColumn, expected_final_runout
+from calibration.measured_column import MeasuredColumn
+from calibration.scaling_laws import quasi_2d_runout
 from calibration.synthetic import write_measured_csv
 from dem.case import CaseError
 from dem.runout import RunoutMethod
@@ -182,7 +183,7 @@ def test_runout_in_percent_is_caught(tmp_path):
 @pytest.mark.parametrize("a", [0.3, 1.0, 2.8, 6.0, 20.0])
 def test_long_genuine_runouts_are_never_read_as_percent(tmp_path, a):
     # 10x the scaling law's final runout: implausible (a warning), never refused as percent
-    values = 10 * expected_final_runout(a) * np.linspace(0.1, 1.0, len(TIMES))
+    values = 10 * quasi_2d_runout(a) * np.linspace(0.1, 1.0, len(TIMES))
     with pytest.warns(MeasuredDataWarning, match="far from"):
         column = read_measured(write(tmp_path, HEADER + runout_rows(values=values, a=a)))["q"]
     np.testing.assert_allclose(column.runout, values)
@@ -197,7 +198,7 @@ def test_small_genuine_runouts_pass(tmp_path):
 
 
 def test_implausible_runout_warns(tmp_path):
-    assert expected_final_runout(6.0) == pytest.approx(6.27, abs=0.01)
+    assert quasi_2d_runout(6.0) == pytest.approx(6.27, abs=0.01)
     path = write(tmp_path, HEADER + runout_rows(values=np.array(QUARTZ_RUNOUT) * 10))
     with pytest.warns(MeasuredDataWarning, match="far from"):
         read_measured(path)
