@@ -26,6 +26,7 @@ emulator then needs few runs):
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import ClassVar
@@ -52,6 +53,10 @@ class Mechanism:
     hidden_range: tuple[float, float]  # magnitudes drawn by the hidden-effect tests
     description: str
     log_scale: bool = False  # design and emulator work in log(parameter)
+    # the values the parameter takes for dry grains of 0.1-1 mm (this project's materials) and why;
+    # a fitted value outside is an effective parameter of the curve it fits, not the material's
+    plausible: tuple[float, float] = (-math.inf, math.inf)
+    plausible_source: str = ""
 
     def case_fields(self, value: float, case: CollapseCase) -> dict:
         """CollapseCase fields that switch the mechanism on at `value` for `case` (its base fields)."""
@@ -60,6 +65,17 @@ class Mechanism:
     def off_value(self, friction: float, restitution: float) -> float:
         """The parameter value at which the extended model is the base model at (mu, e)."""
         return 0.0
+
+    def plausibility(self, value: float) -> str:
+        """In words: whether `value` lies in the physically plausible range, with its source."""
+        low, high = self.plausible
+        span = f"[{low:g}, {high:g}] {self.unit}".rstrip(" -")
+        if low - 1e-12 <= value <= high + 1e-12:
+            return f"{self.parameter} = {value:.3g} lies in the physical range {span} ({self.plausible_source})"
+        return (
+            f"{self.parameter} = {value:.3g} lies outside the physical range {span} ({self.plausible_source}): "
+            "an effective parameter, not a physical one"
+        )
 
     def check(self, value: float) -> float:
         low, high = self.bounds
@@ -130,6 +146,9 @@ def candidate_mechanisms(channel_width: float = 0.01) -> dict[str, Mechanism]:
             (0.0, 0.4),
             (0.15, 0.35),
             "type-C (EPSD2) rolling resistance mu_r: a torque up to mu_r R* |Fn| opposes rolling",
+            plausible=(0.0, 0.3),
+            plausible_source="DEM calibrations of round to angular sands with this model, Ai et al. 2011, "
+            "Powder Technol. 206, 269; Wensrich & Katterfeld 2012, Powder Technol. 217, 409",
         ),
         Cohesion(
             "cohesion",
@@ -138,6 +157,9 @@ def candidate_mechanisms(channel_width: float = 0.01) -> dict[str, Mechanism]:
             (0.0, 60.0),
             (15.0, 45.0),
             "JKR pull-off cohesion, as a Bond number (pull-off force / grain weight)",
+            plausible=(0.0, 1.0),
+            plausible_source="dry grains coarser than ~0.1 mm flow freely, their Bond number below 1: "
+            "Castellanos 2005, Adv. Phys. 54, 263",
         ),
         BasalFriction(
             "basal_friction",
@@ -147,6 +169,9 @@ def candidate_mechanisms(channel_width: float = 0.01) -> dict[str, Mechanism]:
             (0.03, 0.08),
             "floor friction different from the grains' friction (base model: floor mu = grain mu)",
             log_scale=True,
+            plausible=(0.1, 1.0),
+            plausible_source="wall-friction tests of sand on floors from polished glass to sandpaper, "
+            "Schulze 2008, Powders and Bulk Solids",
         ),
         SidewallFriction(
             "sidewall_friction",
@@ -156,6 +181,9 @@ def candidate_mechanisms(channel_width: float = 0.01) -> dict[str, Mechanism]:
             (0.08, 0.2),
             f"Coulomb drag of the front/back walls of a {channel_width * 1e3:g} mm quasi-2D channel",
             channel_width=channel_width,
+            plausible=(0.1, 0.6),
+            plausible_source="wall-friction tests of sand and beads on glass or acrylic walls, Schulze 2008, "
+            "Powders and Bulk Solids",
         ),
         GateLift(
             "gate_lift",
@@ -164,6 +192,9 @@ def candidate_mechanisms(channel_width: float = 0.01) -> dict[str, Mechanism]:
             (0.0, 4.0),
             (1.0, 3.3),
             "gate lifted at finite speed v (parameter 1/v; 0 = removed at once, as in the paper)",
+            plausible=(0.0, 2.0),
+            plausible_source="a lab gate clears the column at 0.5 m/s or faster, against its free fall of "
+            "~1 m/s; Sarlin et al. 2021, Phys. Rev. E 104, 064904, vary it",
         ),
     )
     return {m.name: m for m in candidates}

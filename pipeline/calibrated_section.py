@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from calibration.calibrated_result import CalibratedResult
+from calibration.mechanisms import get_mechanisms
 from calibration.prediction import PREDICTION_TSTAR
 from calibration.scaling_laws import DISC_2D_SOURCE, QUASI_2D_SOURCE, ScalingCheck, check_scaling
 from dem.atomic import StrPath, write_text
@@ -64,6 +65,7 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
             f"+- {format_se(score['mse_se'])} on the mean of {score['n_ran']} packings "
             f"(each packing alone: {format_span(score['mse_each'])}).",
             "",
+            *plausibility_lines(answer["parameters"]),
             *runoff_lines(result),
             f"Why this model: {result['why']}",
             "",
@@ -292,6 +294,14 @@ def run_section(json_paths: Sequence[StrPath], figure_paths: Sequence[StrPath], 
         data["figure"] = str(figure)
         results.append(data)
     write_text(section_path, section_markdown(results, section_path))
+
+
+def plausibility_lines(parameters: dict[str, float]) -> list[str]:
+    """Each fitted mechanism parameter of {name: value} against its physically plausible range
+    (calibration.mechanisms), in words; none for the base model's friction and restitution."""
+    by_parameter = {m.parameter: m for m in get_mechanisms()}
+    said = [by_parameter[name].plausibility(value) for name, value in parameters.items() if name in by_parameter]
+    return [f"**Plausibility.** {'; '.join(said)}.", ""] if said else []
 
 
 def scaling_sentence(check: ScalingCheck) -> str:

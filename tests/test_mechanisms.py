@@ -12,6 +12,7 @@ from dem.collapse import simulate_collapse
 from dem.engines.liggghts_hertz import MAX_OVERLAP, hertz_parameters, sjkr_energy_density, sjkr_pull_off_force
 from dem.forces import ContactLaw
 from dem.integrate import State, run
+from pipeline.calibrated_section import plausibility_lines
 
 RADIUS = 212.5e-6
 DENSITY = 2650.0
@@ -143,3 +144,19 @@ def test_sjkr_pull_off_force_is_the_minimum_of_hertz_plus_sjkr():
     assert pull_off(e_star, r_eff, k, lens_area)[0] == pytest.approx(30 * weight, rel=0.01)
     resting = 9 / 4 * math.pi**2 * k**2 * r_eff / e_star**2  # where Hertz balances SJKR
     assert resting == pytest.approx(MAX_OVERLAP * case.diameter, rel=1e-9)  # the load that sets E here
+
+
+def test_each_mechanism_states_its_physical_range_and_a_fit_outside_it_is_called_effective():
+    """Every candidate states the range its parameter takes for dry grains, with a source; the
+    report calls the answer's value outside it effective, and says nothing of friction and
+    restitution, which the paper's box already bounds."""
+    for mechanism in get_mechanisms():
+        low, high = mechanism.plausible
+        assert math.isfinite(low) and math.isfinite(high) and low < high and mechanism.plausible_source
+        assert "effective" not in mechanism.plausibility((low + high) / 2)
+        assert mechanism.plausibility(2 * high + 1).endswith("an effective parameter, not a physical one")
+    # the shipped answers' Bond numbers of 41-56 for dry sand: effective
+    (line, _) = plausibility_lines({"friction": 0.715, "restitution": 0.9, "bond_number": 55.6})
+    assert line.startswith("**Plausibility.** bond_number = 55.6 lies outside the physical range [0, 1]")
+    assert "Castellanos 2005" in line and "friction =" not in line
+    assert plausibility_lines({"friction": 0.5, "restitution": 0.6}) == []
