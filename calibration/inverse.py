@@ -18,8 +18,10 @@ every result carries a roughness probe (see posterior_at).
 
 Uncertainty: a Laplace posterior (calibration.uncertainty) from the Jacobian of L* at the optimum;
 noise = the measured std (or, when the file gives none, estimated from the residuals) combined
-with the surrogate's own runout error against the DEM; a parameter the runout cannot pin down is
-reported as not identifiable.
+with the surrogate's own runout error against the DEM, then held to the GNS's own chi^2 along
+each interval (calibration.uncertainty.likelihood_checked: a rough rollout response must not make
+an interval narrower than the likelihood); a parameter the runout cannot pin down is reported as
+not identifiable.
 """
 
 from __future__ import annotations
@@ -50,7 +52,12 @@ from calibration.measured_column import MeasuredColumn
 from calibration.objective import runout_mse
 from calibration.optimise import OptimisationResult, PointFailed
 from calibration.sensitivity import finite_or_none, sensitivity_record, untrusted_slopes
-from calibration.uncertainty import LaplacePosterior, finite_difference_jacobian, laplace_posterior
+from calibration.uncertainty import (
+    LaplacePosterior,
+    finite_difference_jacobian,
+    laplace_posterior,
+    likelihood_checked,
+)
 from dem.progress import progress_logger
 from dem.runout import RunoutMethod
 from dem.trajectory import Trajectory
@@ -170,6 +177,7 @@ def posterior_at(
         sigma=noise_level(objective.measured, model_error_std, start_packing_std),
         untrusted=untrusted,
     )
+    posterior = likelihood_checked(objective.runout_values, objective.measured.runout, posterior, bounds)
     # None (JSON null) where a rollout failed
     values = [runout_mse(r, objective.measured.runout) if ok else None for r, ok in zip(runouts, ran)]
     probe_values = values[1 + len(points) :]

@@ -181,6 +181,8 @@ def recover_case(
         "estimate": [p["value"] for p in parameters],
         "interval": [[p["low"], p["high"]] for p in parameters],
         "identifiable": [p["identifiable"] for p in parameters],
+        # each parameter's std scale the GNS's own chi^2 along its interval asked for (uncertainty.likelihood_checked)
+        "interval_scale": (result.posterior.get("likelihood_check") or {}).get("scale"),
         "inside": inside,
         "mu_error": mu_error,
         "mu_within": bool(mu_error <= mu_tolerance),

@@ -59,7 +59,7 @@ def section(
     lines += [
         "",
         f"Posterior correlation of the two parameters: {post['correlation'][0][1]:.2f}; noise: "
-        f"{post['sigma_source']} (std {np.mean(post['sigma']):.3g} in L*).",
+        f"{post['sigma_source']} (std {np.mean(post['sigma']):.3g} in L*).{likelihood_sentence(post)}",
         "",
         "| start (mu, e) | end (mu, e) | GNS objective | iterations | rollouts | L-BFGS-B |",
         "|---|---|---|---|---|---|",
@@ -203,3 +203,18 @@ def write_section(
     )
     write_text(section_path, text)
     return text
+
+
+def likelihood_sentence(post: dict) -> str:
+    """How far the GNS's own chi^2 along each interval widened the Laplace posterior (calibration.
+    uncertainty.likelihood_checked); "" for a posterior not checked."""
+    check = post.get("likelihood_check")
+    if not check:
+        return ""
+    names = [p["name"] for p in post["parameters"]]
+    scales = ", ".join(f"{n} x {c:.2g}" for n, c in zip(names, check["scale"]))
+    return (
+        f" Held to the GNS's own chi^2 along each interval ({sum(len(e['rise']) for e in check['ends'])} "
+        f"rollouts): std {scales} (x 1: the Laplace interval stood; more: the rollout's slope at the "
+        "optimum overstated its trend, or its chi^2 came back down beyond a bump)."
+    )

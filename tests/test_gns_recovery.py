@@ -10,6 +10,7 @@ import torch
 from calibration.compare import case_like
 from calibration.gns_objective import GNSObjective
 from calibration.recovery import observation_times, packing_scatter, recover_case
+from calibration.uncertainty import Z95
 from dem.collapse import simulate_collapse
 from dem.runout import RunoutMethod, runout_at
 from dem.trajectory import read_trajectory
@@ -110,8 +111,16 @@ def test_recovery_of_a_dem_target_on_the_tiny_column(trained_tiny_gns):
     0.9, packing std up to 0.18), so no parameter need be identifiable here: what must hold is that the
     packing scatter enters the stated noise, that the reported estimate is the fit the optimiser found
     and fits the target at least as well as the truth and the start do (a wrong estimator fails that),
-    that the truth lies inside the reported 95% intervals and the estimate too, and that a parameter
-    the posterior calls identifiable is really found (within 0.15)."""
+    that the 95% intervals are the GNS's own likelihood's (the truth inside each, unless the GNS's
+    chi^2 at the truth rises above its optimum's by Z95^2: then the surrogate, not the interval,
+    rules it out), and that a parameter the posterior calls identifiable is really found (within
+    0.15). Measured, training seeds 0-2 at this machine's torch kernels and at
+    ATEN_CPU_CAPABILITY=default (6 GNSs): with plain Laplace intervals the truth fell outside one in
+    2 of them (and on one other machine's GNS), each time with the GNS's chi^2 at the truth within
+    2.9 of its optimum's (< Z95^2 = 3.84): a rough rollout response had made the slope at the
+    optimum several times its trend, or an optimum at a bound had clipped a not-identifiable
+    parameter's interval. With the likelihood check and a not-identifiable parameter's interval
+    its bounds: inside in all 6 (docs/experiments/gns-route.md)."""
     simulator, metadata = trained_tiny_gns
     trained = read_training_attrs(metadata)
     start = simulate_collapse(case_like(trained[0], 0.55, 0.73, seed=99))
@@ -152,7 +161,15 @@ def test_recovery_of_a_dem_target_on_the_tiny_column(trained_tiny_gns):
     fits = GNSObjective(simulator, start, target, runout=runout).values([row["estimate"], row["truth"], [0.55, 0.73]])
     assert fits[0] == pytest.approx(row["objective"], rel=1e-5, abs=1e-7), (fits, row)
     assert fits[0] <= min(fits[1:]), (fits, row)
-    assert all(row["inside"]), row
+    # the GNS's chi^2 at the truth over its optimum's, under the posterior's own noise
+    at_estimate, at_truth = (
+        np.sum(np.square((curve - np.array(row["measured"])) / np.array(row["posterior_std"])))
+        for curve in GNSObjective(simulator, start, target, runout=runout).runout_values(
+            [row["estimate"], row["truth"]]
+        )
+    )
+    for k, inside in enumerate(row["inside"]):
+        assert inside or at_truth - at_estimate > Z95**2, (k, at_truth, at_estimate, row)
     for k, (low, high) in enumerate(row["interval"]):
         assert low <= row["estimate"][k] <= high, row
         if row["identifiable"][k]:

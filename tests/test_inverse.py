@@ -318,6 +318,9 @@ def test_posterior_flags_a_parameter_the_model_ignores(tiny_dataset):
     with torch.no_grad():
         for first, offset in parameter_inputs(simulator):
             first.weight[:, offset + simulator.config.parameter_names.index("restitution")] = 0.0
+    # the model's own runout at (0.6, 0.6) as the data: that point is the optimum the posterior describes
+    own = objective.runout_values([[0.6, 0.6]])[0]
+    objective = GNSObjective(simulator, start, column_of(start, T_POINTS, own.tolist(), std=1e-6))
     posterior, runout, roughness = posterior_at(objective, [0.6, 0.6], [(0.3, 0.9), (0.5, 0.8)])
     friction, restitution_interval = posterior.parameters
     assert not restitution_interval.identifiable and "hardly changes" in restitution_interval.why

@@ -1,5 +1,6 @@
-"""Laplace posterior against a linear model with a known answer; Bayesian optimisation on a known minimum;
-the optimisers' one interface and history; the one GP of the emulator and the Bayesian optimisation."""
+"""Laplace posterior against a linear model with a known answer, held to a nonlinear model's likelihood;
+Bayesian optimisation on a known minimum; the optimisers' one interface and history; the one GP of
+the emulator and the Bayesian optimisation."""
 
 from pathlib import Path
 
@@ -11,7 +12,7 @@ from calibration.bayesopt import BOSettings, bayesian_optimisation
 from calibration.emulator import GPEmulator, ParameterBox, latin_hypercube
 from calibration.lbfgsb import LBFGSBSettings, multistart_lbfgsb
 from calibration.optimise import OptimisationHistory, OptimisationResult, Optimiser, one_at_a_time
-from calibration.uncertainty import finite_difference_jacobian, laplace_posterior
+from calibration.uncertainty import Z95, finite_difference_jacobian, laplace_posterior, likelihood_checked
 
 
 def test_laplace_posterior_matches_linear_least_squares():
@@ -30,6 +31,90 @@ def test_laplace_posterior_matches_linear_least_squares():
     assert post.correlation[0, 1] == pytest.approx(expected[0, 1] / np.sqrt(expected[0, 0] * expected[1, 1]))
     assert all(p.identifiable for p in post.parameters)
     assert post.parameters[0].low < truth[0] < post.parameters[0].high
+
+
+def two_parameter_posterior(model, theta, bounds, sigma):
+    """Laplace posterior of model(theta [2]) -> L* [7] at theta against data model(theta) (exact fit)."""
+    jac = finite_difference_jacobian(model, theta, bounds, step=1e-4)
+    return laplace_posterior(["friction", "restitution"], theta, jac, np.zeros(7), bounds, sigma=sigma)
+
+
+def batch(model):
+    return lambda points: np.array([model(p) for p in np.atleast_2d(points)])
+
+
+def test_the_likelihood_check_leaves_a_linear_model_alone_and_widens_where_the_slope_overstates_the_trend():
+    """Linear: the chi^2 rise along each interval direction is the linearised one, so no factor.
+    Saturating (L* ~ tanh): the Laplace interval is narrower than the likelihood-ratio interval of the
+    model itself (whose end, friction alone mattering, solves amplitude^2 tanh^2 / sigma^2 = Z95^2),
+    and the check brings it to that end within 5%, the other parameter's interval untouched. A model
+    that rises faster than its slope (cubic growth) is kept: the Laplace interval is then the
+    conservative one."""
+    t = np.linspace(0.5, 3.5, 7)
+    theta, bounds, sigma = np.array([0.6, 0.6]), [(0.0, 1.2), (0.0, 1.2)], 0.05
+
+    def linear(p):
+        return p[0] * t * 0.1 + 0.05 * p[1]
+
+    post = two_parameter_posterior(linear, theta, bounds, sigma)
+    laplace = [value for p in post.parameters for value in (p.low, p.high)]
+    checked = likelihood_checked(batch(linear), linear(theta), post, bounds)
+    assert checked.likelihood_check["scale"] == pytest.approx([1.0, 1.0], abs=1e-6)
+    assert [value for p in checked.parameters for value in (p.low, p.high)] == pytest.approx(laplace)
+    assert all(end["crossing"] == pytest.approx(1.0, abs=1e-6) for end in checked.likelihood_check["ends"])
+
+    width = 0.02  # the response saturates beyond ~width from the optimum
+
+    def saturating(p):  # restitution does not matter: the friction's interval is the likelihood's along it
+        return 0.1 * t * np.tanh((p[0] - 0.6) / width) + 1e-9 * p[1]
+
+    sigma = 0.25  # noise near the saturated amplitude: the data stop telling values apart at ~1.2 width
+    post = two_parameter_posterior(saturating, theta, bounds, sigma)
+    laplace_half = post.parameters[0].high - 0.6
+    checked = likelihood_checked(batch(saturating), saturating(theta), post, bounds)
+    amplitude = np.sqrt(np.sum((0.1 * t) ** 2))  # chi^2 rise = (amplitude tanh(d / width) / sigma)^2
+    exact = width * np.arctanh(Z95 * sigma / amplitude)
+    checked_half = checked.parameters[0].high - 0.6
+    assert laplace_half < 0.8 * exact  # the slope at the optimum overstates the trend
+    assert checked_half == pytest.approx(exact, rel=0.05), (laplace_half, checked_half, exact)
+    assert checked.likelihood_check["scale"][0] == pytest.approx(checked_half / laplace_half)
+
+    def steepening(p):
+        return 0.1 * t * ((p[0] - 0.6) + 20 * (p[0] - 0.6) ** 3) + 0.05 * p[1]
+
+    post = two_parameter_posterior(steepening, theta, bounds, 0.05)
+    checked = likelihood_checked(batch(steepening), steepening(theta), post, bounds)
+    assert checked.likelihood_check["scale"] == [1.0, 1.0]
+    assert checked.likelihood_check["ends"][0]["rise"][0] > Z95**2
+
+
+def test_the_likelihood_check_finds_a_valley_beyond_a_bump_and_a_failed_probe_counts_against_it():
+    """A rough response, as a chaotic rollout's: a narrow dip at the optimum (where the slope is
+    steep) in a plateau that lies within Z95^2 of it, with one bump above. The Laplace interval is
+    the dip's; the likelihood ratio rules out nothing beyond the bump, so the check widens friction
+    to its bounds and calls it not identifiable. The same with every probe failing (NaN) keeps the
+    Laplace interval: a failed rollout is no evidence of a flat likelihood."""
+    t = np.linspace(0.5, 3.5, 7)
+    theta, bounds, sigma = np.array([0.6, 0.6]), [(0.3, 0.9), (0.3, 0.9)], 0.1
+    plateau = 0.1 * t / np.sqrt(np.sum(t**2)) * np.sqrt(3.0)  # a chi^2 rise of 3 (< Z95^2) off the dip
+    shape = t**2 - np.sum(t**3) / np.sum(t**2) * t  # restitution's response, orthogonal to friction's
+
+    def rough(p):
+        dip = np.tanh((p[0] - 0.6) / 0.01)  # steep at the optimum, +-1 beyond ~0.01
+        bump = 1.5 * np.exp(-(((p[0] - bump_at[0]) / 0.004) ** 2))
+        return plateau * (dip + bump) + p[1] * shape
+
+    bump_at = [np.inf]  # no bump while the slope is taken
+    post = two_parameter_posterior(rough, theta, bounds, sigma)
+    half = post.parameters[0].high - 0.6
+    assert half < 0.05
+    bump_at[0] = 0.6 + 1.5 * half  # above the threshold where the probe at 1.5 x the Laplace end lands
+    checked = likelihood_checked(batch(rough), rough(theta), post, bounds)
+    friction = checked.parameters[0]
+    assert not friction.identifiable and (friction.low, friction.high) == (0.3, 0.9), friction
+    assert checked.parameters[1].identifiable  # restitution keeps a finite interval
+    failing = likelihood_checked(lambda points: np.full((len(points), 7), np.nan), rough(theta), post, bounds)
+    assert failing.likelihood_check["scale"] == [1.0, 1.0] and failing.parameters[0].identifiable
 
 
 def test_a_parameter_the_data_cannot_see_is_flagged_not_given_false_precision():
@@ -177,3 +262,24 @@ def test_the_emulator_and_bayesian_optimisation_fit_the_one_gp(monkeypatch):
         if any(f"{name}(" in path.read_text() for name in ("GaussianProcessRegressor", "Matern", "WhiteKernel"))
     }
     assert builders == {"gp.py"}
+
+
+def test_at_a_corner_of_the_box_the_likelihood_check_probes_along_each_parameter_alone():
+    """An optimum at a corner (friction at its lower bound, restitution at its upper, their responses
+    correlated): every joint interval direction leaves the box at once, so each parameter is probed
+    along its own axis; friction's chi^2 stays within Z95^2 out to its other bound (the dip of the
+    rough test above), so it is not identifiable; restitution's rises as its slope says."""
+    t = np.linspace(0.5, 3.5, 7)
+    theta, bounds, sigma = np.array([0.3, 0.9]), [(0.3, 0.9), (0.3, 0.9)], 0.1
+    plateau = 0.1 * t / np.sqrt(np.sum(t**2)) * np.sqrt(3.0)
+
+    def cornered(p):
+        return plateau * np.tanh((p[0] - 0.3) / 0.01) + (0.9 - p[1]) * (t**2 + 2 * t)
+
+    post = two_parameter_posterior(cornered, theta, bounds, sigma)
+    assert post.correlation[0, 1] > 0.3 and post.parameters[0].identifiable  # up in friction: up in restitution
+    checked = likelihood_checked(batch(cornered), cornered(theta), post, bounds)
+    friction, restitution = checked.parameters
+    assert not friction.identifiable and (friction.low, friction.high) == (0.3, 0.9), friction
+    assert restitution.identifiable and checked.likelihood_check["scale"][1] == 1.0
+    assert {end["parameter"] for end in checked.likelihood_check["ends"]} == {"friction", "restitution"}
