@@ -177,7 +177,7 @@ def posterior_at(
         sigma=noise_level(objective.measured, model_error_std, start_packing_std),
         untrusted=untrusted,
     )
-    posterior = likelihood_checked(objective.runout_values, objective.measured.runout, posterior, bounds)
+    posterior = likelihood_checked(lambda p: runout_or_nan(objective, p), objective.measured.runout, posterior, bounds)
     # None (JSON null) where a rollout failed
     values = [runout_mse(r, objective.measured.runout) if ok else None for r, ok in zip(runouts, ran)]
     probe_values = values[1 + len(points) :]
@@ -191,6 +191,17 @@ def posterior_at(
         "jacobian_step_values": values[1 : 1 + len(points)],
     }
     return posterior, runouts[0], roughness
+
+
+def runout_or_nan(objective: GNSObjective, points: np.ndarray) -> np.ndarray:
+    """L* [G, K] at points [G, P], a NaN row where that point's rollout fails (a failed batch is
+    rolled out point by point, so one diverged rollout does not take its batch with it)."""
+    try:
+        return objective.runout_values(points)
+    except InverseDesignError:
+        if len(points) == 1:
+            return np.full((1, len(objective.measured.runout)), np.nan)
+        return np.vstack([runout_or_nan(objective, point[None]) for point in points])
 
 
 def landscape(objective: GNSObjective, bounds: Sequence[Sequence[float]], levels: int, batch_size: int = 8) -> dict:
