@@ -289,7 +289,7 @@ def likelihood_checked(
         scale[j] = max(scale[j], c)
         unbounded[j] &= c >= most
     record = {
-        "chi2_at_optimum": float(chi2[0]),
+        "chi2_at_optimum": float(chi2[0]) if np.isfinite(chi2[0]) else None,  # None: its rollout failed
         "scale": scale.tolist(),
         "ends": [
             {
