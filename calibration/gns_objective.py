@@ -254,10 +254,13 @@ class GNSObjective:
         width = len(self.design_names)
         return np.reshape(points, (-1, width)), np.reshape(list(self._runouts.values()), (len(points), -1))
 
-    def runout_values(self, points: ArrayLike) -> np.ndarray:
+    def runout_values(self, points: ArrayLike, allow_failed: bool = False) -> np.ndarray:
         """L* [G, K] (numpy, no gradient) at points [G, P]; points rolled out before are not rolled
-        out again (a rollout is deterministic)."""
+        out again (a rollout is deterministic). allow_failed: a NaN row (logged with the reason) at a
+        point whose rollout fails, instead of an InverseDesignError."""
         points = np.atleast_2d(np.asarray(points, np.float64))
+        if allow_failed:
+            return self._or_nan(points, lambda p: (self.runout_values(p),), [(len(self.measured.runout),)])[0]
         missing = [j for j, p in enumerate(points) if self._key(p) not in self._runouts]
         if missing:
             with torch.no_grad():
@@ -265,26 +268,26 @@ class GNSObjective:
             self._runouts.update((self._key(points[j]), r) for j, r in zip(missing, fresh))
         return np.array([self._runouts[self._key(p)] for p in points])
 
-    def _or_nan(self, points: np.ndarray, evaluate, with_gradient: bool) -> tuple:
-        """evaluate(points [G, P]) -> (values [G],) or (values [G], gradients [G, P]), with NaN for
-        every point that fails (its rollout raised, or its objective is not finite): a batch that
-        fails is evaluated point by point, so one diverged rollout does not take its batch with it."""
+    def _or_nan(self, points: np.ndarray, evaluate, shapes: Sequence[tuple[int, ...]]) -> tuple:
+        """evaluate(points [G, P]) -> a tuple of arrays [G, *shape] for each of `shapes` (one point's
+        shape of each output), with NaN for every point that fails (its rollout raised, or its
+        objective is not finite): a batch that fails is evaluated point by point, so one diverged
+        rollout does not take its batch with it."""
         try:
             return evaluate(points)
         except InverseDesignError as exc:
             if len(points) > 1:
-                parts = [self._or_nan(point[None], evaluate, with_gradient) for point in points]
+                parts = [self._or_nan(point[None], evaluate, shapes) for point in points]
                 return tuple(np.concatenate(column) for column in zip(*parts))
             log.warning("%s (a failed point: NaN)", exc)
-            nan = (np.full(1, np.nan),)
-            return nan + (np.full((1, len(self.design_names)), np.nan),) if with_gradient else nan
+            return tuple(np.full((1, *shape), np.nan) for shape in shapes)
 
     def values(self, points: ArrayLike, allow_failed: bool = False) -> np.ndarray:
         """Objective [G] at points [G, P], no gradient. allow_failed: NaN (logged with the reason) at a
         point whose rollout fails or whose objective is not finite, instead of an InverseDesignError
         (the optimiser records it as a failed point and goes on)."""
         if allow_failed:
-            return self._or_nan(np.atleast_2d(points), lambda p: (self.values(p),), False)[0]
+            return self._or_nan(np.atleast_2d(points), lambda p: (self.values(p),), [()])[0]
         runout = self.runout_values(points)
         return self._checked(np.array([runout_mse(r, self.measured.runout) for r in runout]), points)
 
@@ -292,7 +295,7 @@ class GNSObjective:
         """(objective [G], d objective / d theta [G, P]) by backpropagation through the rollout;
         allow_failed: NaN value and gradient at a point that fails (as `values`)."""
         if allow_failed:
-            return self._or_nan(np.atleast_2d(points), self.values_and_gradients, True)
+            return self._or_nan(np.atleast_2d(points), self.values_and_gradients, [(), (len(self.design_names),)])
         theta = self._theta(points, requires_grad=True)
         with torch.enable_grad():
             runout = self.runout(theta)

@@ -209,8 +209,9 @@ def interval_ends(
             # at a corner the joint direction leaves the box at once through another parameter's
             # bound: then along this parameter alone (where the linearised rise is at least Z95^2)
             for step in (sign * direction, sign * axis):
-                if room(step) >= MIN_END_STEP:
-                    ends.append((int(j), step, room(step)))
+                most = room(step)
+                if most >= MIN_END_STEP:
+                    ends.append((int(j), step, most))
                     break
     return ends
 

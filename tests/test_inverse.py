@@ -21,7 +21,6 @@ from calibration.inverse import (
     design_bounds,
     inverse_design,
     posterior_at,
-    runout_or_nan,
 )
 from calibration.inverse_plots import plot_paths, plot_sensitivity
 from calibration.lbfgsb import (
@@ -312,7 +311,7 @@ def test_non_finite_model_is_an_error_not_an_optimum(tiny_dataset):
     assert values.shape == (2,) and gradients.shape == (2, 2) and np.isnan(values).all() and np.isnan(gradients).all()
     assert np.isnan(objective.values(np.array([[0.55, 0.73]]), allow_failed=True)).all()
     # and the posterior's likelihood check reads a failed rollout's L* as a NaN row, not an error
-    failed = runout_or_nan(objective, np.array([[0.55, 0.73], [0.4, 0.5]]))
+    failed = objective.runout_values(np.array([[0.55, 0.73], [0.4, 0.5]]), allow_failed=True)
     assert failed.shape == (2, 3) and np.isnan(failed).all()
 
 
