@@ -37,6 +37,7 @@ from calibration.calibrated import (
 from calibration.calibrated_result import CalibratedResult
 from calibration.compare import plot_bayesopt
 from calibration.confirmation import confirm
+from calibration.contenders import ContenderChoice, resolve_by_prediction
 from calibration.design_runs import SimulationSettings
 from calibration.diagnosis_result import Diagnosis
 from calibration.inverse_result import read_result
@@ -101,12 +102,17 @@ def choose_model(
     channel_width: float,
     name: str = "",
     box: str = "diagnosis",
+    contenders_path: StrPath | None = None,
 ) -> dict:
     """model.json of one measured column (workflow rule calibrated_model): the config's choice
-    (calibration.model), `auto` resolved by the diagnosis at diagnosis_path, with the range its
-    mechanism is calibrated in (calibration.box, calibration.calibrated.calibration_box). Returns the record."""
+    (calibration.model), `auto` resolved by the diagnosis at diagnosis_path and, where
+    contenders_path (contenders.json, run_contenders) is given, by what the contenders predict across
+    a too (calibration.contenders), with the range its mechanism is calibrated in (calibration.box,
+    calibration.calibrated.calibration_box). Returns the record."""
     diagnosis = read_diagnosis(diagnosis_path) if diagnosis_path else None
     model, why = resolve_model(choice, diagnosis, channel_width)
+    if contenders_path and choice == "auto":
+        model, why = resolve_by_prediction(model, why, ContenderChoice.read(contenders_path), channel_width)
     boxed = calibration_box(model, diagnosis, box)
     if boxed.mechanism is not None and boxed.mechanism.bounds != model.mechanism.bounds:
         why += (
@@ -114,7 +120,7 @@ def choose_model(
             f"{boxed.mechanism.bounds[1]:.3g}] (calibration.box {box}: the diagnosis' 95% interval widened, of the "
             f"whole range [{model.mechanism.bounds[0]:g}, {model.mechanism.bounds[1]:g}])."
         )
-    record = model_record(boxed, why, name)
+    record = dict(model_record(boxed, why, name), scaling_check=bool(contenders_path and choice == "auto"))
     write_json(out_json, record)
     return record
 

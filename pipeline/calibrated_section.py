@@ -5,16 +5,19 @@ writes those), and the answer's score as the report and the answer page (pipelin
 
 from __future__ import annotations
 
+import json
 import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
 
 from calibration.calibrated_result import CalibratedResult
+from calibration.contenders import ContenderChoice
 from calibration.mechanisms import get_mechanisms
 from calibration.prediction import PREDICTION_TSTAR
 from calibration.scaling_laws import DISC_2D_SOURCE, QUASI_2D_SOURCE, ScalingCheck, check_scaling
 from dem.atomic import StrPath, write_text
+from pipeline.calibrated_contenders import contenders_lines
 
 
 def answer_score(result: dict) -> dict:
@@ -241,6 +244,11 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
             f"![predictions of {result['name']}]({Path(figure).with_name('prediction.png').as_posix()})",
             "",
         ]
+        model_json = Path(result["figure"]).with_name("model.json")
+        if model_json.exists() and json.loads(model_json.read_text()).get("scaling_check"):
+            lines += contenders_lines(ContenderChoice.read(model_json.with_name("contenders.json")))
+            link = Path(figure).with_name("contenders.png").as_posix()
+            lines += [f"![the contenders of {result['name']}]({link})", ""]
     return "\n".join(lines) + "\n"
 
 

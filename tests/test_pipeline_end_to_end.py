@@ -74,6 +74,7 @@ EXPECTED_JOBS = {
     "diagnosis_library": 1,
     "diagnosis": 1,
     "diagnosis_section": 1,
+    "calibrated_contenders": 1,
     "calibrated_model": 1,
     "calibrated_doe": 1,
     "calibrated_bayesopt": 1,
@@ -364,6 +365,33 @@ def test_diagnosis(results):
 
 
 # -- the calibrated model ------------------------------------------------------------------------------
+def test_the_contenders_are_predicted_across_a_before_the_model_is_chosen(results):
+    """Under auto, every model the diagnosis scored in the DEM (base, rolling resistance) is predicted
+    at a = 1 and 3 at its own fit, by real DEM runs, and held against the quasi-2D law; model.json
+    says it was and why, and the report shows them side by side."""
+    calibrated = results / "calibrated" / NAME
+    contenders = load(calibrated / "contenders.json")
+    diagnosis = load(results / "diagnosis" / NAME / "diagnosis.json")
+    assert [c["model"] for c in contenders["contenders"]] == ["base", "rolling_resistance"]
+    for c in contenders["contenders"]:
+        scored = diagnosis["base"] if c["model"] == "base" else diagnosis["candidates"][c["model"]]
+        assert c["parameters"] == pytest.approx(scored["dem"]["parameters"]) and c["bic"] == scored["dem"]["bic"]
+        scaling = c["scaling"]
+        assert scaling["aspect_ratios"] == [1.0, 3.0] and len(c["runout_each"]) == 1  # scaling_packings 1
+        assert scaling["final_runout"] == pytest.approx(c["runout_each"][0])
+        # a column of a = 3 runs out further than one of a = 1, as every granular column does
+        assert 0 < scaling["final_runout"][0] < scaling["final_runout"][1]
+        ratios = [math.log(v / law) for v, law in zip(scaling["final_runout"], scaling["runout_law"])]
+        assert c["law_chi2"] == pytest.approx(sum((r / contenders["law_log_std"]) ** 2 for r in ratios))
+        assert c["combined"] == pytest.approx(c["bic"] + c["law_chi2"])
+    assert contenders["chosen"] == "rolling_resistance"  # the one candidate: the base is never chosen
+    model = load(calibrated / "model.json")
+    assert model["scaling_check"] is True and "Judged by its predictions across a too" in model["why"]
+    assert (calibrated / "contenders.png").read_bytes().startswith(PNG)
+    section = (results / "report" / "calibrated.md").read_text()
+    assert "**The contenders, judged by what they predict.**" in section and "contenders.png" in section
+
+
 def test_calibrated_model_routes_and_validations(results):
     calibrated = results / "calibrated" / NAME
     model = load(calibrated / "model.json")

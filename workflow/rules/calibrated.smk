@@ -9,11 +9,50 @@
 # model.json when its jobs run (dataset_cases, gns_settings, gns_init: common.smk).
 
 
+# Under auto, the diagnosis' contenders (every model it scored in the DEM, at its fit) predicted
+# across aspect ratios and held against the experimental scaling of dry column collapse, so that the
+# model is chosen by what it predicts as well as by the one measured curve (calibration/contenders.py).
+SCALING_CHECK = CALIBRATION["model"] == "auto" and config["diagnosis"]["enabled"] and CALIBRATION["scaling_check"]
+
+
+rule calibrated_contenders:
+    input:
+        measured=lambda w: config["measured"][w.name],
+        diagnosis="results/diagnosis/{name}/diagnosis.json",
+    output:
+        result="results/calibrated/{name}/contenders.json",
+        figure=report(
+            "results/calibrated/{name}/contenders.png",
+            caption="../report/contenders.rst",
+            category="1. The answer",
+            subcategory="{name}",
+            labels={"result": "4. the contenders across aspect ratios"},
+        ),
+    log:
+        "results/logs/calibrated/calibrated_contenders/{name}.log",
+    benchmark:
+        "results/benchmarks/calibrated/calibrated_contenders/{name}.tsv"
+    priority: lambda w: model_chain_priority(w.name)
+    conda:
+        "../envs/pipeline.yaml"
+    resources:
+        runtime=120,
+        mem_mb=2000,
+    params:
+        settings=CALIBRATION,
+        diagnosis=config["diagnosis"],
+        runout=RUNOUT,
+        dem=DEM_ENGINE,
+    script:
+        "../scripts/calibrated_contenders.py"
+
+
 # Which model each column is calibrated as: the config's, or (auto) the diagnosis' answer, written
 # once per column; every job of the stage reads it, so a new measured curve needs no hand edit.
 rule calibrated_model:
     input:
         diagnosis=lambda w: (f"results/diagnosis/{w.name}/diagnosis.json" if config["diagnosis"]["enabled"] else []),
+        contenders=lambda w: (f"results/calibrated/{w.name}/contenders.json" if SCALING_CHECK else []),
     output:
         "results/calibrated/{name}/model.json",
     log:

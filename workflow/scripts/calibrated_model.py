@@ -12,5 +12,6 @@ record = choose_model(
     snakemake.params.channel_width,
     name=snakemake.wildcards.name,
     box=snakemake.params.box,
+    contenders_path=snakemake.input.contenders or None,
 )
 logging.info("%s: %s (%s)", record["name"], record["model"], record["why"])

@@ -1,0 +1,254 @@
+"""The diagnosis' contenders judged by what they predict: each DEM-scored model at its diagnosis fit,
+simulated at other aspect ratios and held against the experimental scaling of dry column collapse
+(calibration.scaling_laws), and `calibration.model: auto` choosing by the fit and that check together.
+
+One curve of a few points barely tells mechanisms apart (quartz: cohesion and side-wall friction
+within a BIC of 8), yet they predict other columns very differently: a cohesion that holds a tall
+column back also holds a short one still. The law is a stated expectation with a stated tolerance,
+so it enters as pseudo-data: law_chi2 = sum over a of (ln(predicted / law) / law_log_std)^2, the
+predicted final runout the mean over packings. A contender's combined score is its DEM BIC on the
+measured curve plus law_chi2; the lowest combined score among the candidate mechanisms is calibrated.
+The base model is predicted too, for contrast (a 2D disc model runs out like discs, not like sand),
+but not chosen here: whether a mechanism is needed at all is the diagnosis' BIC test.
+
+The law is that of dry, cohesionless grains in a quasi-2D channel; for a material that is not
+(a cohesive powder, a wet sand) switch the check off (`calibration.scaling_check: false`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from calibration.calibrated import VALIDATION_SEED0, CalibrationError, diagnosis_parameters
+from calibration.design_runs import SimulationSettings
+from calibration.diagnosis_result import Diagnosis
+from calibration.measured_column import MeasuredColumn
+from calibration.mechanisms import get_mechanisms
+from calibration.model import Model
+from calibration.prediction import predict
+from calibration.scaling_laws import QUASI_2D_SOURCE, ScalingCheck, check_scaling
+from dem.atomic import StrPath, write_json
+from dem.runout import RunoutMethod
+
+LAW_LOG_STD = 0.25  # default tolerance of the law, in ln(L*): a prediction 25% off costs one unit of chi^2
+
+
+@dataclass
+class Contender:
+    """One model of the diagnosis at its fit, predicted across a.
+
+    model: "base" or a mechanism; parameters {name: value} (the diagnosis' DEM-scored fit); bic:
+    its DEM BIC on the measured data; runout_each [packings][A], height_each [packings][A]: final L*
+    and H_f / L_i per packing (None where a run failed); scaling: the check of their means per a;
+    law_chi2: sum over the a that ran of (ln(mean / law) / law_log_std)^2; plausibility: the
+    mechanism's fitted value against its physical range in words ("" for the base model)."""
+
+    model: str
+    parameters: dict[str, float]
+    bic: float
+    runout_each: list[list[float | None]]
+    height_each: list[list[float | None]]
+    scaling: ScalingCheck
+    law_chi2: float
+    plausibility: str
+    physical: bool
+
+    @property
+    def combined(self) -> float:
+        """The DEM BIC plus the law's chi^2: what `auto` minimises over the candidates."""
+        return self.bic + self.law_chi2
+
+    def to_dict(self) -> dict:
+        return dict(asdict(self), combined=self.combined)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> Contender:
+        fields = {k: v for k, v in data.items() if k != "combined"}
+        fields["scaling"] = ScalingCheck(**fields["scaling"])
+        return cls(**fields)
+
+
+@dataclass
+class ContenderChoice:
+    """contenders.json: every DEM-scored model of the diagnosis side by side, and the choice.
+
+    contenders [models], the base model first; chosen: the candidate of lowest combined score;
+    by_fit: the candidate of lowest BIC alone (the diagnosis' best); law_log_std: the law's
+    tolerance used; seeds [packings]; seconds: the DEM time of the predictions."""
+
+    name: str
+    contenders: list[Contender]
+    chosen: str
+    by_fit: str
+    law_log_std: float
+    law: str
+    seeds: list[int]
+    seconds: float
+
+    def contender(self, model: str) -> Contender:
+        return next(c for c in self.contenders if c.model == model)
+
+    @property
+    def why(self) -> str:
+        """The choice in words, with the fit and the law's share of it."""
+        chosen, fit = self.contender(self.chosen), self.contender(self.by_fit)
+
+        def misses(c: Contender) -> str:
+            return f"off the law by a factor of {math.exp(c.scaling.runout_error):.2g} (RMS over a)"
+
+        if self.chosen == self.by_fit:
+            return (
+                f"{self.chosen} fits the measured curve best (DEM BIC {chosen.bic:.1f}) and its predictions "
+                f"across a are {misses(chosen)}; no other candidate does better on fit and law together "
+                f"(the law of {self.law} as pseudo-data, tolerance {self.law_log_std:g} in ln L*)."
+            )
+        return (
+            f"{self.by_fit} fits the measured curve best (BIC {fit.bic:.1f}, {chosen.bic - fit.bic:.1f} below "
+            f"{self.chosen}), but its predictions across a are {misses(fit)}, {self.chosen}'s {misses(chosen)}: "
+            f"with the law of {self.law} as pseudo-data (tolerance {self.law_log_std:g} in ln L*), "
+            f"{self.chosen} scores {chosen.combined:.1f} against {fit.combined:.1f}, so {self.chosen} is calibrated."
+        )
+
+    def to_dict(self) -> dict:
+        return dict(asdict(self), contenders=[c.to_dict() for c in self.contenders], why=self.why)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> ContenderChoice:
+        fields = {k: v for k, v in data.items() if k != "why"}
+        fields["contenders"] = [Contender.from_dict(c) for c in data["contenders"]]
+        return cls(**fields)
+
+    def to_json(self, path: StrPath) -> None:
+        write_json(path, self.to_dict())
+
+    @classmethod
+    def read(cls, path: StrPath) -> ContenderChoice:
+        return cls.from_dict(json.loads(open(path).read()))
+
+
+def mean_or_none(values: Sequence[float | None]) -> float | None:
+    """Mean of the finite values; None when none is."""
+    finite = [v for v in values if v is not None and math.isfinite(v)]
+    return float(np.mean(finite)) if finite else None
+
+
+def law_chi2(check: ScalingCheck, law_log_std: float) -> float:
+    """sum over the a that ran of (ln(predicted / law) / law_log_std)^2; inf when none ran."""
+    ratios = [r for r in check.runout_log_ratio if r is not None]
+    return float(sum((r / law_log_std) ** 2 for r in ratios)) if ratios else math.inf
+
+
+def score_contender(
+    model: Model,
+    parameters: dict[str, float],
+    bic: float,
+    aspect_ratios: Sequence[float],
+    runout_each: Sequence[Sequence[float | None]],
+    height_each: Sequence[Sequence[float | None]],
+    law_log_std: float,
+) -> Contender:
+    """A contender from its predictions per packing [packings][A] (final L*, H_f / L_i)."""
+    runout = [mean_or_none(column) for column in zip(*runout_each)]
+    height = [mean_or_none(column) for column in zip(*height_each)]
+    check = check_scaling(aspect_ratios, runout, height)
+    if model.mechanism is None:
+        plausibility, physical = "", True
+    else:
+        value = parameters[model.mechanism.parameter]
+        low, high = model.mechanism.plausible
+        plausibility, physical = model.mechanism.plausibility(value), bool(low - 1e-12 <= value <= high + 1e-12)
+    return Contender(
+        model=model.name,
+        parameters={k: float(v) for k, v in parameters.items()},
+        bic=float(bic),
+        runout_each=[list(r) for r in runout_each],
+        height_each=[list(h) for h in height_each],
+        scaling=check,
+        law_chi2=law_chi2(check, law_log_std),
+        plausibility=plausibility,
+        physical=physical,
+    )
+
+
+def choose(contenders: Sequence[Contender]) -> tuple[str, str]:
+    """(chosen, by_fit): the candidate mechanisms (every contender but "base") of lowest combined
+    score and of lowest BIC."""
+    candidates = [c for c in contenders if c.model != "base"]
+    if not candidates:
+        raise CalibrationError("scaling check: the diagnosis scored no candidate mechanism in the DEM")
+    chosen = min(candidates, key=lambda c: (c.combined, c.bic))
+    return chosen.model, min(candidates, key=lambda c: c.bic).model
+
+
+def contender_models(diagnosis: Diagnosis, channel_width: float) -> list[Model]:
+    """The base model and every candidate the diagnosis scored in the DEM, base first."""
+    names = [n for n, e in diagnosis.candidates.items() if e.dem is not None]
+    return [Model()] + [Model(m) for m in get_mechanisms(names, channel_width)]
+
+
+def check_contenders(
+    diagnosis: Diagnosis,
+    column: MeasuredColumn,
+    settings: SimulationSettings,
+    aspect_ratios: Sequence[float],
+    runout: RunoutMethod,
+    dem_config: dict | None,
+    *,
+    channel_width: float = 0.01,
+    n_packings: int = 2,
+    law_log_std: float = LAW_LOG_STD,
+    name: str = "",
+    progress: Callable[[float], None] | None = None,
+) -> ContenderChoice:
+    """Predict every DEM-scored model of `diagnosis` at its fit on `column`'s material and L_i at
+    each aspect ratio, on n_packings packings (seeds VALIDATION_SEED0 + k, calibration.prediction),
+    score each against the quasi-2D law and choose (module docstring)."""
+    if not law_log_std > 0:
+        raise CalibrationError(f"calibration.scaling_log_std: {law_log_std!r} must be positive")
+    models = contender_models(diagnosis, channel_width)
+    seeds = [VALIDATION_SEED0 + k for k in range(n_packings)]
+    contenders, seconds, done, total = [], 0.0, 0, len(models) * len(seeds)
+    for model in models:
+        theta = diagnosis_parameters(diagnosis, model)
+        evidence = diagnosis.base if model.mechanism is None else diagnosis.candidates[model.name]
+        runouts, heights = [], []
+        for seed in seeds:
+            within = None if progress is None else (lambda f, done=done: progress((done + f) / total))
+            p = predict(model, column, theta, settings, aspect_ratios, runout, dem_config, seed=seed, progress=within)
+            runouts.append(p.final_runout)
+            heights.append(p.height_over_L_i)
+            seconds += p.seconds
+            done += 1
+        parameters = dict(zip(model.parameter_names, map(float, theta)))
+        contenders.append(
+            score_contender(model, parameters, evidence.dem.bic, aspect_ratios, runouts, heights, law_log_std)
+        )
+    chosen, by_fit = choose(contenders)
+    return ContenderChoice(
+        name=name,
+        contenders=contenders,
+        chosen=chosen,
+        by_fit=by_fit,
+        law_log_std=float(law_log_std),
+        law=QUASI_2D_SOURCE,
+        seeds=seeds,
+        seconds=seconds,
+    )
+
+
+def resolve_by_prediction(model: Model, why: str, choice: ContenderChoice, channel_width: float) -> tuple[Model, str]:
+    """(Model, why) of `auto` once the contenders' predictions are in: `model`/`why` as the diagnosis
+    alone resolved them (calibration.calibrated.resolve_model), replaced where fit and law together
+    choose another candidate."""
+    if choice.chosen == model.name:
+        return model, f"{why} Judged by its predictions across a too: {choice.why}"
+    (mechanism,) = get_mechanisms([choice.chosen], channel_width)
+    return Model(mechanism), (
+        f"auto: by the measured curve alone the diagnosis chose {model.name}; judged by what each contender "
+        f"predicts across a as well, {choice.chosen} is calibrated. {choice.why}"
+    )

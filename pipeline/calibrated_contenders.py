@@ -1,0 +1,112 @@
+"""The diagnosis' contenders predicted across aspect ratios before the model is chosen (workflow rule
+calibrated_contenders): contenders.json, its figure, and its table in the calibrated section."""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from calibration.contenders import ContenderChoice, check_contenders
+from calibration.design_runs import SimulationSettings
+from calibration.measured import load_column
+from calibration.prediction import PREDICTION_TSTAR
+from calibration.scaling_laws import DISC_2D_SOURCE, QUASI_2D_SOURCE, disc_2d_runout, quasi_2d_runout
+from dem.atomic import StrPath
+from dem.plots import save_figure
+from dem.progress import progress_logger
+from pipeline.diagnosis import read_diagnosis
+
+log = logging.getLogger(__name__)
+
+
+def run_contenders(
+    measured_path: StrPath,
+    diagnosis_path: StrPath,
+    out_json: StrPath,
+    out_figure: StrPath,
+    section: dict,
+    diagnosis_section: dict,
+    runout: dict | None,
+    dem: dict | None,
+    name: str = "",
+) -> ContenderChoice:
+    """Every model the diagnosis scored in the DEM, at its fit, predicted at
+    section["predict_aspect_ratios"] on section["scaling_packings"] packings and held against the
+    quasi-2D law with tolerance section["scaling_log_std"] (calibration.contenders) -> contenders.json
+    and its figure. The grains and the runout reading are the diagnosis' (CalibratedColumn's)."""
+    column = load_column(measured_path)
+    diagnosis = read_diagnosis(diagnosis_path)
+    choice = check_contenders(
+        diagnosis,
+        column,
+        SimulationSettings(size_scale=diagnosis_section["size_scale"]),
+        section["predict_aspect_ratios"],
+        column.runout_reading(runout),
+        dem,
+        channel_width=diagnosis_section["channel_width"],
+        n_packings=section["scaling_packings"],
+        law_log_std=section["scaling_log_std"],
+        name=name,
+        progress=progress_logger(f"{name}: the diagnosis' contenders predicted across a", log),
+    )
+    choice.to_json(out_json)
+    plot_contenders(choice, column.aspect_ratio, float(column.runout[-1]), out_figure)
+    log.info("%s: %s", name, choice.why)
+    return choice
+
+
+def plot_contenders(choice: ContenderChoice, measured_a: float, measured_runout: float, path: StrPath) -> None:
+    """Each contender's final runout L* against a (mean over packings, each packing a dot), the
+    quasi-2D law and the true-2D disc law, the measured column on it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    a = np.array(choice.contenders[0].scaling.aspect_ratios)
+    fine = np.linspace(max(a.min(), 0.1), a.max(), 100)
+    ax.plot(fine, [quasi_2d_runout(x) for x in fine], "k:", lw=1.2, label=f"{QUASI_2D_SOURCE} (dry sand)")
+    ax.plot(fine, [disc_2d_runout(x) for x in fine], ":", color="tab:gray", lw=1, label=DISC_2D_SOURCE)
+    for k, c in enumerate(choice.contenders):
+        colour = f"C{k}"
+        mean = [np.nan if v is None else v for v in c.scaling.final_runout]
+        chosen = " <- chosen" if c.model == choice.chosen else ""
+        label = f"{c.model} (BIC {c.bic:.0f}, law chi^2 {c.law_chi2:.0f}){chosen}"
+        ax.plot(a, mean, "o-" if c.model != "base" else "s--", color=colour, label=label)
+        for each in c.runout_each:
+            ax.plot(a, [np.nan if v is None else v for v in each], ".", color=colour, alpha=0.5)
+    ax.plot([measured_a], [measured_runout], "k*", ms=11, label="measured")
+    ax.set(xlabel="aspect ratio a = H_i / L_i", ylabel=f"final runout L* (t/t* = {PREDICTION_TSTAR:g})")
+    ax.set_title(f"{choice.name}: the diagnosis' contenders at their fits, packings {len(choice.seeds)}", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    save_figure(fig, path)
+
+
+def contenders_lines(choice: ContenderChoice) -> list[str]:
+    """Markdown: every contender side by side (fit, the law per a, plausibility) and the choice."""
+    a = choice.contenders[0].scaling.aspect_ratios
+    per_a = " | ".join(f"a = {x:g}" for x in a)
+    head = f"| model | parameters | DEM BIC | {per_a} | law chi^2 | combined | plausible |"
+    lines = [
+        f"**The contenders, judged by what they predict.** Each model the diagnosis scored in the DEM, at its "
+        f"fit, predicted across a on {len(choice.seeds)} packings; per a its mean final L* over the "
+        f"{QUASI_2D_SOURCE} law (1 = on the law). The law enters as pseudo-data with tolerance "
+        f"{choice.law_log_std:g} in ln L*; combined = BIC + law chi^2 ({choice.seconds:.0f} s of DEM).",
+        "",
+        head,
+        "|" + " --- |" * (6 + len(a)),
+    ]
+    for c in choice.contenders:
+        fractions = " | ".join("failed" if f is None else f"{f:.2f}" for f in c.scaling.runout_fraction())
+        parameters = ", ".join(f"{k} {v:.3g}" for k, v in c.parameters.items())
+        plausible = "-" if c.model == "base" else ("yes" if c.physical else "no: effective")
+        mark = f"**{c.model}**" if c.model == choice.chosen else c.model
+        chi2 = f"{c.law_chi2:.1f}" if math.isfinite(c.law_chi2) else "-"
+        lines.append(f"| {mark} | {parameters} | {c.bic:.1f} | {fractions} | {chi2} | {c.combined:.1f} | {plausible} |")
+    lines += ["", choice.why, ""]
+    return lines
