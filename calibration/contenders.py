@@ -74,6 +74,24 @@ class Contender:
 
 
 @dataclass
+class DecidingColumn:
+    """The column that would tell the two best contenders apart: the aspect ratio [-] (at the measured
+    L_i [m]) where their mean predicted final L* differ most relative to the packing scatter.
+
+    models: the two contenders (lowest combined score first); runout: their mean final L* there;
+    scatter: the pooled std of one packing's final L* there, over every contender's packings (None
+    with one packing each: the difference alone then ranks the a); separation: the difference over
+    the std of a difference of two means, sqrt(scatter^2 (1/n_1 + 1/n_2)) (None without a scatter)."""
+
+    aspect_ratio: float
+    L_i: float
+    models: list[str]
+    runout: list[float]
+    scatter: float | None
+    separation: float | None
+
+
+@dataclass
 class ContenderChoice:
     """contenders.json: every DEM-scored model of the diagnosis side by side, and the choice.
 
@@ -89,6 +107,8 @@ class ContenderChoice:
     law: str
     seeds: list[int]
     seconds: float
+    L_i: float | None = None  # m, the measured column's, at which every contender is predicted
+    deciding: DecidingColumn | None = None  # where the two best would differ most (deciding_column)
 
     def contender(self, model: str) -> Contender:
         return next(c for c in self.contenders if c.model == model)
@@ -121,6 +141,8 @@ class ContenderChoice:
     def from_dict(cls, data: dict) -> ContenderChoice:
         fields = {k: v for k, v in data.items() if k != "why"}
         fields["contenders"] = [Contender.from_dict(c) for c in data["contenders"]]
+        if fields.get("deciding") is not None:
+            fields["deciding"] = DecidingColumn(**fields["deciding"])
         return cls(**fields)
 
     def to_json(self, path: StrPath) -> None:
@@ -185,6 +207,50 @@ def choose(contenders: Sequence[Contender]) -> tuple[str, str]:
     return chosen.model, min(candidates, key=lambda c: c.bic).model
 
 
+def deciding_column(contenders: Sequence[Contender], L_i: float) -> DecidingColumn | None:
+    """Of the two candidate mechanisms of lowest combined score, the aspect ratio at which their mean
+    final L* differ most in units of the packing scatter (DecidingColumn); None with fewer than two
+    candidates or no a where both ran."""
+    ranked = sorted((c for c in contenders if c.model != "base"), key=lambda c: (c.combined, c.bic))
+    if len(ranked) < 2:
+        return None
+    first, second = ranked[:2]
+    best: tuple[float, int, float | None, float | None] | None = None
+    for k in range(len(first.scaling.aspect_ratios)):
+        m1, m2 = first.scaling.final_runout[k], second.scaling.final_runout[k]
+        if m1 is None or m2 is None:
+            continue
+        scatter = pooled_scatter(contenders, k)
+        n1, n2 = (sum(1 for each in c.runout_each if each[k] is not None) for c in (first, second))
+        separation = None if scatter is None or scatter == 0 else abs(m1 - m2) / (scatter * math.sqrt(1 / n1 + 1 / n2))
+        rank = abs(m1 - m2) if separation is None else separation
+        if best is None or rank > best[0]:
+            best = (rank, k, scatter, separation)
+    if best is None:
+        return None
+    _, k, scatter, separation = best
+    return DecidingColumn(
+        aspect_ratio=first.scaling.aspect_ratios[k],
+        L_i=float(L_i),
+        models=[first.model, second.model],
+        runout=[float(first.scaling.final_runout[k]), float(second.scaling.final_runout[k])],
+        scatter=scatter,
+        separation=separation,
+    )
+
+
+def pooled_scatter(contenders: Sequence[Contender], k: int) -> float | None:
+    """The pooled std of one packing's final L* about its contender's mean at aspect ratio index k,
+    over every contender with at least two packings that ran there; None where none has."""
+    squares, dof = 0.0, 0
+    for c in contenders:
+        values = [each[k] for each in c.runout_each if each[k] is not None]
+        if len(values) >= 2:
+            squares += float(np.sum((np.array(values) - np.mean(values)) ** 2))
+            dof += len(values) - 1
+    return math.sqrt(squares / dof) if dof else None
+
+
 def contender_models(diagnosis: Diagnosis, channel_width: float) -> list[Model]:
     """The base model and every candidate the diagnosis scored in the DEM, base first."""
     names = [n for n, e in diagnosis.candidates.items() if e.dem is not None]
@@ -238,6 +304,8 @@ def check_contenders(
         law=QUASI_2D_SOURCE,
         seeds=seeds,
         seconds=seconds,
+        L_i=float(column.L_i),
+        deciding=deciding_column(contenders, column.L_i),
     )
 
 

@@ -9,6 +9,7 @@ import math
 import numpy as np
 
 from calibration.contenders import ContenderChoice, check_contenders
+from calibration.decision import DecisionRule
 from calibration.design_runs import SimulationSettings
 from calibration.measured import load_column
 from calibration.prediction import PREDICTION_TSTAR
@@ -109,4 +110,30 @@ def contenders_lines(choice: ContenderChoice) -> list[str]:
         chi2 = f"{c.law_chi2:.1f}" if math.isfinite(c.law_chi2) else "-"
         lines.append(f"| {mark} | {parameters} | {c.bic:.1f} | {fractions} | {chi2} | {c.combined:.1f} | {plausible} |")
     lines += ["", choice.why, ""]
+    if choice.deciding is not None:
+        lines += [deciding_sentence(choice), ""]
     return lines
+
+
+def deciding_sentence(choice: ContenderChoice) -> str:
+    """The column to measure next, in words: where the two best contenders' predictions part most."""
+    d = choice.deciding
+    first, second = (choice.contender(m) for m in d.models)
+    margin = DecisionRule().min_delta_bic_vs_runner_up
+    gap = second.combined - first.combined
+    told = (
+        f"Their combined scores differ by {gap:.1f}, within the margin of {margin:g}: the data do not decide "
+        "between them. "
+        if gap < margin
+        else f"Their combined scores differ by {gap:.1f} (margin {margin:g}). "
+    )
+    apart = (
+        f", {d.separation:.1f} standard errors of the difference apart (one packing's scatter {d.scatter:.2g})"
+        if d.separation is not None
+        else " (one packing each: no scatter to weigh the difference against)"
+    )
+    return (
+        f"**The experiment that would decide.** {told}A column of a = {d.aspect_ratio:g} at L_i = {d.L_i:g} m "
+        f"is where {d.models[0]} and {d.models[1]} part most: final L* {d.runout[0]:.3g} against "
+        f"{d.runout[1]:.3g}{apart}. Measuring it tells them apart."
+    )

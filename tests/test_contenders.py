@@ -12,6 +12,7 @@ from calibration.calibrated import CalibrationError
 from calibration.contenders import (
     ContenderChoice,
     choose,
+    deciding_column,
     law_chi2,
     resolve_by_prediction,
     score_contender,
@@ -73,12 +74,15 @@ def test_contenders_json_round_trips_and_says_why(tmp_path):
     walls = contender("sidewall_friction", 107.5, [0.9, 0.95, 1.1, 1.0, 1.05])
     base = contender("base", 300.0, [2.5, 2.5, 2.0, 1.9, 1.8])
     chosen, by_fit = choose([base, cohesive, walls])
-    choice = ContenderChoice("quartz", [base, cohesive, walls], chosen, by_fit, 0.25, "the law", [5001, 5002], 12.0)
+    trio = [base, cohesive, walls]
+    choice = ContenderChoice(
+        "quartz", trio, chosen, by_fit, 0.25, "the law", [5001, 5002], 12.0, 0.02, deciding_column(trio, 0.02)
+    )
     path = tmp_path / "contenders.json"
     choice.to_json(path)
     back = ContenderChoice.read(path)
     assert back.to_dict() == choice.to_dict() == json.loads(path.read_text())
-    assert back.contender("cohesion").scaling == cohesive.scaling
+    assert back.contender("cohesion").scaling == cohesive.scaling and back.deciding == choice.deciding
     assert "cohesion fits the measured curve best" in choice.why and "sidewall_friction is calibrated" in choice.why
     # the diagnosis' own choice replaced, with the reason kept
     cohesion = Model(get_mechanisms(["cohesion"])[0])
@@ -98,3 +102,59 @@ def test_a_fitted_value_outside_its_physical_range_is_called_effective():
     parameters = dict(c.parameters, **{mechanism.parameter: inside})
     c2 = score_contender(Model(mechanism), parameters, 1.0, A, c.runout_each, c.height_each, 0.25)
     assert c2.physical and "effective" not in c2.plausibility
+
+
+def test_the_deciding_column_is_where_the_two_best_part_most_against_the_packing_scatter():
+    # the two candidates agree at large a and part at small a; the base model, far off, is not one of them
+    cohesive = contender("cohesion", 100.0, [0.05, 0.1, 0.3, 0.9, 1.0], spread=0.05)
+    walls = contender("sidewall_friction", 107.5, [0.9, 0.95, 1.1, 1.0, 1.05], spread=0.05)
+    base = contender("base", 300.0, [2.5, 2.5, 2.0, 1.9, 1.8], spread=0.05)
+    d = deciding_column([base, cohesive, walls], L_i=0.02)
+    assert d.models == ["sidewall_friction", "cohesion"] and d.L_i == 0.02
+    runout = {c.model: c.scaling.final_runout for c in (cohesive, walls)}
+    # the separation by hand: |difference| over the pooled one-packing std times sqrt(1/2 + 1/2)
+    separations = []
+    for k in range(len(A)):
+        residuals = [
+            v - m
+            for c in (base, cohesive, walls)
+            for v, m in zip((e[k] for e in c.runout_each), [c.scaling.final_runout[k]] * 2)
+        ]
+        scatter = math.sqrt(sum(r * r for r in residuals) / 3)
+        separations.append(abs(runout["cohesion"][k] - runout["sidewall_friction"][k]) / scatter)
+    k = max(range(len(A)), key=separations.__getitem__)
+    assert d.aspect_ratio == A[k] and d.separation == pytest.approx(separations[k])
+    # one packing each: no scatter, the largest difference ranks
+    single = [
+        contender(m, b, f, packings=1)
+        for m, b, f in (
+            ("cohesion", 100.0, [0.05, 0.1, 0.3, 0.9, 1.0]),
+            ("sidewall_friction", 107.5, [0.9, 0.95, 1.1, 1.0, 1.05]),
+        )
+    ]
+    d1 = deciding_column(single, L_i=0.02)
+    assert d1.separation is None and d1.scatter is None and d1.aspect_ratio == 2.0
+    assert deciding_column(single[:1], L_i=0.02) is None
+
+
+def test_the_report_names_the_experiment_that_would_decide():
+    from pipeline.calibrated_contenders import contenders_lines
+
+    cohesive = contender("cohesion", 100.0, [0.05, 0.1, 0.3, 0.9, 1.0])
+    walls = contender("sidewall_friction", 103.0, [0.9, 0.95, 1.1, 1.0, 1.05])
+    close = [contender("base", 300.0, [2.5] * len(A)), cohesive, walls]
+    chosen, by_fit = choose(close)
+    choice = ContenderChoice(
+        "q", close, chosen, by_fit, 0.25, "the law", [1, 2], 1.0, 0.02, deciding_column(close, 0.02)
+    )
+    text = "\n".join(contenders_lines(choice))
+    d = choice.deciding
+    assert f"A column of a = {d.aspect_ratio:g} at L_i = 0.02 m" in text and "Measuring it tells them apart" in text
+    assert "within the margin" not in text  # the law parts them by far more than the decision margin of 6
+    # every contender a row: its fraction of the law per a, 'no: effective' for a Bond number of 30
+    rows = [line for line in text.splitlines() if line.startswith("| ") and "BIC" not in line and "---" not in line]
+    assert len(rows) == 3 and "no: effective" in rows[1] and "**sidewall_friction**" in rows[2]
+    # two candidates on the law alike, 3 apart in BIC: within the margin, the data do not decide
+    even = [contender("cohesion", 100.0, [1.0] * len(A)), contender("sidewall_friction", 103.0, [1.01] * len(A))]
+    tie = ContenderChoice("q", even, *choose(even), 0.25, "the law", [1, 2], 1.0, 0.02, deciding_column(even, 0.02))
+    assert "within the margin of 6: the data do not decide" in "\n".join(contenders_lines(tie))

@@ -385,6 +385,7 @@ def test_the_contenders_are_predicted_across_a_before_the_model_is_chosen(result
         assert c["law_chi2"] == pytest.approx(sum((r / contenders["law_log_std"]) ** 2 for r in ratios))
         assert c["combined"] == pytest.approx(c["bic"] + c["law_chi2"])
     assert contenders["chosen"] == "rolling_resistance"  # the one candidate: the base is never chosen
+    assert contenders["deciding"] is None and contenders["L_i"] == pytest.approx(0.01)  # no second candidate
     model = load(calibrated / "model.json")
     assert model["scaling_check"] is True and "Judged by its predictions across a too" in model["why"]
     assert (calibrated / "contenders.png").read_bytes().startswith(PNG)
