@@ -17,11 +17,13 @@ from calibration.scaling_laws import DISC_2D_SOURCE, QUASI_2D_SOURCE, disc_2d_ru
 from dem.atomic import StrPath
 from dem.plots import save_figure
 from dem.progress import progress_logger
+from dem.run_store import keeps_runs
 from pipeline.diagnosis import read_diagnosis
 
 log = logging.getLogger(__name__)
 
 
+@keeps_runs("out_json")
 def run_contenders(
     measured_path: StrPath,
     diagnosis_path: StrPath,
@@ -36,7 +38,8 @@ def run_contenders(
     """Every model the diagnosis scored in the DEM, at its fit, predicted at
     section["predict_aspect_ratios"] on section["scaling_packings"] packings and held against the
     quasi-2D law with tolerance section["scaling_log_std"] (calibration.contenders) -> contenders.json
-    and its figure. The grains and the runout reading are the diagnosis' (CalibratedColumn's)."""
+    and its figure. The grains and the runout reading are the diagnosis' (CalibratedColumn's); its
+    finished DEM runs are kept, so a killed job loses only the run in flight."""
     column = load_column(measured_path)
     diagnosis = read_diagnosis(diagnosis_path)
     choice = check_contenders(

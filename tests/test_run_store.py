@@ -19,6 +19,7 @@ import pandas as pd
 import pytest
 
 import pipeline.calibrated
+import pipeline.calibrated_contenders
 import pipeline.calibrated_doe
 import pipeline.diagnosis
 import pipeline.inverse
@@ -197,6 +198,7 @@ LONG_DEM_JOBS = {
     "calibrated_bayesopt": pipeline.calibrated.run_model_bayesopt,
     "inverse_bayesopt": pipeline.inverse.run_bayesopt,
     "calibrated_validate": pipeline.calibrated.run_validation,
+    "calibrated_contenders": pipeline.calibrated_contenders.run_contenders,  # the contenders across a
     "calibrated": pipeline.calibrated.run_calibrated,  # the runoff, the finer-scale transfer, the predictions
     "inverse_recovery": pipeline.inverse_design.run_recovery,  # its targets' DEM runs, several packings each
 }
