@@ -21,6 +21,7 @@ import json
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -150,7 +151,7 @@ class ContenderChoice:
 
     @classmethod
     def read(cls, path: StrPath) -> ContenderChoice:
-        return cls.from_dict(json.loads(open(path).read()))
+        return cls.from_dict(json.loads(Path(path).read_text()))
 
 
 def mean_or_none(values: Sequence[float | None]) -> float | None:
