@@ -183,8 +183,7 @@ def score_contender(
         plausibility, physical = "", True
     else:
         value = parameters[model.mechanism.parameter]
-        low, high = model.mechanism.plausible
-        plausibility, physical = model.mechanism.plausibility(value), bool(low - 1e-12 <= value <= high + 1e-12)
+        plausibility, physical = model.mechanism.plausibility(value), model.mechanism.is_plausible(value)
     return Contender(
         model=model.name,
         parameters={k: float(v) for k, v in parameters.items()},
@@ -198,21 +197,24 @@ def score_contender(
     )
 
 
+def ranked_candidates(contenders: Sequence[Contender]) -> list[Contender]:
+    """The candidate mechanisms (every contender but "base"), lowest combined score first (BIC breaks ties)."""
+    return sorted((c for c in contenders if c.model != "base"), key=lambda c: (c.combined, c.bic))
+
+
 def choose(contenders: Sequence[Contender]) -> tuple[str, str]:
-    """(chosen, by_fit): the candidate mechanisms (every contender but "base") of lowest combined
-    score and of lowest BIC."""
-    candidates = [c for c in contenders if c.model != "base"]
-    if not candidates:
+    """(chosen, by_fit): the candidate mechanisms of lowest combined score and of lowest BIC."""
+    ranked = ranked_candidates(contenders)
+    if not ranked:
         raise CalibrationError("scaling check: the diagnosis scored no candidate mechanism in the DEM")
-    chosen = min(candidates, key=lambda c: (c.combined, c.bic))
-    return chosen.model, min(candidates, key=lambda c: c.bic).model
+    return ranked[0].model, min(ranked, key=lambda c: c.bic).model
 
 
 def deciding_column(contenders: Sequence[Contender], L_i: float) -> DecidingColumn | None:
     """Of the two candidate mechanisms of lowest combined score, the aspect ratio at which their mean
     final L* differ most in units of the packing scatter (DecidingColumn); None with fewer than two
     candidates or no a where both ran."""
-    ranked = sorted((c for c in contenders if c.model != "base"), key=lambda c: (c.combined, c.bic))
+    ranked = ranked_candidates(contenders)
     if len(ranked) < 2:
         return None
     first, second = ranked[:2]

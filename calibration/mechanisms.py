@@ -66,11 +66,16 @@ class Mechanism:
         """The parameter value at which the extended model is the base model at (mu, e)."""
         return 0.0
 
+    def is_plausible(self, value: float) -> bool:
+        """Whether `value` lies in the physically plausible range (its ends included)."""
+        low, high = self.plausible
+        return low - 1e-12 <= value <= high + 1e-12
+
     def plausibility(self, value: float) -> str:
         """In words: whether `value` lies in the physically plausible range, with its source."""
         low, high = self.plausible
         span = f"[{low:g}, {high:g}] {self.unit}".rstrip(" -")
-        if low - 1e-12 <= value <= high + 1e-12:
+        if self.is_plausible(value):
             return f"{self.parameter} = {value:.3g} lies in the physical range {span} ({self.plausible_source})"
         return (
             f"{self.parameter} = {value:.3g} lies outside the physical range {span} ({self.plausible_source}): "

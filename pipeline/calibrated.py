@@ -111,7 +111,8 @@ def choose_model(
     calibration.calibrated.calibration_box). Returns the record."""
     diagnosis = read_diagnosis(diagnosis_path) if diagnosis_path else None
     model, why = resolve_model(choice, diagnosis, channel_width)
-    if contenders_path and choice == "auto":
+    by_prediction = bool(contenders_path) and choice == "auto"
+    if by_prediction:
         model, why = resolve_by_prediction(model, why, ContenderChoice.read(contenders_path), channel_width)
     boxed = calibration_box(model, diagnosis, box)
     if boxed.mechanism is not None and boxed.mechanism.bounds != model.mechanism.bounds:
@@ -120,7 +121,7 @@ def choose_model(
             f"{boxed.mechanism.bounds[1]:.3g}] (calibration.box {box}: the diagnosis' 95% interval widened, of the "
             f"whole range [{model.mechanism.bounds[0]:g}, {model.mechanism.bounds[1]:g}])."
         )
-    record = dict(model_record(boxed, why, name), scaling_check=bool(contenders_path and choice == "auto"))
+    record = dict(model_record(boxed, why, name), scaling_check=by_prediction)
     write_json(out_json, record)
     return record
 
