@@ -27,6 +27,7 @@ from calibration.model import Model
 from calibration.objective import runout_mse
 from calibration.scaling_laws import check_scaling
 from dem.atomic import write_json
+from dem.case import get_material
 from dem.engines.liggghts import LiggghtsEngine
 from dem.runout import RunoutMethod
 from pipeline.calibrated import choose_model, run_calibrated, run_model_bayesopt, run_validation
@@ -170,7 +171,13 @@ def test_the_stage_writes_its_answer_figure_and_report_section(tmp_path):
     prediction = result.prediction
     assert prediction["aspect_ratios"] == [1.0, 2.0] and prediction["failed"] == {}
     assert 0 < prediction["final_runout"][0] < prediction["final_runout"][1]  # taller columns run further
-    assert prediction["height_over_L_i"][0] < prediction["height_over_L_i"][1]
+    # a deposit's top is read off one packing's grains (here 0.17 L_i across, about 6 grains to L_i): the taller
+    # column's deposit is the taller one only to within a grain (one AMD EPYC run: 0.650 L_i at a = 1 against
+    # 0.641 at a = 2, both answers' parameters drawn by a machine-dependent BO and DoE), and each column has
+    # fallen below its initial height a L_i
+    grain = get_material(COLUMN.material).diameter * SETTINGS.size_scale / COLUMN.L_i
+    height = prediction["height_over_L_i"]
+    assert height[0] < height[1] + grain and all(0 < h < a for h, a in zip(height, prediction["aspect_ratios"]))
     run_section([out / "calibrated.json"], [out / "calibrated.png"], tmp_path / "report" / "calibrated.md")
     text = (tmp_path / "report" / "calibrated.md").read_text()
     assert "### tiny: base model" in text and "](../calibrated/calibrated.png)" in text
