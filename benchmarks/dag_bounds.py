@@ -7,8 +7,8 @@ printed); DIR: the folder it ran in (the benchmark TSVs are read relative to it)
 are its benchmark file's wall time (`s`) and CPU time; the jobs' inputs and outputs, as the log
 lists them, give the DAG's edges. Two lower bounds on the wall time follow, whatever the scheduler:
 the work bound (the jobs' seconds over the cores) and the critical path (the longest chain of jobs,
-each waiting for the outputs of the one before). Issue 15's target, the default DAG under 30
-minutes on 2 cores, is out of reach on a machine where either bound exceeds it; the path says
+each waiting for the outputs of the one before). A wall-time target, such as the default DAG under
+30 minutes on 2 cores, is out of reach on a machine where either bound exceeds it; the path says
 which jobs a trim must shorten.
 """
 

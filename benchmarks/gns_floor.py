@@ -19,8 +19,8 @@ the runout method `--runout` (dem.runout; every method side by side: benchmarks/
                     score on average; it is half of rerun_mse when the runs are independent
   gns_mse           the model's runout MSE against the original (as in the evaluation)
   gns_mse_to_mean   the model's runout MSE against the mean of all runs
-Each also split by the paper's phases (free fall t/t* <= 1, spreading <= 2.5, stopping). Issue 5's
-target is a test runout MSE of 0.05; `target_below_floor` says whether ideal_mse exceeds it.
+Each also split by the paper's phases (free fall t/t* <= 1, spreading <= 2.5, stopping). The
+target set for the GNS is a test runout MSE of 0.05; `target_below_floor` says whether ideal_mse exceeds it.
 """
 
 from __future__ import annotations

@@ -37,30 +37,12 @@ def plot_response_surfaces(
     axis = np.linspace(-1, 1, SURFACE_POINTS)
     gx, gy = np.meshgrid(axis, axis, indexing="xy")
     observed = responses[response].to_numpy(float)
-    ran = np.isfinite(observed)
     surfaces = {m: f.predict(np.column_stack([gx.ravel(), gy.ravel()])).reshape(gx.shape) for m, f in fits.items()}
-    low = min(observed[ran].min(initial=np.inf), *(s.min() for s in surfaces.values()))
-    high = max(observed[ran].max(initial=-np.inf), *(s.max() for s in surfaces.values()))
-    levels = np.linspace(low, high, 21)
+    levels = _levels(observed, surfaces.values())
     fig, axes = plt.subplots(1, len(fits), figsize=(5.2 * len(fits), 4.4), squeeze=False)
     for ax, (model, fit) in zip(axes[0], fits.items()):
-        shading = ax.contourf(fx.decode(gx), fy.decode(gy), surfaces[model], levels=levels, cmap="viridis")
-        ax.contour(fx.decode(gx), fy.decode(gy), surfaces[model], levels=levels[::2], colors="w", linewidths=0.4)
-        x, y = responses[fx.name].to_numpy(float), responses[fy.name].to_numpy(float)
-        ax.scatter(
-            x[ran],
-            y[ran],
-            c=observed[ran],
-            cmap="viridis",
-            vmin=low,
-            vmax=high,
-            edgecolors="k",
-            s=36,
-            zorder=3,
-            label="DEM runs (observed)",
-        )
-        if not ran.all():
-            ax.plot(x[~ran], y[~ran], "rx", ms=10, mew=2, zorder=4, label="failed DEM runs")
+        label = "DEM runs (observed)"
+        shading = _surface_panel(ax, fx, fy, gx, gy, surfaces[model], levels, responses, observed, label)
         best = fit.optimum()["natural"]
         ax.plot(
             best[fx.name],
@@ -106,33 +88,13 @@ def plot_surface_pairs(
         coded[:, i], coded[:, j] = gx.ravel(), gy.ravel()
         surfaces.append(fit.predict(coded).reshape(gx.shape))
     observed = responses[response].to_numpy(float)
-    ran = np.isfinite(observed)
-    # one colour scale for every panel and the runs, so that panels compare
-    low = min(observed[ran].min(initial=np.inf), *(s.min() for s in surfaces))
-    high = max(observed[ran].max(initial=-np.inf), *(s.max() for s in surfaces))
-    levels = np.linspace(low, high, 21)
+    levels = _levels(observed, surfaces)
     fig, axes = plt.subplots(1, len(pairs), figsize=(4.8 * len(pairs) + 1.0, 4.8), squeeze=False, layout="constrained")
     for ax, (i, j), surface in zip(axes[0], pairs, surfaces):
         fx, fy = fit.factors[i], fit.factors[j]
-        shading = ax.contourf(fx.decode(gx), fy.decode(gy), surface, levels=levels, cmap="viridis")
-        ax.contour(fx.decode(gx), fy.decode(gy), surface, levels=levels[::2], colors="w", linewidths=0.4)
-        x, y = responses[fx.name].to_numpy(float), responses[fy.name].to_numpy(float)
         # design runs and optimum sit on the bounds: drawn whole over the frame (clip_on=False)
-        ax.scatter(
-            x[ran],
-            y[ran],
-            c=observed[ran],
-            cmap="viridis",
-            vmin=low,
-            vmax=high,
-            edgecolors="k",
-            s=36,
-            zorder=3,
-            clip_on=False,
-            label="DEM runs (observed, projected onto the panel)",
-        )
-        if not ran.all():
-            ax.plot(x[~ran], y[~ran], "rx", ms=10, mew=2, zorder=4, clip_on=False, label="failed DEM runs")
+        label = "DEM runs (observed, projected onto the panel)"
+        shading = _surface_panel(ax, fx, fy, gx, gy, surface, levels, responses, observed, label, clip_on=False)
         ax.plot(natural[fx.name], natural[fy.name], "r*", ms=16, mec="w", zorder=5, clip_on=False, label="optimum")
         held = ", ".join(f"{f.name} = {natural[f.name]:.3g}" for k, f in enumerate(fit.factors) if k not in (i, j))
         ax.set(xlabel=fx.name, ylabel=fy.name, xlim=(fx.low, fx.high), ylim=(fy.low, fy.high))
@@ -147,6 +109,30 @@ def plot_surface_pairs(
     )
     fig.suptitle(f"{title}\n{heading}" if title else heading, fontsize=10)
     save_figure(fig, path)
+
+
+def _levels(observed: np.ndarray, surfaces) -> np.ndarray:
+    """21 contour levels over the finite observed responses and every fitted surface: one colour
+    scale for every panel and the runs, so that panels compare."""
+    ran = observed[np.isfinite(observed)]
+    low = min(ran.min(initial=np.inf), *(s.min() for s in surfaces))
+    high = max(ran.max(initial=-np.inf), *(s.max() for s in surfaces))
+    return np.linspace(low, high, 21)
+
+
+def _surface_panel(ax, fx, fy, gx, gy, surface, levels, responses, observed, label: str, clip_on: bool = True):
+    """One panel: the fitted `surface` [G, G] over the coded grid (gx, gy) in natural units, filled
+    and contoured at `levels`, and the design runs coloured by their `observed` response on the same
+    scale (a run without a finite response as a red cross). Returns the filled contour set."""
+    shading = ax.contourf(fx.decode(gx), fy.decode(gy), surface, levels=levels, cmap="viridis")
+    ax.contour(fx.decode(gx), fy.decode(gy), surface, levels=levels[::2], colors="w", linewidths=0.4)
+    x, y = responses[fx.name].to_numpy(float), responses[fy.name].to_numpy(float)
+    ran = np.isfinite(observed)
+    scale = dict(cmap="viridis", vmin=levels[0], vmax=levels[-1], edgecolors="k", s=36, zorder=3)
+    ax.scatter(x[ran], y[ran], c=observed[ran], clip_on=clip_on, label=label, **scale)
+    if not ran.all():
+        ax.plot(x[~ran], y[~ran], "rx", ms=10, mew=2, zorder=4, clip_on=clip_on, label="failed DEM runs")
+    return shading
 
 
 def plot_runout_comparison(measured: MeasuredColumn, curves: dict, path: str | os.PathLike, title: str = "") -> None:

@@ -13,11 +13,11 @@ from pathlib import Path
 
 from calibration.calibrated_result import CalibratedResult
 from calibration.contenders import ContenderChoice
+from calibration.decision import DecisionRule
 from calibration.mechanisms import get_mechanisms
 from calibration.prediction import PREDICTION_TSTAR
 from calibration.scaling_laws import DISC_2D_SOURCE, QUASI_2D_SOURCE, ScalingCheck, check_scaling
 from dem.atomic import StrPath, write_text
-from pipeline.calibrated_contenders import contenders_lines
 
 
 def answer_score(result: dict) -> dict:
@@ -324,4 +324,55 @@ def scaling_sentence(check: ScalingCheck) -> str:
         f"the deposit height by a factor of {math.exp(check.height_error):.2g}. Where the model misses the law "
         "by a factor of 2 or more it will not predict those columns of the material: its parameters are "
         "effective values of the measured curve."
+    )
+
+
+def contenders_lines(choice: ContenderChoice) -> list[str]:
+    """Markdown: every contender side by side (fit, the law per a, plausibility) and the choice."""
+    a = choice.contenders[0].scaling.aspect_ratios
+    per_a = " | ".join(f"a = {x:g}" for x in a)
+    head = f"| model | parameters | DEM BIC | {per_a} | law chi^2 | combined | plausible |"
+    lines = [
+        f"**The contenders, judged by what they predict.** Each model the diagnosis scored in the DEM, at its "
+        f"fit, predicted across a on {len(choice.seeds)} packings; per a its mean final L* over the "
+        f"{QUASI_2D_SOURCE} law (1 = on the law). The law enters as pseudo-data with tolerance "
+        f"{choice.law_log_std:g} in ln L*; combined = BIC + law chi^2 ({choice.seconds:.0f} s of DEM).",
+        "",
+        head,
+        "|" + " --- |" * (6 + len(a)),
+    ]
+    for c in choice.contenders:
+        fractions = " | ".join("failed" if f is None else f"{f:.2f}" for f in c.scaling.runout_fraction())
+        parameters = ", ".join(f"{k} {v:.3g}" for k, v in c.parameters.items())
+        plausible = "-" if c.model == "base" else ("yes" if c.physical else "no: effective")
+        mark = f"**{c.model}**" if c.model == choice.chosen else c.model
+        chi2 = f"{c.law_chi2:.1f}" if math.isfinite(c.law_chi2) else "-"
+        lines.append(f"| {mark} | {parameters} | {c.bic:.1f} | {fractions} | {chi2} | {c.combined:.1f} | {plausible} |")
+    lines += ["", choice.why, ""]
+    if choice.deciding is not None:
+        lines += [deciding_sentence(choice), ""]
+    return lines
+
+
+def deciding_sentence(choice: ContenderChoice) -> str:
+    """The column to measure next, in words: where the two best contenders' predictions part most."""
+    d = choice.deciding
+    first, second = (choice.contender(m) for m in d.models)
+    margin = DecisionRule().min_delta_bic_vs_runner_up
+    gap = second.combined - first.combined
+    told = (
+        f"Their combined scores differ by {gap:.1f}, within the margin of {margin:g}: the data do not decide "
+        "between them. "
+        if gap < margin
+        else f"Their combined scores differ by {gap:.1f} (margin {margin:g}). "
+    )
+    apart = (
+        f", {d.separation:.1f} standard errors of the difference apart (one packing's scatter {d.scatter:.2g})"
+        if d.separation is not None
+        else " (one packing each: no scatter to weigh the difference against)"
+    )
+    return (
+        f"**The experiment that would decide.** {told}A column of a = {d.aspect_ratio:g} at L_i = {d.L_i:g} m "
+        f"is where {d.models[0]} and {d.models[1]} part most: final L* {d.runout[0]:.3g} against "
+        f"{d.runout[1]:.3g}{apart}. Measuring it tells them apart."
     )

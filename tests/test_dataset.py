@@ -126,7 +126,8 @@ def test_summary_figure_reports_final_runout_per_case(tmp_path, three_splits):
 def test_dataset_stage_summary_table_and_report_section(tmp_path, monkeypatch):
     """pipeline.dataset: metadata, the case table CSV with each case's final L* (read from the
     trajectories where the DEM stage writes them), the report section with relative links."""
-    from pipeline.dataset import build, summarise, write_section
+    from pipeline.dataset import build, summarise
+    from pipeline.dataset_section import write_section
 
     monkeypatch.chdir(tmp_path)
     rng = np.random.default_rng(2)

@@ -26,6 +26,7 @@ from gns.settings import TrainSettings
 from gns.simulator import CheckpointError, load_simulator
 from gns.train import Trainer, train
 from pipeline import gns as gns_stage
+from pipeline.gns_section import section as gns_section
 from tests.gns_synthetic import synthetic_dataset
 from tests.same_bits import run_in_fresh_processes, sha256_state_dict
 
@@ -87,7 +88,7 @@ TRAIN_IN_A_PROCESS = (
 
 
 def test_training_twice_in_fresh_processes_gives_the_same_weights_bit_for_bit(trained, dataset, tmp_path):
-    """Issue 16: the same settings and data give the same weights, bit for bit, in this process (one
+    """Reproducible training: the same settings and data give the same weights, bit for bit, in this process (one
     torch thread) and in two fresh interpreters with other hash seeds and thread counts (1 and 2;
     before gns.network.LayerNorm the thread count changed the LayerNorm gradients, so every weight)."""
     out, _ = trained
@@ -233,7 +234,7 @@ def test_evaluation_rolls_out_test_cases_and_scores_them(trained, dataset, tmp_p
     gns_stage.evaluate([dem_path], [tmp_path / "rollout.h5"], tmp_path / "stage", CONNECTED)
     assert (tmp_path / "stage" / "summary.json").read_text() == (tmp_path / "eval" / "summary.json").read_text()
     fragment = tmp_path / "report" / "gns.md"
-    text = gns_stage.section(
+    text = gns_section(
         ["synthetic"], [tmp_path / "stage" / "summary.json"], [out / "loss_curve.png"], [out / "metrics.csv"], fragment
     )
     assert fragment.read_text() == text

@@ -2,7 +2,7 @@
 
 import logging
 
-from pipeline.dataset import write_section
+from pipeline.dataset_section import write_section
 
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
 write_section(snakemake.input.metadata, snakemake.input.figures, snakemake.output[0])

@@ -2,7 +2,7 @@
 
 import logging
 
-from pipeline.gns import section
+from pipeline.gns_section import section
 
 logging.basicConfig(filename=snakemake.log[0], level=logging.INFO, format="%(asctime)s %(message)s")
 section(
