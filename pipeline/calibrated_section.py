@@ -58,198 +58,238 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
     ]
     for result in results:
         score = answer_score(result)
-        answer = score["route"]
         figure = Path(os.path.relpath(Path(result["figure"]), Path(section_path).parent)).as_posix()
-        parameters = ", ".join(f"{k} = {v:.3g}" for k, v in answer["parameters"].items())
-        lines += [
-            f"### {result['name']}: {result['model']} model",
-            "",
-            f"**{parameters}** (route: {answer['route']}), validated runout MSE **{score['mse']:.3g}** "
-            f"+- {format_se(score['mse_se'])} on the mean of {score['n_ran']} packings "
-            f"(each packing alone: {format_span(score['mse_each'])}).",
-            "",
-            *plausibility_lines(answer["parameters"]),
-            *runoff_lines(result),
-            f"Why this model: {result['why']}",
-            "",
-        ]
-        if result.get("intervals"):
-            spans = ", ".join(
-                f"{p['name']} [{p['low']:.3g}, {p['high']:.3g}]" + ("" if p["identifiable"] else " (not identifiable)")
-                for p in result["intervals"]
-            )
-            lines += [
-                f"95% intervals (the diagnosis' Laplace posterior of this model, about its own fit): {spans}.",
-                "",
-            ]
-        if result.get("gns_intervals"):
-            spans = ", ".join(
-                f"{p['name']} {p['value']:.3g} [{p['low']:.3g}, {p['high']:.3g}]"
-                + ("" if p["identifiable"] else " (not identifiable)")
-                for p in result["gns_intervals"]
-            )
-            lines += [
-                f"95% intervals of the GNS inverse design (its Laplace posterior about the GNS optimum; noise: the "
-                f"measured scatter and the GNS's own runout error on its test split at each t/t* point): {spans}.",
-                "",
-            ]
-        for p in result.get("gns_sensitivity") or []:  # calibration.sensitivity: the GNS blind to a parameter
-            if p["resolved"] is False:
-                lines += [
-                    f"**The GNS does not see {p['name']}**: {p['why'].removeprefix('the GNS does not resolve it: ')}; "
-                    "the GNS route's value of it is a guess (figure: does the GNS see each parameter).",
-                    "",
-                ]
-            elif p.get("gns_only"):
-                lines += [
-                    f"**The GNS responds to {p['name']}, the DEM hardly does**: "
-                    f"{p['why'].removeprefix('the DEM hardly responds to it, the GNS does: ')}; the GNS route's "
-                    "interval of it rests on the GNS alone (flagged not identifiable; figure: does the GNS see each "
-                    "parameter).",
-                    "",
-                ]
-        lines += [
-            "| route | parameters | DEM runs to calibrate | time to calibrate | validated MSE (packing mean) +- SE | "
-            "minus the answer's, paired +- SE | MSE per packing | failed runs | validation time |",
-            "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
-        ]
-        for route in result["routes"]:
-            values = ", ".join(f"{k} {v:.3g}" for k, v in route["parameters"].items())
-            failed = "; ".join(f"packing {k}: {v}" for k, v in route["failed"].items()) or "none"
-            runs = route["dem_runs"] or "those of the GNS dataset"
-            versus = route.get("versus_answer") or {}
-            lines.append(
-                f"| {route['route']} | {values} | {runs} | {route['calibration_seconds']:.0f} s | "
-                f"{route['mse']:.4g} +- {format_se(route.get('mse_se'))} | "
-                f"{versus.get('mse_difference', math.nan):+.3g} +- {format_se(versus.get('se'))} | "
-                f"{format_span(route['mse_each'])} | {failed} | {route['seconds']:.0f} s |"
-            )
-        lines += [
-            "",
-            "SE: the jackknife standard error over the validation packings (how far another "
-            f"{result['validation_packings']} packings could move the score); the paired difference uses the "
-            "same packings for both routes, so their shared chaos cancels. Routes whose difference is within "
-            "about 2 SE of zero are not told apart by this validation.",
-            "",
-        ]
-        for versus in result.get("gns_vs_doe") or []:
-            if versus["se"] is None:
-                verdict = "too few packings ran to tell them apart"
-            elif abs(versus["mse_difference"]) <= 2 * versus["se"]:
-                verdict = "within the packing scatter of each other"
-            else:
-                verdict = "the GNS route is better" if versus["mse_difference"] < 0 else "the DoE route is better"
-            cost = "no more" if versus["gns_dem_runs"] <= versus["doe_dem_runs"] else "more"
-            lines += [
-                f"**GNS against {versus['doe_route']}** (the paper's claim): validated MSE of the GNS route minus "
-                f"the DoE route's {versus['mse_difference']:+.3g} +- {format_se(versus['se'])} (paired, on "
-                f"{versus.get('packings', result['validation_packings'])} packings), with "
-                f"{versus['gns_dem_runs']} DEM runs{own_runs_text(versus)} against {versus['doe_dem_runs']} "
-                f"({cost} DEM runs): {verdict}.",
-                "",
-            ]
-        for route in result["routes"]:
-            extra = route.get("extra") or {}
-            if "r_squared" in extra:
-                lines += [
-                    f"{route['route']}: {route['dem_runs']} DEM runs ({extra['failures']}); quadratic response "
-                    f"surface R^2 {extra['r_squared']:.3f}, lack of fit p = {extra['lack_of_fit_p']:.3g}; terms with "
-                    f"p < 0.05 (type-III ANOVA): {', '.join(extra['significant']) or 'none'}; the surface predicts "
-                    f"MSE {extra['predicted_mse']:.3g} at its optimum.",
-                    "",
-                ]
-            if "gns_objective" in extra:
-                lines += [
-                    f"{route['route']}: the GNS's own objective at its optimum {extra['gns_objective']:.3g} (its "
-                    "error against the DEM shows in the gap to the validated MSE).",
-                    "",
-                ]
-            if "confirmation" in extra:
-                confirmation = extra["confirmation"]
-                scores = ", ".join(
-                    f"{value:.3g} -> " + ("failed" if c["mse"] is None else f"{c['mse']:.3g}")
-                    for value, c in zip(confirmation["surrogate_values"], confirmation["candidates"])
-                )
-                n_packings = len(confirmation["candidates"][0]["seeds"])
-                packings = f"{n_packings} packing{'s' if n_packings > 1 else ''}"
-                lines += [
-                    f"{route['route']}: its {len(confirmation['candidates'])} best distinct GNS points, run by the "
-                    f"DEM on {packings} of their own (GNS objective -> DEM MSE: {scores}); candidate "
-                    f"{confirmation['chosen'] + 1} was validated ({confirmation['dem_runs']} DEM runs, counted in "
-                    "the route's).",
-                    "",
-                ]
-        stated = "as the file states" if result.get("runout_stated") else "the config's: the file states none"
-        lines += [
-            f"DEM: {result['engine']} engine, size_scale {result['size_scale']:g} (parameters fitted at one scale are "
-            f"effective values of that scale), runout read by {result['runout']['method']} ({stated}); the Bayesian "
-            f"optimisation ran on packing seed {result['calibration_packing']}, the validation on "
-            f"{result['validation_packings']} others. The answer is the route of this model with the lowest "
-            f"validated MSE on {result.get('answer_packings', result['validation_packings'])} packings (so the "
-            "choice, not each route's score, has seen the validation packings); the diagnosis fit's time is the "
-            "diagnosis job's, its design runs' DEM time aside.",
-            "",
-            f"![calibrated model of {result['name']}]({figure})",
-            "",
-        ]
-        for extra_figure, what in (
-            ("bayesopt.png", "Bayesian optimisation"),
-            ("doe_surface.png", "DoE response surface (face-centred CCD)"),
-            ("doe_full_factorial_surface.png", "DoE response surface (3-level full factorial)"),
-            ("inverse_paths.png", "GNS inverse design"),
-        ):
-            if (Path(result["figure"]).parent / extra_figure).exists():
-                lines += [f"![{what} of {result['name']}]({Path(figure).with_name(extra_figure).as_posix()})", ""]
-        # the model's own GNS (the GNS stage's rules on dataset calibrated_<name>): training and test split
-        gns = Path(result["figure"]).parents[2] / "gns" / f"calibrated_{result['name']}"
-        for gns_figure, what in (("train/loss_curve.png", "training"), ("evaluation/runout_curves.png", "test split")):
-            if (gns / gns_figure).exists():
-                link = Path(os.path.relpath(gns / gns_figure, Path(section_path).parent)).as_posix()
-                lines += [f"![the {result['model']} model's GNS of {result['name']}, {what}]({link})", ""]
-        transfer = result["transfer"]
-        if transfer is not None:
-            verdict = (
-                "the answer transfers."
-                if transfer_holds(transfer, score)
-                else "the parameters are effective values of their scale: recalibrate at the scale you run."
-            )
-            lines += [
-                f"**Scale transfer.** The same parameters one size_scale finer ({transfer['route']}): validated "
-                f"MSE **{transfer['mse']:.3g}** (each packing {format_span(transfer['mse_each'])}) against "
-                f"{score['shared_mse']:.3g} at size_scale {result['size_scale']:g} on as many packings: {verdict}",
-                "",
-            ]
-        p = result["prediction"]
-        cells = [f"{v:.3g}" if v is not None else "failed" for v in p["final_runout"]]
-        heights = [f"{v:.3g}" if v is not None else "failed" for v in p["height_over_L_i"]]
-        check = check_scaling(p["aspect_ratios"], p["final_runout"], p["height_over_L_i"])
-        fractions = [f"{v:.2f}" if v is not None else "failed" for v in check.runout_fraction()]
-        lines += [
-            "**Prediction** (same material, L_i and scale; one packing each): final runout at t/t* = "
-            f"{PREDICTION_TSTAR:g} and deposit height by aspect ratio; the measured column (a = "
-            f"{result['prediction_measured_a']:g}) reached L* = {result['measured_final_runout']:.3g} by its "
-            "last time.",
-            "",
-            "| a | " + " | ".join(f"{a:g}" for a in p["aspect_ratios"]) + " |",
-            "| --- |" + " --- |" * len(p["aspect_ratios"]),
-            "| final L* | " + " | ".join(cells) + " |",
-            f"| {QUASI_2D_SOURCE} | " + " | ".join(f"{v:.3g}" for v in check.runout_law) + " |",
-            "| fraction of that law | " + " | ".join(fractions) + " |",
-            f"| {DISC_2D_SOURCE} | " + " | ".join(f"{v:.3g}" for v in check.disc_law) + " |",
-            "| H_f / L_i | " + " | ".join(heights) + " |",
-            f"| {QUASI_2D_SOURCE} | " + " | ".join(f"{v:.3g}" for v in check.height_law) + " |",
-            "",
-            scaling_sentence(check),
-            "",
-            f"![predictions of {result['name']}]({Path(figure).with_name('prediction.png').as_posix()})",
-            "",
-        ]
-        model_json = Path(result["figure"]).with_name("model.json")
-        if model_json.exists() and json.loads(model_json.read_text()).get("scaling_check"):
-            lines += contenders_lines(ContenderChoice.read(model_json.with_name("contenders.json")))
-            link = Path(figure).with_name("contenders.png").as_posix()
-            lines += [f"![the contenders of {result['name']}]({link})", ""]
+        lines += answer_lines(result, score)
+        lines += interval_lines(result)
+        lines += routes_lines(result)
+        lines += dem_lines(result, figure, section_path)
+        lines += transfer_lines(result, score)
+        lines += prediction_lines(result, figure)
     return "\n".join(lines) + "\n"
+
+
+def answer_lines(result: dict, score: dict) -> list[str]:
+    """The column's heading, the answer's parameters and validated score, their plausibility, the
+    runoff and why this model."""
+    answer = score["route"]
+    parameters = ", ".join(f"{k} = {v:.3g}" for k, v in answer["parameters"].items())
+    return [
+        f"### {result['name']}: {result['model']} model",
+        "",
+        f"**{parameters}** (route: {answer['route']}), validated runout MSE **{score['mse']:.3g}** "
+        f"+- {format_se(score['mse_se'])} on the mean of {score['n_ran']} packings "
+        f"(each packing alone: {format_span(score['mse_each'])}).",
+        "",
+        *plausibility_lines(answer["parameters"]),
+        *runoff_lines(result),
+        f"Why this model: {result['why']}",
+        "",
+    ]
+
+
+def interval_lines(result: dict) -> list[str]:
+    """The 95% intervals of the diagnosis' and the GNS's posteriors, and every parameter the GNS does
+    not see as the DEM does (calibration.sensitivity)."""
+    lines = []
+    if result.get("intervals"):
+        spans = ", ".join(
+            f"{p['name']} [{p['low']:.3g}, {p['high']:.3g}]" + ("" if p["identifiable"] else " (not identifiable)")
+            for p in result["intervals"]
+        )
+        lines += [
+            f"95% intervals (the diagnosis' Laplace posterior of this model, about its own fit): {spans}.",
+            "",
+        ]
+    if result.get("gns_intervals"):
+        spans = ", ".join(
+            f"{p['name']} {p['value']:.3g} [{p['low']:.3g}, {p['high']:.3g}]"
+            + ("" if p["identifiable"] else " (not identifiable)")
+            for p in result["gns_intervals"]
+        )
+        lines += [
+            f"95% intervals of the GNS inverse design (its Laplace posterior about the GNS optimum; noise: the "
+            f"measured scatter and the GNS's own runout error on its test split at each t/t* point): {spans}.",
+            "",
+        ]
+    for p in result.get("gns_sensitivity") or []:  # calibration.sensitivity: the GNS blind to a parameter
+        if p["resolved"] is False:
+            lines += [
+                f"**The GNS does not see {p['name']}**: {p['why'].removeprefix('the GNS does not resolve it: ')}; "
+                "the GNS route's value of it is a guess (figure: does the GNS see each parameter).",
+                "",
+            ]
+        elif p.get("gns_only"):
+            lines += [
+                f"**The GNS responds to {p['name']}, the DEM hardly does**: "
+                f"{p['why'].removeprefix('the DEM hardly responds to it, the GNS does: ')}; the GNS route's "
+                "interval of it rests on the GNS alone (flagged not identifiable; figure: does the GNS see each "
+                "parameter).",
+                "",
+            ]
+    return lines
+
+
+def routes_lines(result: dict) -> list[str]:
+    """Every route of the model side by side (parameters, cost, validated score, paired difference),
+    the GNS route held against each DoE route, and each route's own notes."""
+    lines = [
+        "| route | parameters | DEM runs to calibrate | time to calibrate | validated MSE (packing mean) +- SE | "
+        "minus the answer's, paired +- SE | MSE per packing | failed runs | validation time |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for route in result["routes"]:
+        values = ", ".join(f"{k} {v:.3g}" for k, v in route["parameters"].items())
+        failed = "; ".join(f"packing {k}: {v}" for k, v in route["failed"].items()) or "none"
+        runs = route["dem_runs"] or "those of the GNS dataset"
+        versus = route.get("versus_answer") or {}
+        lines.append(
+            f"| {route['route']} | {values} | {runs} | {route['calibration_seconds']:.0f} s | "
+            f"{route['mse']:.4g} +- {format_se(route.get('mse_se'))} | "
+            f"{versus.get('mse_difference', math.nan):+.3g} +- {format_se(versus.get('se'))} | "
+            f"{format_span(route['mse_each'])} | {failed} | {route['seconds']:.0f} s |"
+        )
+    lines += [
+        "",
+        "SE: the jackknife standard error over the validation packings (how far another "
+        f"{result['validation_packings']} packings could move the score); the paired difference uses the "
+        "same packings for both routes, so their shared chaos cancels. Routes whose difference is within "
+        "about 2 SE of zero are not told apart by this validation.",
+        "",
+    ]
+    for versus in result.get("gns_vs_doe") or []:
+        if versus["se"] is None:
+            verdict = "too few packings ran to tell them apart"
+        elif abs(versus["mse_difference"]) <= 2 * versus["se"]:
+            verdict = "within the packing scatter of each other"
+        else:
+            verdict = "the GNS route is better" if versus["mse_difference"] < 0 else "the DoE route is better"
+        cost = "no more" if versus["gns_dem_runs"] <= versus["doe_dem_runs"] else "more"
+        lines += [
+            f"**GNS against {versus['doe_route']}** (the paper's claim): validated MSE of the GNS route minus "
+            f"the DoE route's {versus['mse_difference']:+.3g} +- {format_se(versus['se'])} (paired, on "
+            f"{versus.get('packings', result['validation_packings'])} packings), with "
+            f"{versus['gns_dem_runs']} DEM runs{own_runs_text(versus)} against {versus['doe_dem_runs']} "
+            f"({cost} DEM runs): {verdict}.",
+            "",
+        ]
+    for route in result["routes"]:
+        extra = route.get("extra") or {}
+        if "r_squared" in extra:
+            lines += [
+                f"{route['route']}: {route['dem_runs']} DEM runs ({extra['failures']}); quadratic response "
+                f"surface R^2 {extra['r_squared']:.3f}, lack of fit p = {extra['lack_of_fit_p']:.3g}; terms with "
+                f"p < 0.05 (type-III ANOVA): {', '.join(extra['significant']) or 'none'}; the surface predicts "
+                f"MSE {extra['predicted_mse']:.3g} at its optimum.",
+                "",
+            ]
+        if "gns_objective" in extra:
+            lines += [
+                f"{route['route']}: the GNS's own objective at its optimum {extra['gns_objective']:.3g} (its "
+                "error against the DEM shows in the gap to the validated MSE).",
+                "",
+            ]
+        if "confirmation" in extra:
+            confirmation = extra["confirmation"]
+            scores = ", ".join(
+                f"{value:.3g} -> " + ("failed" if c["mse"] is None else f"{c['mse']:.3g}")
+                for value, c in zip(confirmation["surrogate_values"], confirmation["candidates"])
+            )
+            n_packings = len(confirmation["candidates"][0]["seeds"])
+            packings = f"{n_packings} packing{'s' if n_packings > 1 else ''}"
+            lines += [
+                f"{route['route']}: its {len(confirmation['candidates'])} best distinct GNS points, run by the "
+                f"DEM on {packings} of their own (GNS objective -> DEM MSE: {scores}); candidate "
+                f"{confirmation['chosen'] + 1} was validated ({confirmation['dem_runs']} DEM runs, counted in "
+                "the route's).",
+                "",
+            ]
+    return lines
+
+
+def dem_lines(result: dict, figure: str, section_path: StrPath) -> list[str]:
+    """How the DEM ran and the answer was chosen, with the stage's figures and the model GNS's."""
+    stated = "as the file states" if result.get("runout_stated") else "the config's: the file states none"
+    lines = [
+        f"DEM: {result['engine']} engine, size_scale {result['size_scale']:g} (parameters fitted at one scale are "
+        f"effective values of that scale), runout read by {result['runout']['method']} ({stated}); the Bayesian "
+        f"optimisation ran on packing seed {result['calibration_packing']}, the validation on "
+        f"{result['validation_packings']} others. The answer is the route of this model with the lowest "
+        f"validated MSE on {result.get('answer_packings', result['validation_packings'])} packings (so the "
+        "choice, not each route's score, has seen the validation packings); the diagnosis fit's time is the "
+        "diagnosis job's, its design runs' DEM time aside.",
+        "",
+        f"![calibrated model of {result['name']}]({figure})",
+        "",
+    ]
+    for extra_figure, what in (
+        ("bayesopt.png", "Bayesian optimisation"),
+        ("doe_surface.png", "DoE response surface (face-centred CCD)"),
+        ("doe_full_factorial_surface.png", "DoE response surface (3-level full factorial)"),
+        ("inverse_paths.png", "GNS inverse design"),
+    ):
+        if (Path(result["figure"]).parent / extra_figure).exists():
+            lines += [f"![{what} of {result['name']}]({Path(figure).with_name(extra_figure).as_posix()})", ""]
+    # the model's own GNS (the GNS stage's rules on dataset calibrated_<name>): training and test split
+    gns = Path(result["figure"]).parents[2] / "gns" / f"calibrated_{result['name']}"
+    for gns_figure, what in (("train/loss_curve.png", "training"), ("evaluation/runout_curves.png", "test split")):
+        if (gns / gns_figure).exists():
+            link = Path(os.path.relpath(gns / gns_figure, Path(section_path).parent)).as_posix()
+            lines += [f"![the {result['model']} model's GNS of {result['name']}, {what}]({link})", ""]
+    return lines
+
+
+def transfer_lines(result: dict, score: dict) -> list[str]:
+    """The answer one size_scale finer against its score at its own scale (none where not run)."""
+    transfer = result["transfer"]
+    if transfer is None:
+        return []
+    verdict = (
+        "the answer transfers."
+        if transfer_holds(transfer, score)
+        else "the parameters are effective values of their scale: recalibrate at the scale you run."
+    )
+    return [
+        f"**Scale transfer.** The same parameters one size_scale finer ({transfer['route']}): validated "
+        f"MSE **{transfer['mse']:.3g}** (each packing {format_span(transfer['mse_each'])}) against "
+        f"{score['shared_mse']:.3g} at size_scale {result['size_scale']:g} on as many packings: {verdict}",
+        "",
+    ]
+
+
+def prediction_lines(result: dict, figure: str) -> list[str]:
+    """The answer's predictions across a against the scaling laws, and the contenders where the
+    model was chosen by them."""
+    p = result["prediction"]
+    cells = [f"{v:.3g}" if v is not None else "failed" for v in p["final_runout"]]
+    heights = [f"{v:.3g}" if v is not None else "failed" for v in p["height_over_L_i"]]
+    check = check_scaling(p["aspect_ratios"], p["final_runout"], p["height_over_L_i"])
+    fractions = [f"{v:.2f}" if v is not None else "failed" for v in check.runout_fraction()]
+    lines = [
+        "**Prediction** (same material, L_i and scale; one packing each): final runout at t/t* = "
+        f"{PREDICTION_TSTAR:g} and deposit height by aspect ratio; the measured column (a = "
+        f"{result['prediction_measured_a']:g}) reached L* = {result['measured_final_runout']:.3g} by its "
+        "last time.",
+        "",
+        "| a | " + " | ".join(f"{a:g}" for a in p["aspect_ratios"]) + " |",
+        "| --- |" + " --- |" * len(p["aspect_ratios"]),
+        "| final L* | " + " | ".join(cells) + " |",
+        f"| {QUASI_2D_SOURCE} | " + " | ".join(f"{v:.3g}" for v in check.runout_law) + " |",
+        "| fraction of that law | " + " | ".join(fractions) + " |",
+        f"| {DISC_2D_SOURCE} | " + " | ".join(f"{v:.3g}" for v in check.disc_law) + " |",
+        "| H_f / L_i | " + " | ".join(heights) + " |",
+        f"| {QUASI_2D_SOURCE} | " + " | ".join(f"{v:.3g}" for v in check.height_law) + " |",
+        "",
+        scaling_sentence(check),
+        "",
+        f"![predictions of {result['name']}]({Path(figure).with_name('prediction.png').as_posix()})",
+        "",
+    ]
+    model_json = Path(result["figure"]).with_name("model.json")
+    if model_json.exists() and json.loads(model_json.read_text()).get("scaling_check"):
+        lines += contenders_lines(ContenderChoice.read(model_json.with_name("contenders.json")))
+        link = Path(figure).with_name("contenders.png").as_posix()
+        lines += [f"![the contenders of {result['name']}]({link})", ""]
+    return lines
 
 
 def runoff_lines(result: dict) -> list[str]:
