@@ -373,6 +373,7 @@ def inverse_design(
         failed_points=optimum.history.failed,
         optimiser=optimiser,
         sensitivity=sensitivity,
+        evaluated=dict(zip(("points", "runouts"), (a.tolist() for a in objective.evaluated()))),
     )
 
 

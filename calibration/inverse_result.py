@@ -42,6 +42,9 @@ class InverseResult:
     # {"parameters": [ParameterResponse.to_dict()], "why": "" or why not checked (too few runs),
     # "dem" and "gns": {"points" [n][P], "last" [n]}}; None without those runs (calibration.sensitivity)
     sensitivity: dict | None = None
+    # every point the GNS rolled out (the search's, the posterior's, the checks'): {"points" [n][P],
+    # "runouts" [n][K] its L* at the measured t/t*}: its response, for a DEM correction of its optimum
+    evaluated: dict | None = None
 
     def to_dict(self) -> dict:
         data = {
@@ -67,6 +70,7 @@ class InverseResult:
                 "failed_points",
                 "optimiser",
                 "sensitivity",
+                "evaluated",
             )
         }
         data["starts"] = [s.to_dict() for s in self.starts]

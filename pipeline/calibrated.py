@@ -36,7 +36,7 @@ from calibration.calibrated import (
 )
 from calibration.calibrated_result import CalibratedResult
 from calibration.compare import plot_bayesopt
-from calibration.confirmation import confirm
+from calibration.confirmation import confirm, refine
 from calibration.contenders import ContenderChoice, resolve_by_prediction
 from calibration.design_runs import SimulationSettings
 from calibration.diagnosis_result import Diagnosis
@@ -135,6 +135,16 @@ def gns_points(inverse: dict, names: Sequence[str]) -> tuple[list[list[float]], 
     return points, values
 
 
+def gns_response(inverse: dict, names: Sequence[str]) -> tuple[np.ndarray, np.ndarray] | None:
+    """(parameters [n, p] in the order of `names`, L* [n, K]) of every point a GNS inverse design
+    (its inverse.json, read) rolled out; None where the file does not record them."""
+    evaluated = inverse.get("evaluated")
+    if not evaluated or not evaluated["points"]:
+        return None
+    order = [inverse["names"].index(name) for name in names]
+    return np.asarray(evaluated["points"], float)[:, order], np.asarray(evaluated["runouts"], float)
+
+
 def route_optimum(key: str, source: StrPath, model: Model) -> tuple[str, Model, list[float], int, float, dict]:
     """(route label, the model it calibrates, theta [p], DEM runs it spent, seconds it took, extra)
     of route `key` from its file `source`; extra: what the report shows beside the validation. DEM
@@ -209,13 +219,19 @@ def run_validation(
             section["gns_confirm_candidates"], section["gns_confirm_packings"],
             progress_logger(f"{name}: {label}, its best points confirmed by DEM", log),
         )  # fmt: skip
+        response = gns_response(read_result(source), route_model.parameter_names)
+        if section.get("gns_refine_rounds") and response is not None:
+            confirmation = refine(
+                route_model, column, confirmation, *response, settings, reading, dem, section["gns_refine_rounds"],
+                progress_logger(f"{name}: {label}, corrected by DEM along the GNS's slopes", log),
+            )  # fmt: skip
         theta, runs = confirmation.theta, runs + confirmation.dem_runs
-        seconds += sum(c.seconds for c in confirmation.candidates)
+        seconds += confirmation.seconds
         extra["confirmation"] = confirmation.to_dict()
         log.info(
-            "%s: DEM confirmation of the GNS's best %d points: MSE %s, chose %d",
-            name, len(confirmation.candidates), [round(c.mse, 4) for c in confirmation.candidates],
-            confirmation.chosen + 1,
+            "%s: DEM check of the GNS's best %d points and %d correction steps: MSE %s, chose %d",
+            name, len(confirmation.candidates), len(confirmation.steps),
+            [round(c.mse, 4) for c in confirmation.checked], confirmation.chosen + 1,
         )  # fmt: skip
     validation = validate(
         label,

@@ -196,11 +196,25 @@ def routes_lines(result: dict) -> list[str]:
             )
             n_packings = len(confirmation["candidates"][0]["seeds"])
             packings = f"{n_packings} packing{'s' if n_packings > 1 else ''}"
+            steps = confirmation.get("steps") or []
+            corrected = ""
+            if steps:
+                moves = ", ".join(
+                    f"{predicted:.3g} -> " + ("failed" if c["mse"] is None else f"{c['mse']:.3g}")
+                    for predicted, c in zip(confirmation["predicted"], steps)
+                )
+                corrected = (
+                    f" Then {len(steps)} correction step{'s' if len(steps) > 1 else ''} from the best of them, along "
+                    f"the GNS's local slopes of L* with the DEM's own residual, on the same packings (foreseen -> "
+                    f"DEM MSE: {moves})."
+                )
+            n_candidates = len(confirmation["candidates"])
+            chosen = confirmation["chosen"]
+            which = f"candidate {chosen + 1}" if chosen < n_candidates else f"step {chosen - n_candidates + 1}"
             lines += [
-                f"{route['route']}: its {len(confirmation['candidates'])} best distinct GNS points, run by the "
-                f"DEM on {packings} of their own (GNS objective -> DEM MSE: {scores}); candidate "
-                f"{confirmation['chosen'] + 1} was validated ({confirmation['dem_runs']} DEM runs, counted in "
-                "the route's).",
+                f"{route['route']}: its {n_candidates} best distinct GNS points, run by the "
+                f"DEM on {packings} of their own (GNS objective -> DEM MSE: {scores}).{corrected} The DEM's lowest, "
+                f"{which}, was validated ({confirmation['dem_runs']} DEM runs, counted in the route's).",
                 "",
             ]
     return lines

@@ -423,3 +423,46 @@ def test_the_gns_routes_best_distinct_points_are_confirmed_by_the_dem():
     # the truth on packings other than the data's: packing scatter only (here 0.0035, the wrong point 0.019)
     assert scores[1] < scores[0] / 2, scores
     assert confirmation.chosen == 1 and confirmation.theta == pytest.approx(truth)
+
+
+def test_the_gns_slope_is_a_local_linear_fit_that_averages_over_roughness():
+    """A curve linear in the unit box, plus a rough term like a rollout's: the kernel fit gives the
+    slope back within the roughness's share; with no point near the centre it fits from those
+    farther out; fewer points than the fit's unknowns is an error."""
+    from calibration.confirmation import local_slope
+
+    rng = np.random.default_rng(3)
+    slope = np.array([[1.0, -0.5, 0.2], [2.0, 0.3, -1.0]])  # [K, p]
+    points = rng.uniform(size=(60, 3))
+    curves = (points - 0.5) @ slope.T + 0.01 * rng.standard_normal((60, 2))
+    assert local_slope(points, curves, np.full(3, 0.5)) == pytest.approx(slope, abs=0.05)
+    far = points[np.linalg.norm(points - 0.5, axis=1) > 0.45]  # none within 2 bandwidths of the centre
+    assert len(far) >= 8
+    assert local_slope(far, (far - 0.5) @ slope.T, np.full(3, 0.5)) == pytest.approx(slope, abs=1e-9)
+    with pytest.raises(CalibrationError, match="needs 4 surrogate points"):
+        local_slope(points[:3], curves[:3], np.full(3, 0.5))
+
+
+def test_the_dem_corrects_the_gns_optimum_along_its_slopes_on_the_confirmation_packings():
+    """A surrogate biased by +0.25 L* (a GNS off by about its test error) whose slopes are the
+    DEM's: from its best point the refinement steps stay in the box and within the trust region,
+    run on the confirmation packings, are counted, and the DEM's lowest of all is chosen."""
+    from calibration.confirmation import CONFIRM_SEED0, TRUST_RADIUS, confirm, refine
+
+    model = Model()
+    column = replace(COLUMN, runout=model_runout(model, COLUMN, [0.3, 0.8], SETTINGS, 11, RUNOUT, None))
+    grid = np.array([[m, e] for m in np.linspace(0.3, 0.9, 4) for e in np.linspace(0.3, 0.9, 3)])
+    curves = np.array([model_runout(model, column, p, SETTINGS, 12, RUNOUT, None) for p in grid]) + 0.25
+    confirmation = confirm(model, column, [[0.9, 0.9]], [0.01], SETTINGS, RUNOUT, None, 1, 2)
+    refined = refine(model, column, confirmation, grid, curves, SETTINGS, RUNOUT, None, n_rounds=2)
+    assert refined.candidates == confirmation.candidates and 1 <= len(refined.steps) <= 2
+    assert refined.dem_runs == 2 * (1 + len(refined.steps)) and len(refined.predicted) == len(refined.steps)
+    assert all(step.seeds == [CONFIRM_SEED0, CONFIRM_SEED0 + 1] for step in refined.steps)
+    first = model.box.to_unit(list(refined.steps[0].parameters.values()))[0]
+    assert np.all(np.abs(first - model.box.to_unit([0.9, 0.9])[0]) <= TRUST_RADIUS + 1e-9)
+    scores = [c.mse for c in refined.checked]
+    assert refined.chosen == int(np.argmin(scores))
+    assert refined.theta == list(refined.checked[refined.chosen].parameters.values())
+    # the linear model foresees a lower MSE than the point it steps from (it is a least-squares step)
+    assert refined.predicted[0] < confirmation.candidates[0].mse
+    assert refined.to_dict()["steps"][0]["seeds"] == [CONFIRM_SEED0, CONFIRM_SEED0 + 1]

@@ -420,15 +420,19 @@ def test_calibrated_model_routes_and_validations(results):
         assert finite(v["mse"], v["mse_se"], v["mean"], v["curves"]) and v["mse"] >= 0, key
         assert within(v["parameters"], list(v["parameters"]), [bounds[names.index(n)] for n in v["parameters"]]), key
         assert v["model"] == ("base" if key.startswith(("base-", "diagnosis-base")) else "rolling_resistance"), key
-    # the GNS route's 2 best distinct points ran by the DEM on 1 packing each; the lowest was validated
+    # the GNS route's 2 best distinct points ran by the DEM on 1 packing each, then at most one
+    # correction step along the GNS's slopes (inverse.json records every point it rolled out); the
+    # lowest of all was validated
+    assert len(gns["evaluated"]["points"]) == len(gns["evaluated"]["runouts"]) >= 6
     confirmation = validations["model-inverse"]["extra"]["confirmation"]
-    candidates = confirmation["candidates"]
-    assert len(candidates) == 2 and [c["seeds"] for c in candidates] == [[7001], [7001]]
-    chosen = candidates[confirmation["chosen"]]
-    assert chosen["mse"] == min(c["mse"] for c in candidates)
+    candidates, steps = confirmation["candidates"], confirmation["steps"]
+    assert len(candidates) == 2 and len(steps) <= 1 and len(confirmation["predicted"]) == len(steps)
+    assert [c["seeds"] for c in candidates + steps] == [[7001]] * (2 + len(steps))
+    chosen = (candidates + steps)[confirmation["chosen"]]
+    assert chosen["mse"] == min(c["mse"] for c in candidates + steps)
     assert validations["model-inverse"]["parameters"] == chosen["parameters"]
     values = confirmation["surrogate_values"]
-    assert confirmation["dem_runs"] == 2 and values == sorted(values)
+    assert confirmation["dem_runs"] == 2 + len(steps) and values == sorted(values)
 
 
 def test_calibrated_answer_transfer_and_prediction(results):
