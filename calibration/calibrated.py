@@ -7,7 +7,8 @@ candidate, with how decisive the evidence was.
 
 Routes to the parameters, each ending in the same validation:
 - the diagnosis' own calibration of that model (an emulator of its design runs, checked in DEM);
-- Bayesian optimisation on DEM runs of the measured column (one packing, seed CALIBRATION_SEED).
+- Bayesian optimisation on DEM runs of the measured column (one packing, seed CALIBRATION_SEED +
+  calibration.seed).
 
 Validation (`validate`): DEM runs at the parameters on packings the calibration never saw
 (VALIDATION_SEED0, +1, ...); the score is the runout MSE of their mean curve against the
@@ -348,12 +349,13 @@ def bayesopt_model(
     progress: Callable[[float], None] | None = None,
 ) -> OptimisationHistory:
     """GP expected-improvement BO of the runout MSE over `model`'s box, one DEM run per point on
-    packing CALIBRATION_SEED; a run that fails is recorded with its reason in the history's `failed`
-    list (it counts against the budget, the GP never sees it)."""
+    packing CALIBRATION_SEED + seed (seed also draws the initial design); a run that fails is
+    recorded with its reason in the history's `failed` list (it counts against the budget, the GP
+    never sees it)."""
 
     def dem_objective(theta: np.ndarray) -> float:
         try:
-            curve = model_runout(model, column, theta, settings, CALIBRATION_SEED, runout, dem_config)
+            curve = model_runout(model, column, theta, settings, CALIBRATION_SEED + seed, runout, dem_config)
         except FAILURES as exc:
             raise PointFailed(failure_reason(exc)) from exc
         return float(runout_mse(curve, column.runout))

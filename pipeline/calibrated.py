@@ -63,9 +63,9 @@ BASE = ("friction", "restitution")
 @keeps_runs("out_json")
 def run_model_bayesopt(job: CalibratedColumn, out_json: StrPath, out_figure: StrPath, section: dict) -> dict:
     """The Bayesian-optimisation route of the model of one measured column (workflow rule
-    calibrated_bayesopt): section["budget"] DEM runs on packing CALIBRATION_SEED -> bayesopt.json
-    (route, the optimum, the history of every run, dem_runs, seconds) and its figure (the runs in
-    the (mu, e) plane, the best so far against the runs)."""
+    calibrated_bayesopt): section["budget"] DEM runs on packing CALIBRATION_SEED + section["seed"] ->
+    bayesopt.json (route, the optimum, the history of every run, dem_runs, seconds) and its figure
+    (the runs in the (mu, e) plane, the best so far against the runs)."""
     started = time.perf_counter()
     model, name = job.model, job.name
     history = bayesopt_model(
@@ -340,7 +340,7 @@ def run_calibrated(
         runout=runout.to_config(),
         runout_stated=column.runout_method is not None,  # False: the file states none, the config's
         validation_packings=n_packings,
-        calibration_packing=CALIBRATION_SEED,
+        calibration_packing=CALIBRATION_SEED + section.get("seed", 0),
         seconds=time.perf_counter() - started,
     )
     result.to_json(out_json)

@@ -37,7 +37,8 @@ def run_model_doe(
 ) -> dict:
     """DoE calibration of the calibrated model of one measured column (workflow rule calibrated_doe).
 
-    section: the config's `calibration` section (doe_centre_replicates, default 3). Writes the
+    section: the config's `calibration` section (doe_centre_replicates, default 3; seed: the packing
+    of the non-replicate runs is CALIBRATION_SEED + seed, the BO's). Writes the
     CCD's result JSON (route, parameters, optimum in natural units, dem_runs, seconds: its runs'
     wall time and its fit's, and the DoE summary), the responses table of every run (ccd: the run
     is the CCD's) and the CCD's figure; out_full_factorial (result JSON, figure): the 3-level full
@@ -55,6 +56,7 @@ def run_model_doe(
         runout,
         dem,
         centre_replicates=section.get("doe_centre_replicates", 3),
+        seed=section.get("seed", 0),
         progress=progress_logger(f"DoE of {model.name} on DEM runs of {name}", log),
         full_factorial=out_full_factorial is not None,
     )

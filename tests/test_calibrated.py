@@ -466,3 +466,17 @@ def test_the_dem_corrects_the_gns_optimum_along_its_slopes_on_the_confirmation_p
     # the linear model foresees a lower MSE than the point it steps from (it is a least-squares step)
     assert refined.predicted[0] < confirmation.candidates[0].mse
     assert refined.to_dict()["steps"][0]["seeds"] == [CONFIRM_SEED0, CONFIRM_SEED0 + 1]
+
+
+def test_the_calibration_seed_moves_the_bayesian_optimisations_packing_and_design():
+    """calibration.seed is the route's own randomness: another seed draws another initial design and
+    runs every point on packing CALIBRATION_SEED + seed, as its values show."""
+    from calibration.calibrated import CALIBRATION_SEED, bayesopt_model, runout_mse
+
+    model = Model()
+    histories = {seed: bayesopt_model(model, COLUMN, SETTINGS, RUNOUT, None, 2, 2, seed=seed) for seed in (0, 3)}
+    assert histories[0].params[0] != histories[3].params[0]
+    for seed, history in histories.items():
+        for theta, value in zip(history.params, history.values):
+            curve = model_runout(model, COLUMN, theta, SETTINGS, CALIBRATION_SEED + seed, RUNOUT, None)
+            assert value == pytest.approx(runout_mse(curve, COLUMN.runout), rel=1e-12)
