@@ -1,0 +1,41 @@
+"""benchmarks/route_spread.py: a variant counts only the routes it reran, the spread is over the DAG
+and its variants, and the verdict of a variant takes the routes it did not rerun from the DAG."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def write_validation(folder: Path, column: str, key: str, mse: float, model: str = "sidewall_friction") -> None:
+    path = folder / "results" / "calibrated" / column / "validation" / f"{key}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    record = {"key": key, "mse": mse, "mse_se": 0.01, "model": model, "parameters": {"friction": 0.5}}
+    path.write_text(json.dumps(record))
+
+
+def test_the_spread_counts_each_variants_own_routes_and_its_verdict(tmp_path):
+    dag, spread = tmp_path / "dag", tmp_path / "dag.spread"
+    for key, mse in {"model-inverse": 0.2, "model-doe": 0.1, "model-bayesopt": 0.15, "diagnosis-base": 3.0}.items():
+        write_validation(dag, "quartz", key, mse, "base" if key == "diagnosis-base" else "sidewall_friction")
+    # a GNS variant holds copies of every route, but reran only its own
+    for key, mse in {"model-inverse": 0.05, "model-doe": 0.1, "model-bayesopt": 0.15}.items():
+        write_validation(spread / "gns1", "quartz", key, mse)
+    write_validation(spread / "cal1", "quartz", "model-doe", 0.3)
+    out = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / "route_spread.py"), str(dag), "--collect"],
+        capture_output=True, text=True, check=True,
+    ).stdout  # fmt: skip
+    result = json.loads(out)
+    mse = result["mse"]["quartz"]
+    assert set(mse["model-inverse"]) == {"dag", "gns1", "mean", "range"}
+    assert mse["model-inverse"]["mean"] == 0.125 and mse["model-inverse"]["range"] == [0.05, 0.2]
+    assert set(mse["model-doe"]) == {"dag", "cal1", "mean", "range"} and mse["model-doe"]["range"] == [0.1, 0.3]
+    verdicts = result["verdicts"]
+    assert verdicts["dag"]["quartz"]["lowest"] == "model-doe"
+    assert verdicts["gns1"]["quartz"]["lowest"] == "model-inverse"
+    gns_minus_doe = {name: v["quartz"]["gns_minus_doe"]["model-doe"] for name, v in verdicts.items() if name != "cal1"}
+    assert gns_minus_doe["gns1"] < 0 < gns_minus_doe["dag"]
+    assert verdicts["cal1"]["quartz"]["lowest"] == "model-bayesopt"
