@@ -312,6 +312,12 @@ def run_calibrated(
         route["versus_answer"] = dict(
             zip(("mse_difference", "se"), mse_jackknife(route["curves"], column.runout, best["curves"]))
         )
+    # ... and on the runoff's packings, where the routes the answer is not told apart from show
+    winner = next((r for r in scored if r["key"] == best["key"]), None)
+    for route in scored:
+        route["versus_answer"] = dict(
+            zip(("mse_difference", "se"), mse_jackknife(route["curves"], column.runout, winner["curves"]))
+        )
     result = CalibratedResult(
         name=name,
         measured=str(job.measured_path),

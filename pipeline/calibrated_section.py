@@ -325,7 +325,39 @@ def runoff_lines(result: dict) -> list[str]:
         bold = "**" if r["route"] == result["answer"] else ""
         score = f"{r['mse']:.3g} +- {format_se(r['mse_se'])}"
         lines.append(f"| {bold}{r['route']}{bold} | {first[r['route']]:.3g} | {score} |")
-    return [*lines, ""]
+    return [*lines, "", *tie_lines(result)]
+
+
+def tie_lines(result: dict) -> list[str]:
+    """The runoff's routes not told apart from the answer (paired difference within 2 SE on its
+    packings), with the span of their parameters: which of them answers is a draw of the packings'
+    chaos and of the machine's bits, not a finding. None where the runoff parted them."""
+    scored = result.get("runoff") or []
+    tied = [
+        r
+        for r in scored
+        if r["route"] != result["answer"]
+        and "versus_answer" in r
+        and r["versus_answer"]["se"] is not None
+        and abs(r["versus_answer"]["mse_difference"]) <= 2 * r["versus_answer"]["se"]
+    ]
+    if not tied:
+        return []
+    close = [r for r in scored if r["route"] == result["answer"]] + tied
+    spans = ", ".join(
+        f"{name} {min(r['parameters'][name] for r in close):.3g}-{max(r['parameters'][name] for r in close):.3g}"
+        for name in close[0]["parameters"]
+    )
+    names = "; ".join(f"{r['route']} ({r['versus_answer']['mse_difference']:+.3g} +- "
+                      f"{format_se(r['versus_answer']['se'])})" for r in tied)  # fmt: skip
+    return [
+        f"**The answer is not told apart from {len(tied)} other route{'s' if len(tied) > 1 else ''}** on these "
+        f"{result['answer_packings']} packings (MSE difference from the answer, paired packing by packing, within "
+        f"2 SE): {names}. Which of them answers is a draw of the packings' chaos and of the machine's bits (another "
+        f"machine, seed or packing set may pick another); their parameters span {spans}: read that as the answer's "
+        "uncertainty from the routes.",
+        "",
+    ]
 
 
 def own_runs_text(versus: dict) -> str:

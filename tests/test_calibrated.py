@@ -480,3 +480,24 @@ def test_the_calibration_seed_moves_the_bayesian_optimisations_packing_and_desig
         for theta, value in zip(history.params, history.values):
             curve = model_runout(model, COLUMN, theta, SETTINGS, CALIBRATION_SEED + seed, RUNOUT, None)
             assert value == pytest.approx(runout_mse(curve, COLUMN.runout), rel=1e-12)
+
+
+def test_the_report_names_the_routes_the_runoff_does_not_part_from_the_answer():
+    """A route within 2 SE of the answer (paired, on the runoff's packings) is named with the span of
+    the parameters; one outside it is not; without a tie, nothing is said."""
+    from pipeline.calibrated_section import tie_lines
+
+    def entry(route, mu, difference, se):
+        versus = {"mse_difference": difference, "se": se}
+        return {"route": route, "parameters": {"friction": mu}, "versus_answer": versus}
+
+    result = {
+        "answer": "BO",
+        "answer_packings": 12,
+        "runoff": [entry("BO", 0.3, 0.0, 0.0), entry("DoE", 0.5, 0.01, 0.02), entry("fit", 0.9, 0.08, 0.02)],
+    }
+    text = " ".join(tie_lines(result))
+    assert "not told apart from 1 other route" in text and "DoE (+0.01 +- 0.02)" in text
+    assert "friction 0.3-0.5" in text and "fit" not in text.replace("friction", "")
+    result["runoff"] = result["runoff"][::2]
+    assert tie_lines(result) == []
