@@ -1,7 +1,7 @@
 """Every calibration route's spread over its own randomness, from one finished default DAG; prints JSON.
 
     python benchmarks/route_spread.py DAG [--gns-seeds 1 2] [--calibration-seeds 1 2]
-        [--aten default] [--column quartz] [--cores 1] [--collect]
+        [--diagnosis-seeds 1] [--aten default] [--column quartz] [--cores 1] [--collect]
 
 DAG: the folder of a finished `bash run.sh main` (its results/ and .snakemake/metadata, its .venv).
 Each variant is a hard-linked copy of it, DAG.spread/<variant>, in which Snakemake reruns only the
@@ -11,7 +11,9 @@ DAG itself is left as it was):
     .<first dataset>.seed, which the model's GNS inherits), optionally under ATEN_CPU_CAPABILITY
     `--aten`, then its inverse design, DEM confirmation and correction, and validation;
   - cal<S>: calibration.seed S: the model DoE's (CCD, full factorial) and BO's packing and the BO's
-    initial design, for every measured column, each validated.
+    initial design, for every measured column, each validated;
+  - dia<S>: diagnosis.seed S: the diagnosis' design runs and emulator, then its contenders check,
+    the model it chooses and the diagnosis fit of that model, validated, for every measured column.
 --collect: run nothing, read the variants there are. The JSON gives, per column and route key, the
 validated MSE and its SE (on calibration.validation_packings packings) and the point, for DAG
 (seed 0) and every variant, with the mean and range over them; and per variant the lowest validated
@@ -30,7 +32,11 @@ from pathlib import Path
 
 import yaml
 
-ROUTES_OF = {"gns": ("model-inverse",), "cal": ("model-doe", "model-doe-ff", "model-bayesopt")}
+ROUTES_OF = {
+    "gns": ("model-inverse",),
+    "cal": ("model-doe", "model-doe-ff", "model-bayesopt"),
+    "dia": ("diagnosis-model",),
+}
 
 
 def copy_dag(dag: Path, to: Path) -> None:
@@ -63,10 +69,14 @@ def run_variant(dag: Path, variant: str, seed: int, aten: str | None, column: st
         override = f"gns={json.dumps({'per_dataset': per_dataset})}"
         targets = [f"results/calibrated/{column}/validation/model-inverse.json"]
         force = ["gns_train"]
-    else:
+    elif variant.startswith("cal"):
         override = f"calibration={json.dumps({'seed': seed})}"
         targets = [f"results/calibrated/{c}/validation/{r}.json" for c in config["measured"] for r in ROUTES_OF["cal"]]
         force = ["calibrated_doe", "calibrated_bayesopt"]
+    else:
+        override = f"diagnosis={json.dumps({'seed': seed})}"
+        targets = [f"results/calibrated/{c}/validation/diagnosis-model.json" for c in config["measured"]]
+        force = ["diagnosis_library", "diagnosis"]
     env = dict(os.environ, **({"ATEN_CPU_CAPABILITY": aten} if aten else {}))
     command = [
         str(where / ".venv" / "bin" / "python"), "-m", "snakemake", *targets,
@@ -135,6 +145,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("dag", type=Path)
     parser.add_argument("--gns-seeds", type=int, nargs="*", default=[])
     parser.add_argument("--calibration-seeds", type=int, nargs="*", default=[])
+    parser.add_argument("--diagnosis-seeds", type=int, nargs="*", default=[])
     parser.add_argument("--aten", default=None, help="ATEN_CPU_CAPABILITY for the GNS variants")
     parser.add_argument("--column", default="quartz", help="the column whose model GNS is retrained")
     parser.add_argument("--cores", type=int, default=1)
@@ -144,6 +155,7 @@ def main(argv: list[str] | None = None) -> None:
     if not args.collect:
         suffix = f"-{args.aten}" if args.aten else ""
         runs = [(f"gns{s}{suffix}", s) for s in args.gns_seeds] + [(f"cal{s}", s) for s in args.calibration_seeds]
+        runs += [(f"dia{s}", s) for s in args.diagnosis_seeds]
         for variant, seed in runs:
             status = run_variant(dag, variant, seed, args.aten, args.column, args.cores)
             print(f"{variant}: snakemake exit {status}", file=sys.stderr)
