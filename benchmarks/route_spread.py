@@ -14,10 +14,12 @@ DAG itself is left as it was):
     initial design, for every measured column, each validated;
   - dia<S>: diagnosis.seed S: the diagnosis' design runs and emulator, then its contenders check,
     the model it chooses and the diagnosis fit of that model, validated, for every measured column.
---collect: run nothing, read the variants there are. The JSON gives, per column and route key, the
-validated MSE and its SE (on calibration.validation_packings packings) and the point, for DAG
-(seed 0) and every variant, with the mean and range over them; and per variant the lowest validated
-route of the model and the sign of GNS minus each DoE route (the verdict the report draws).
+--collect: run nothing, read the variants there are (those whose Snakemake run ended well, its exit
+status in DAG.spread/<variant>/spread.rc; the others are listed as unfinished). The JSON gives, per
+column and route key, the validated MSE and its SE (on calibration.validation_packings packings)
+and the point, for DAG (seed 0) and every variant, with the mean and range over them; and per
+variant the lowest validated route of the model and GNS minus each DoE route (the verdict the
+report draws).
 """
 
 from __future__ import annotations
@@ -85,7 +87,9 @@ def run_variant(dag: Path, variant: str, seed: int, aten: str | None, column: st
     ]  # fmt: skip
     with open(where / "spread.log", "w") as log:
         nice = 'echo 19 > /proc/self/autogroup 2>/dev/null; exec "$@"'
-        return subprocess.call(["sh", "-c", nice, "sh", *command], cwd=where, env=env, stdout=log, stderr=log)
+        status = subprocess.call(["sh", "-c", nice, "sh", *command], cwd=where, env=env, stdout=log, stderr=log)
+    (where / "spread.rc").write_text(f"{status}\n")  # collect reads finished variants only
+    return status
 
 
 def validations(folder: Path, keys: tuple[str, ...] | None = None) -> dict:
@@ -119,8 +123,12 @@ def verdicts(routes: dict) -> dict:
 def collect(dag: Path) -> dict:
     """The JSON of the module docstring, from DAG and the variants beside it."""
     spread = dag.parent / f"{dag.name}.spread"
-    variants = {"dag": validations(dag)}
+    variants, unfinished = {"dag": validations(dag)}, []
     for folder in sorted(spread.glob("*")) if spread.exists() else []:  # only the routes it reran
+        rc = folder / "spread.rc"
+        if not rc.exists() or rc.read_text().strip() != "0":
+            unfinished.append(folder.name)  # still running, or Snakemake failed: its copies are the DAG's
+            continue
         variants[folder.name] = validations(folder, ROUTES_OF[folder.name[:3]])
     summary: dict = {}
     for name, columns in variants.items():
@@ -137,7 +145,7 @@ def collect(dag: Path) -> dict:
         name: {c: verdicts({**variants["dag"][c], **routes}) for c, routes in columns.items() if c in variants["dag"]}
         for name, columns in variants.items()
     }
-    return {"dag": str(dag), "variants": variants, "mse": summary, "verdicts": verdict}
+    return {"dag": str(dag), "variants": variants, "unfinished": unfinished, "mse": summary, "verdicts": verdict}
 
 
 def main(argv: list[str] | None = None) -> None:

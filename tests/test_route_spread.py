@@ -24,11 +24,15 @@ def test_the_spread_counts_each_variants_own_routes_and_its_verdict(tmp_path):
     for key, mse in {"model-inverse": 0.05, "model-doe": 0.1, "model-bayesopt": 0.15}.items():
         write_validation(spread / "gns1", "quartz", key, mse)
     write_validation(spread / "cal1", "quartz", "model-doe", 0.3)
+    write_validation(spread / "cal2", "quartz", "model-doe", 9.0)  # still running: not counted
+    for variant in ("gns1", "cal1"):
+        (spread / variant / "spread.rc").write_text("0\n")
     out = subprocess.run(
         [sys.executable, str(ROOT / "benchmarks" / "route_spread.py"), str(dag), "--collect"],
         capture_output=True, text=True, check=True,
     ).stdout  # fmt: skip
     result = json.loads(out)
+    assert result["unfinished"] == ["cal2"]
     mse = result["mse"]["quartz"]
     assert set(mse["model-inverse"]) == {"dag", "gns1", "mean", "range"}
     assert mse["model-inverse"]["mean"] == 0.125 and mse["model-inverse"]["range"] == [0.05, 0.2]
