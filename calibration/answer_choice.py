@@ -22,6 +22,12 @@ if TYPE_CHECKING:
     from numpy.typing import ArrayLike
 
 
+def not_told_apart(difference: float, se: float | None, z: float = 2.0) -> bool:
+    """A route's MSE minus the best's (paired, mse_jackknife) within z standard errors; with no error
+    (fewer than 3 packings both ran) every finite difference is."""
+    return math.isfinite(difference) and (se is None or difference <= z * se)
+
+
 def contenders(routes: Sequence[dict], measured: ArrayLike, best: dict, z: float = 2.0) -> list[dict]:
     """The routes (Validation dicts on the same packings) not told apart from `best`: their MSE minus
     best's, paired packing by packing (mse_jackknife), within z standard errors; with no error (fewer
@@ -31,8 +37,7 @@ def contenders(routes: Sequence[dict], measured: ArrayLike, best: dict, z: float
     for route in routes:
         if route is best:
             continue
-        difference, se = mse_jackknife(route["curves"], measured, best["curves"])
-        if math.isfinite(difference) and (se is None or difference <= z * se):
+        if not_told_apart(*mse_jackknife(route["curves"], measured, best["curves"]), z):
             close.append(route)
     return close
 

@@ -213,13 +213,14 @@ def run_validation(
     runs = (cost or {}).get("dem_runs") or runs
     if key == "model-inverse" and section.get("gns_confirm_candidates"):
         # the GNS's few best distinct points run by the DEM first: the DEM, not the GNS's bits, chooses
-        points, values = gns_points(read_result(source), route_model.parameter_names)
+        inverse = read_result(source)
+        points, values = gns_points(inverse, route_model.parameter_names)
         confirmation = confirm(
             route_model, column, points, values, settings, reading, dem,
             section["gns_confirm_candidates"], section["gns_confirm_packings"],
             progress_logger(f"{name}: {label}, its best points confirmed by DEM", log),
         )  # fmt: skip
-        response = gns_response(read_result(source), route_model.parameter_names)
+        response = gns_response(inverse, route_model.parameter_names)
         if section.get("gns_refine_rounds") and response is not None:
             confirmation = refine(
                 route_model, column, confirmation, *response, settings, reading, dem, section["gns_refine_rounds"],
@@ -307,17 +308,13 @@ def run_calibrated(
     predicting = progress_logger(f"{name}: predictions at a = {', '.join(f'{a:g}' for a in aspect_ratios)}", log)
     prediction = predict(model, column, theta, settings, aspect_ratios, runout, dem, progress=predicting)
     gns = next((r for r in routes if r["key"] == "model-inverse"), None)
-    # every route against the answer, packing by packing (all validations share their seeds)
-    for route in routes:
-        route["versus_answer"] = dict(
-            zip(("mse_difference", "se"), mse_jackknife(route["curves"], column.runout, best["curves"]))
-        )
-    # ... and on the runoff's packings, where the routes the answer is not told apart from show
+    # every route against the answer, packing by packing (all validations share their seeds), and
+    # so on the runoff's packings, where the routes the answer is not told apart from show
     winner = next((r for r in scored if r["key"] == best["key"]), None)
-    for route in scored:
-        route["versus_answer"] = dict(
-            zip(("mse_difference", "se"), mse_jackknife(route["curves"], column.runout, winner["curves"]))
-        )
+    for entries, answer in ((routes, best), (scored, winner)):
+        for route in entries:
+            difference = mse_jackknife(route["curves"], column.runout, answer["curves"])
+            route["versus_answer"] = dict(zip(("mse_difference", "se"), difference))
     result = CalibratedResult(
         name=name,
         measured=str(job.measured_path),

@@ -11,6 +11,7 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
+from calibration.answer_choice import not_told_apart
 from calibration.calibrated_result import CalibratedResult
 from calibration.contenders import ContenderChoice
 from calibration.decision import DecisionRule
@@ -338,8 +339,7 @@ def tie_lines(result: dict) -> list[str]:
         for r in scored
         if r["route"] != result["answer"]
         and "versus_answer" in r
-        and r["versus_answer"]["se"] is not None
-        and abs(r["versus_answer"]["mse_difference"]) <= 2 * r["versus_answer"]["se"]
+        and not_told_apart(r["versus_answer"]["mse_difference"], r["versus_answer"]["se"])
     ]
     if not tied:
         return []
