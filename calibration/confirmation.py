@@ -35,7 +35,13 @@ from calibration.sensitivity import finite_or_none
 from dem.runout import RunoutMethod
 
 CONFIRM_SEED0 = 7001  # confirmation packings: no calibration's, validation's (5001...) or diagnosis' seed
-MIN_UNIT_DISTANCE = 0.1  # candidates this far apart at least, in the model's unit box (log axes where it has them)
+# Candidates this far apart at least, in the model's unit box (log axes where it has them): farther
+# than the refinement's first step (TRUST_RADIUS), so that they sample other stretches of the flat
+# valley a GNS cannot tell apart, not one stretch the refinement would cover from one of them. At 0.1
+# one GNS (seed 0, ATEN default) put all three at mu 0.73-0.88, which the DEM scored 0.21-0.40, and
+# validated at 0.122; at 0.3 its third candidate lay elsewhere and it validated at 0.070
+# (docs/experiments/route-spread.md).
+MIN_UNIT_DISTANCE = 0.3
 # The first refinement step's largest move per parameter, in the unit box: about the spread of the
 # near-best points of one GNS search over its training seeds (0.04-0.06 in mu_w of a 0.1-0.6 box,
 # docs/experiments/gns-route.md), with room to spare.
@@ -98,7 +104,7 @@ class Confirmation:
 
         return {
             "candidates": [point(c) for c in self.candidates],
-            "surrogate_values": self.surrogate_values,
+            "surrogate_values": [finite_or_none(v) for v in self.surrogate_values],
             "steps": [point(c) for c in self.steps],
             "predicted": [finite_or_none(v) for v in self.predicted],
             "chosen": self.chosen,
@@ -191,12 +197,16 @@ def refine(
     dem_config: dict | None,
     n_rounds: int,
     progress: Callable[[float], None] | None = None,
+    secant: bool = False,
 ) -> Confirmation:
     """The confirmation's chosen point corrected by the DEM in n_rounds Gauss-Newton steps (the
     module's docstring): the step minimises |DEM mean L* + S du - measured L*|^2 within the unit box
     and the trust region, S the GNS's local slope (local_slope of gns_runouts [n, K] at gns_points
-    [n, p], the model's parameter order); each step runs on the confirmation's packings. Returns
-    the confirmation with the steps, the predicted MSEs and the lowest DEM MSE chosen."""
+    [n, p], the model's parameter order); each step runs on the confirmation's packings. secant:
+    after each step S is corrected by what the DEM's curve did along it (Broyden's rank-one update,
+    as aggressive space mapping does), where the surrogate's slopes differ from the DEM's by more
+    than its local fit shows (another scale's DEM). Returns the confirmation with the steps, the
+    predicted MSEs and the lowest DEM MSE chosen."""
     from scipy.optimize import lsq_linear
 
     box = model.box
@@ -204,11 +214,12 @@ def refine(
     current = confirmation.checked[confirmation.chosen]
     n_packings, measured = len(current.seeds), np.asarray(column.runout, float)
     radius, steps, predicted = TRUST_RADIUS, [], []
+    learnt = 0.0  # the secant's correction of the surrogate's slope [K, p]
     for round_ in range(n_rounds):
         if not math.isfinite(current.mse):
             break
         centre = box.to_unit(list(current.parameters.values()))[0]
-        slope = local_slope(unit_points, gns_runouts, centre)
+        slope = local_slope(unit_points, gns_runouts, centre) + learnt
         residual = measured - np.asarray(current.mean, float)
         low, high = np.maximum(-centre, -radius), np.minimum(1.0 - centre, radius)
         # damped (Levenberg-Marquardt): a move the whole radius long costs as much as the noise of
@@ -229,6 +240,9 @@ def refine(
         )  # fmt: skip
         steps.append(step)
         predicted.append(float(np.mean((residual - slope @ move) ** 2)))
+        if secant and math.isfinite(step.mse):
+            missed = np.asarray(step.mean, float) - np.asarray(current.mean, float) - slope @ move
+            learnt = learnt + np.outer(missed, move) / float(move @ move)
         if math.isfinite(step.mse) and step.mse < current.mse:
             current = step
         else:
