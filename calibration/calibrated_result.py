@@ -46,9 +46,13 @@ class CalibratedResult:
     without that route. gns_vs_doe: the GNS route against each DoE route of the model, [{doe_key,
     doe_route, mse_difference (GNS minus DoE), se, packings, gns_dem_runs, gns_own_dem_runs,
     doe_dem_runs}]; [] without a GNS route.
-    transfer: the answer validated one size_scale finer (Validation.to_dict(); None when
-    calibration.finer_size_scale is off). prediction: the model at the answer on other aspect
-    ratios (calibration.prediction.Prediction.to_dict()).
+    target: the answer carried to calibration.target_size_scale (calibration.target_scale.
+    TargetCalibration.to_dict(): the coarse slopes, the correction at the target, its validation,
+    the DEM runs and seconds at each scale); None where the target is the calibration's scale.
+    transfer: the answer (at the target where there is one) validated at calibration.finer_size_scale
+    (Validation.to_dict() and its size_scale; None when that is off). prediction: the model at the
+    answer on other aspect ratios (calibration.prediction.Prediction.to_dict()), run at
+    prediction_size_scale (the target's).
     measured_final_runout: the measured L* at its last t/t*; prediction_measured_a: the measured
     column's aspect ratio H_i / L_i.
     size_scale: coarse-graining factor of every DEM run; engine: the DEM engine; runout: the
@@ -73,8 +77,10 @@ class CalibratedResult:
     gns_intervals: list[dict[str, Any]] | None
     gns_sensitivity: list[dict[str, Any]] | None
     gns_vs_doe: list[dict[str, Any]]
+    target: dict[str, Any] | None
     transfer: dict[str, Any] | None
     prediction: dict[str, Any]
+    prediction_size_scale: float
     measured_final_runout: float
     prediction_measured_a: float
     size_scale: float

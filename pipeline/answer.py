@@ -20,7 +20,7 @@ from pathlib import Path
 
 from calibration.calibrated_result import CalibratedResult
 from dem.atomic import StrPath, write_text
-from pipeline.calibrated_section import answer_score, format_se, format_span, transfer_holds
+from pipeline.calibrated_section import answer_score, format_se, format_span, transfer_holds, transfer_reference
 
 CELL = "padding: 2px 10px 2px 0; text-align: left; vertical-align: top"
 FIRST_SENTENCE = re.compile(r"(?<=[.:])\s+(?=[A-Z])")
@@ -112,13 +112,23 @@ def _interval(p: dict | None) -> str:
 
 
 def _transfer(result: dict, score: dict) -> str:
-    transfer = result.get("transfer")
+    target, transfer = result.get("target"), result.get("transfer")
+    text = ""
+    if target:
+        v = target["validation"]
+        parameters = ", ".join(f"{k} {x:.3g}" for k, x in v["parameters"].items())
+        text = (
+            f" At the target size_scale {target['size_scale']:g}, corrected by {target['target_runs']} DEM runs "
+            f"there: <b>{parameters}</b>, validated MSE {v['mse']:.3g} &plusmn; {format_se(v['mse_se'])}."
+        )
     if not transfer or not math.isfinite(transfer["mse"]):
-        return ""
-    return (
-        f" One size_scale finer the same parameters score MSE {transfer['mse']:.3g} (here "
-        f"{score['shared_mse']:.3g} on as many packings)"
-        + (": the answer transfers." if transfer_holds(transfer, score) else ": recalibrate at the scale you run.")
+        return text
+    reference_mse, reference_scale = transfer_reference(result, score)
+    holds = transfer_holds(transfer, reference_mse)
+    return text + (
+        f" Finer still, held out, the same parameters score MSE {transfer['mse']:.3g} (at size_scale "
+        f"{reference_scale:g}: {reference_mse:.3g} on as many packings)"
+        + (": the answer transfers." if holds else ": recalibrate at the scale you run.")
     )
 
 

@@ -16,7 +16,7 @@ import json
 import logging
 import time
 from collections.abc import Sequence
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -38,13 +38,13 @@ from calibration.calibrated_result import CalibratedResult
 from calibration.compare import plot_bayesopt
 from calibration.confirmation import confirm, refine
 from calibration.contenders import ContenderChoice, resolve_by_prediction
-from calibration.design_runs import SimulationSettings
 from calibration.diagnosis_result import Diagnosis
 from calibration.inverse_result import read_result
 from calibration.measured_column import MeasuredColumn
 from calibration.model import Model
 from calibration.prediction import PREDICTION_TSTAR, predict
 from calibration.scaling_laws import DISC_2D_SOURCE, QUASI_2D_SOURCE, disc_2d_runout, quasi_2d_height, quasi_2d_runout
+from calibration.target_scale import calibrate_at_target, plot_scales
 from dem.atomic import StrPath, write_json
 from dem.plots import save_figure
 from dem.progress import progress_logger
@@ -265,17 +265,21 @@ def run_calibrated(
     out_figure: StrPath,
     out_prediction: StrPath,
     section: dict,
+    out_scales: StrPath | None = None,
 ) -> CalibratedResult:
     """The answer for one measured column (workflow rule calibrated): of the validated routes
     (validation_paths, written by run_validation) those of the model (model.json) compete: those
     within 2 SE of the lowest validated MSE run on answer_packings packings in all (the first
-    shared; calibration.answer_choice) and the lowest there is the answer; it is validated
-    again one size_scale finer and predicts other aspect ratios. Returns the CalibratedResult it
+    shared; calibration.answer_choice) and the lowest there is the answer; it is carried to
+    target_size_scale (calibration.target_scale), validated again one size_scale finer than that
+    and predicts other aspect ratios at the target. Returns the CalibratedResult it
     writes to out_json (calibration/calibrated_result.py).
 
     section: the config's `calibration` section (validation_packings, answer_packings (absent or not
-    above validation_packings: no runoff), finer_size_scale, predict_aspect_ratios);
-    diagnosis_path: diagnosis.json (its Laplace posterior of the model gives intervals) or None.
+    above validation_packings: no runoff), target_size_scale (null or the calibration's: none),
+    target_packings, target_rounds, finer_size_scale, predict_aspect_ratios);
+    diagnosis_path: diagnosis.json (its Laplace posterior of the model gives intervals) or None;
+    out_scales: the figure of the answer across grain sizes (calibration.target_scale.plot_scales).
     """
     started = time.perf_counter()
     column, model, why, name = job.column, job.model, job.why, job.name
@@ -297,16 +301,27 @@ def run_calibrated(
         log.info("%s: on %d packings %s", name, answer_packings, {r["route"]: round(r["mse"], 4) for r in scored})
     theta = [best["parameters"][parameter] for parameter in model.parameter_names]
     log.info("%s: %s model, answer %s at %s (MSE %.4g)", name, model.name, best["route"], theta, best["mse"])
+    target, at_target = None, settings
+    if (section.get("target_size_scale") or settings.size_scale) < settings.size_scale:
+        # the answer carried to the resolution it must hold at: coarse slopes, target level
+        at_target = replace(settings, size_scale=section["target_size_scale"])
+        carrying = progress_logger(f"{name}: the answer at size_scale {at_target.size_scale:g}", log)
+        target = calibrate_at_target(
+            model, column, theta, settings, at_target.size_scale, runout, dem, section["target_packings"],
+            n_packings, section["target_rounds"], progress=carrying,
+        )  # fmt: skip
+        theta = target.theta
+        log.info("%s: at size_scale %g, %s: MSE %.4g", name, target.size_scale, theta, target.validation.mse)
     transfer = None
     if section["finer_size_scale"]:  # how far the answer transfers: the same validation with finer grains
-        finer = SimulationSettings(size_scale=section["finer_size_scale"])
+        finer = replace(settings, size_scale=section["finer_size_scale"])
         label = f"{best['route']}, at size_scale {finer.size_scale:g}"
         finer_done = progress_logger(f"{name}: {label}", log)
         transfer = validate(label, model, column, theta, finer, runout, dem, n_packings, progress=finer_done)
         log.info("%s: at size_scale %g, MSE %.4g", name, finer.size_scale, transfer.mse)
     aspect_ratios = section["predict_aspect_ratios"]
     predicting = progress_logger(f"{name}: predictions at a = {', '.join(f'{a:g}' for a in aspect_ratios)}", log)
-    prediction = predict(model, column, theta, settings, aspect_ratios, runout, dem, progress=predicting)
+    prediction = predict(model, column, theta, at_target, aspect_ratios, runout, dem, progress=predicting)
     gns = next((r for r in routes if r["key"] == "model-inverse"), None)
     # every route against the answer, packing by packing (all validations share their seeds), and
     # so on the runoff's packings, where the routes the answer is not told apart from show
@@ -334,8 +349,10 @@ def run_calibrated(
         gns_intervals=None if gns is None else gns["extra"]["intervals"],
         gns_sensitivity=None if gns is None else gns["extra"].get("sensitivity"),
         gns_vs_doe=gns_versus_doe(routes, scored, column.runout),
-        transfer=None if transfer is None else transfer.to_dict(),
+        target=None if target is None else target.to_dict(),
+        transfer=None if transfer is None else dict(transfer.to_dict(), size_scale=section["finer_size_scale"]),
         prediction=prediction.to_dict(),
+        prediction_size_scale=at_target.size_scale,
         measured_final_runout=float(column.runout[-1]),
         prediction_measured_a=column.aspect_ratio,
         size_scale=settings.size_scale,
@@ -349,6 +366,9 @@ def run_calibrated(
     result.to_json(out_json)
     plot_calibrated(result, column, out_figure)
     plot_prediction(result, column, out_prediction)
+    if out_scales is not None:
+        answer = next(r for r in routes if r["route"] == best["route"])
+        plot_scales(column, answer, settings.size_scale, result.target, result.transfer, out_scales)
     return result
 
 

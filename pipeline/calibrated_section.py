@@ -42,11 +42,20 @@ def answer_score(result: dict) -> dict:
     }
 
 
-def transfer_holds(transfer: dict, score: dict) -> bool:
-    """Whether the answer transfers one size_scale finer (calibrated.json's `transfer` and answer_score's
-    `score`): its MSE there at most twice the answer's at its own scale on as many packings (the
-    validation's, not the runoff's: a mean over more packings scores lower by its smaller scatter)."""
-    return transfer["mse"] <= 2 * score["shared_mse"]
+def transfer_reference(result: dict, score: dict) -> tuple[float, float]:
+    """(MSE, size_scale) the transfer is held against: the answer's validation at the target where
+    calibrated.json `result` carried it there, else the answer's at its own scale on as many packings
+    as the transfer (answer_score's shared_mse: a runoff's mean over more packings scores lower by
+    its smaller scatter)."""
+    if result.get("target"):
+        return result["target"]["validation"]["mse"], result["target"]["size_scale"]
+    return score["shared_mse"], result["size_scale"]
+
+
+def transfer_holds(transfer: dict, reference_mse: float) -> bool:
+    """Whether the answer transfers to finer grains (calibrated.json's `transfer`): its MSE there at
+    most twice `reference_mse` (transfer_reference's)."""
+    return transfer["mse"] <= 2 * reference_mse
 
 
 def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
@@ -61,6 +70,7 @@ def section_markdown(results: Sequence[dict], section_path: StrPath) -> str:
         score = answer_score(result)
         figure = Path(os.path.relpath(Path(result["figure"]), Path(section_path).parent)).as_posix()
         lines += answer_lines(result, score)
+        lines += target_lines(result, figure)
         lines += interval_lines(result)
         lines += routes_lines(result)
         lines += dem_lines(result, figure, section_path)
@@ -253,20 +263,69 @@ def dem_lines(result: dict, figure: str, section_path: StrPath) -> list[str]:
     return lines
 
 
+def target_lines(result: dict, figure: str) -> list[str]:
+    """The answer carried to the target size_scale: the coarse answer there, the correction's steps,
+    the validation, the DEM runs and seconds at each scale, and the figure of the answer across
+    grain sizes beside `figure` (calibrated.png's link); none where there is no target."""
+    target = result.get("target")
+    if not target:
+        return []
+    coarse, fine = f"size_scale {target['coarse_size_scale']:g}", f"size_scale {target['size_scale']:g}"
+    correction, validation = target["correction"], target["validation"]
+    start = correction["candidates"][0]
+    steps = " -> ".join(f"{s['mse']:.3g}" if s["mse"] is not None else "failed" for s in correction["steps"])
+    foreseen = ", ".join(f"{v:.3g}" for v in correction["predicted"] if v is not None)
+    stepped = (
+        f" {len(correction['steps'])} Gauss-Newton steps along the coarse DEM's slopes of L* (a star design of "
+        f"{target['coarse_runs']} runs about it at {coarse}): MSE {steps} (foreseen {foreseen})."
+        if correction["steps"]
+        else " No step was taken."
+    )
+    parameters = ", ".join(f"{k} = {v:.3g}" for k, v in validation["parameters"].items())
+    routes = result["routes"]
+    route_runs = sum(r["dem_runs"] + len(r["seeds"]) for r in routes)
+    route_seconds = sum(r["calibration_seconds"] + r["seconds"] for r in routes)
+    rows = [
+        (coarse, "every route's calibration and validation (not the GNS dataset, the diagnosis, the runoff)",
+         route_runs, route_seconds),
+        (coarse, "the slopes about the answer", target["coarse_runs"], target["coarse_seconds"]),
+        (fine, "the correction and the validation", target["target_runs"], target["target_seconds"]),
+    ]  # fmt: skip
+    transfer = result.get("transfer")
+    if transfer:
+        rows.append((f"size_scale {transfer['size_scale']:g}", "the held-out transfer",
+                     len(transfer["seeds"]), transfer["seconds"]))  # fmt: skip
+    return [
+        f"**At the target resolution ({fine}).** The answer above, found at {coarse}, scores MSE "
+        f"{start['mse']:.3g} at {fine} (mean of {len(start['seeds'])} packings of its own).{stepped} The lowest, "
+        f"**{parameters}**, validated at {fine}: MSE **{validation['mse']:.3g}** +- {format_se(validation['mse_se'])} "
+        f"on {len(validation['seeds'])} packings (each alone: {format_span(validation['mse_each'])}). Use these "
+        f"parameters at {fine}; its predictions below run there.",
+        "",
+        "| scale | DEM runs for | runs | s |",
+        "| --- | --- | --- | --- |",
+        *(f"| {scale} | {what} | {runs} | {seconds:.0f} |" for scale, what, runs, seconds in rows),
+        "",
+        f"![{result['name']}: the answer across grain sizes]({Path(figure).with_name('scales.png').as_posix()})",
+        "",
+    ]
+
+
 def transfer_lines(result: dict, score: dict) -> list[str]:
-    """The answer one size_scale finer against its score at its own scale (none where not run)."""
+    """The answer at finer grains against its score at the target or its own scale (none where not run)."""
     transfer = result["transfer"]
     if transfer is None:
         return []
+    reference_mse, reference_scale = transfer_reference(result, score)
     verdict = (
         "the answer transfers."
-        if transfer_holds(transfer, score)
+        if transfer_holds(transfer, reference_mse)
         else "the parameters are effective values of their scale: recalibrate at the scale you run."
     )
     return [
-        f"**Scale transfer.** The same parameters one size_scale finer ({transfer['route']}): validated "
+        f"**Scale transfer.** The same parameters at finer grains, held out ({transfer['route']}): validated "
         f"MSE **{transfer['mse']:.3g}** (each packing {format_span(transfer['mse_each'])}) against "
-        f"{score['shared_mse']:.3g} at size_scale {result['size_scale']:g} on as many packings: {verdict}",
+        f"{reference_mse:.3g} at size_scale {reference_scale:g} on as many packings: {verdict}",
         "",
     ]
 

@@ -363,6 +363,7 @@ def check_calibration(config: dict, inverse_datasets: dict[str, str] | None = No
             "config key calibration.gns_learning_rate_decay_steps: sets the schedule of a model GNS trained from "
             "scratch, but calibration.gns_warm_start fine-tunes the base GNS on its own schedule; set it to null"
         )
+    check_target_scale(config)
     model = section["model"]
     if model == "auto" and not config["diagnosis"]["enabled"]:
         raise ConfigError(
@@ -384,6 +385,31 @@ def check_calibration(config: dict, inverse_datasets: dict[str, str] | None = No
             f"cannot run (it runs {list(engine.mechanisms) or 'none of the candidate mechanisms'}); use the "
             "builtin engine, or name a model it can run (with auto: narrow diagnosis.candidates)"
         )
+
+
+def check_target_scale(config: dict) -> None:
+    """calibration.target_size_scale is not coarser than the calibration's (diagnosis.size_scale),
+    finer_size_scale is finer than the target's (held out), and every measured column passes the
+    size guard (dem.min_grains_across) at both."""
+    section, coarse = config["calibration"], config["diagnosis"]["size_scale"]
+    target, finer = section.get("target_size_scale"), section.get("finer_size_scale")
+    if target is not None and target > coarse:
+        raise ConfigError(
+            f"config key calibration.target_size_scale: {target:g} is coarser than the calibration's size_scale "
+            f"{coarse:g} (diagnosis.size_scale); the answer is carried to finer grains, not coarser"
+        )
+    reference = target if target is not None else coarse
+    if finer is not None and finer >= reference:
+        what = "the target's (calibration.target_size_scale)" if target is not None else "the calibration's"
+        raise ConfigError(
+            f"config key calibration.finer_size_scale: {finer:g} is not finer than {what} {reference:g}; the "
+            "transfer is checked on finer grains than the answer was carried to"
+        )
+    for key, size_scale in (("target_size_scale", target), ("finer_size_scale", finer)):
+        for name in sorted(config["measured"]) if size_scale is not None else ():
+            for column in _measured_columns(config, name).values():
+                where = f"calibration.{key} (measured {name!r}, column {column.name!r})"
+                _guard(column.L_i, column.material_properties, size_scale, config, where)
 
 
 def inverse_datasets(config: dict, cases: dict[str, dict]) -> dict[str, str]:

@@ -184,8 +184,8 @@ def test_the_stage_writes_its_answer_figure_and_report_section(tmp_path):
     assert f"validated runout MSE **{scored[route['key']]['mse']:.3g}**" in text and "**Scale transfer.**" in text
     # the finer scale is set against the answer on as many packings (its validation's), not the runoff's
     assert f"against {route['mse']:.3g} at size_scale 4 on as many packings" in text
-    assert transfer_holds({"mse": 0.15}, {"mse": 0.05, "shared_mse": 0.1})
-    assert not transfer_holds({"mse": 0.25}, {"mse": 0.05, "shared_mse": 0.1})
+    assert transfer_holds({"mse": 0.15}, 0.1) and not transfer_holds({"mse": 0.25}, 0.1)
+    assert result.target is None and result.prediction_size_scale == 4  # no target: the calibration's scale
     assert "How the answer was chosen" in text and "on the mean of 3 packings" in text
     assert "| final L* | " in text and "](../calibrated/prediction.png)" in text
     # the predictions held against the channel law, as a fraction of it per a and in one figure
@@ -217,6 +217,7 @@ def config_with(model, engine="builtin", diagnosis_enabled=True):
             "enabled": diagnosis_enabled,
             "candidates": ["rolling_resistance", "cohesion"],
             "channel_width": 0.01,
+            "size_scale": 5.0,
         },
         "dem": {"engine": engine, "solvers": {}},
     }

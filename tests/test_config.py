@@ -266,10 +266,39 @@ def test_diagnosis_of_a_column_too_few_grains_across_at_its_size_scale(tmp_path)
     )
     assert GUARD in message and "Largest size_scale that passes: 2.94;" in message
     config["diagnosis"]["size_scale"] = 2.94
+    config["calibration"].update(target_size_scale=2.5, finer_size_scale=2)  # not coarser than the calibration
     assert check_cross_keys(config, case_table(config)) == {"quartz": "quartz_multiple"}
     config["diagnosis"].update(size_scale=5, enabled=False)  # no diagnosis, no diagnosis runs to guard
     config["calibration"]["model"] = "base"  # (auto would need the diagnosis)
     assert check_cross_keys(config, case_table(config)) == {"quartz": "quartz_multiple"}
+
+
+def test_a_target_scale_coarser_than_the_calibration_or_no_coarser_than_its_transfer_is_refused(tmp_path):
+    """calibration.target_size_scale above the calibration's (diagnosis.size_scale 5), a
+    finer_size_scale not below the target's (or, with no target, the calibration's), and a target
+    the size guard refuses (the calibration's guard off with the diagnosis) are named by key."""
+    message = "config key calibration.target_size_scale: 6 is coarser than the calibration's size_scale 5"
+    assert cross_key_error(validated(edit=lambda c: c["calibration"].update(target_size_scale=6))).startswith(message)
+    config = validated(edit=lambda c: c["calibration"].update(finer_size_scale=3))
+    message = (
+        "config key calibration.finer_size_scale: 3 is not finer than the target's (calibration.target_size_scale) 3"
+    )
+    assert cross_key_error(config).startswith(message)
+    config["calibration"].update(target_size_scale=None, finer_size_scale=5)
+    assert cross_key_error(config).startswith(
+        "config key calibration.finer_size_scale: 5 is not finer than the calibration's 5"
+    )
+    config["calibration"].update(target_size_scale=5, finer_size_scale=None)  # the calibration's own: no target
+    check_cross_keys(config, case_table(config))
+    short = short_quartz_csv(tmp_path)  # L_i = 0.01 m: 7.84 grains across at size_scale 3
+    config["measured"]["short"] = short
+    config["diagnosis"]["enabled"], config["calibration"]["model"] = False, "base"
+    config["calibration"]["target_size_scale"] = 3
+    message = cross_key_error(config)
+    assert message.startswith(
+        "config key calibration.target_size_scale (measured 'short', column 'short_a6'): L_i = 0.01 m"
+    )
+    assert GUARD in message
 
 
 def test_doe_column_too_few_grains_across_at_doe_size_scale():

@@ -465,8 +465,13 @@ def test_calibrated_answer_transfer_and_prediction(results):
         mse = {k: (scored[k] if both else routes[k])["mse"] for k in ("model-inverse", v["doe_key"])}
         assert v["packings"] == (4 if both else 3)
         assert v["mse_difference"] == pytest.approx(mse["model-inverse"] - mse[v["doe_key"]])
-    transfer = answer["transfer"]  # finer_size_scale 3
-    assert finite(transfer["mse"], transfer["curves"]) and transfer["failed"] == {}
+    # carried from size_scale 4 to the target 3.5 (the star: 7 points x 2 packings, then one step), then 3
+    target, transfer = answer["target"], answer["transfer"]
+    assert (target["coarse_size_scale"], target["size_scale"], target["coarse_runs"]) == (4, 3.5, 14)
+    carried = target["validation"]
+    assert carried["seeds"] == [5001, 5002, 5003] and finite(carried["mse"], carried["curves"])
+    assert transfer["parameters"] == carried["parameters"] and answer["prediction_size_scale"] == 3.5
+    assert transfer["size_scale"] == 3 and finite(transfer["mse"], transfer["curves"]) and transfer["failed"] == {}
     prediction = answer["prediction"]
     assert prediction["aspect_ratios"] == [1.0, 3.0] and prediction["failed"] == {}
     assert finite(prediction["final_runout"], prediction["final_height"])

@@ -272,6 +272,13 @@ rule calibrated:
             subcategory="{name}",
             labels={"result": "3. prediction across aspect ratios"},
         ),
+        scales=report(
+            "results/calibrated/{name}/scales.png",
+            caption="../report/scales.rst",
+            category="1. The answer",
+            subcategory="{name}",
+            labels={"result": "4. the answer across grain sizes"},
+        ),
     log:
         "results/logs/calibrated/calibrated/{name}.log",
     benchmark:
@@ -296,6 +303,7 @@ rule calibrated_section:
         results=expand("results/calibrated/{name}/calibrated.json", name=CALIBRATED_NAMES),
         figures=expand("results/calibrated/{name}/calibrated.png", name=CALIBRATED_NAMES),
         predictions=expand("results/calibrated/{name}/prediction.png", name=CALIBRATED_NAMES),
+        scales=expand("results/calibrated/{name}/scales.png", name=CALIBRATED_NAMES),
         doe=expand("results/calibrated/{name}/doe_surface.png", name=CALIBRATED_NAMES),
         doe_full_factorial=expand("results/calibrated/{name}/doe_full_factorial_surface.png", name=CALIBRATED_NAMES),
         inverse=expand("results/calibrated/{name}/inverse_paths.png", name=MODEL_GNS_NAMES),

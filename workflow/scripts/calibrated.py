@@ -1,4 +1,4 @@
-"""The calibrated model of one measured column: calibrated.json, calibrated.png and prediction.png."""
+"""The calibrated model of one measured column: calibrated.json, calibrated.png, prediction.png and scales.png."""
 
 import logging
 
@@ -22,5 +22,6 @@ result = run_calibrated(
     snakemake.output.figure,
     snakemake.output.prediction,
     snakemake.params.settings,
+    snakemake.output.scales,
 )
 logging.info("%s: %s model, answer %s", result.name, result.model, result.answer)

@@ -1,0 +1,198 @@
+"""The answer carried to the resolution the engineer will simulate (multi-fidelity): calibrated on
+coarse grains, corrected by a few DEM runs at the target size_scale.
+
+A coarse-grained calibration gives effective parameters of its scale: the finer the grains, the
+farther the same column runs (docs/experiments/grain-size.md: L* at 4 t* 13% higher at size_scale
+3 than at 5), so the coarse answer misses at the target by more than the fit it was chosen on.
+What changes little between the scales is how the curve responds to each parameter. So the coarse
+DEM measures the slopes of L* in the parameters (a star design about the coarse answer, cheap at
+the coarse scale) and the target DEM only the level: Gauss-Newton steps of the target's own
+residual along those slopes, damped by the packing noise and bounded by a trust region
+(calibration.confirmation.refine, an output space mapping: the shape from the coarse model, the
+level from the fine one). The point the target DEM scores lowest on its correction packings is then
+validated at the target on the validation packings, which neither scale calibrated on.
+
+Cost: (2p + 1) x packings coarse runs for the slopes, (1 + rounds) x packings + validation runs at
+the target, against a whole calibration at the target.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, replace
+
+import numpy as np
+
+from calibration.calibrated import Validation, validate
+from calibration.confirmation import CONFIRM_SEED0, Confirmation, refine
+from calibration.design_runs import SimulationSettings
+from calibration.measured_column import MeasuredColumn
+from calibration.model import Model
+from dem.runout import RunoutMethod
+
+# The star's arm in the unit box: long enough that a slope stands above the packing noise of the
+# coarse mean curve, short enough to stay on the local slope (the GNS route's SLOPE_BANDWIDTH is 0.15).
+STAR_STEP = 0.1
+
+
+@dataclass
+class TargetCalibration:
+    """The answer at the target size_scale.
+
+    size_scale: the target's coarse-graining factor; coarse_size_scale: the calibration's.
+    slopes [2p + 1]: the coarse star design's points about the coarse answer (Validation each, on
+    the correction packings); correction: the coarse answer run at the target (its one candidate)
+    and the Gauss-Newton steps (calibration.confirmation.Confirmation, chosen: the lowest target MSE);
+    validation: the chosen point at the target on the validation packings (5001, ...), none of which
+    calibrated; seconds: wall time of all of it.
+    """
+
+    size_scale: float
+    coarse_size_scale: float
+    slopes: list[Validation]
+    correction: Confirmation
+    validation: Validation
+    seconds: float
+
+    @property
+    def theta(self) -> list[float]:
+        """The answer at the target [p], in the model's order."""
+        return list(self.validation.parameters.values())
+
+    @property
+    def coarse_runs(self) -> int:
+        return sum(len(v.seeds) for v in self.slopes)
+
+    @property
+    def target_runs(self) -> int:
+        return self.correction.dem_runs + len(self.validation.seeds)
+
+    def to_dict(self) -> dict:
+        """JSON: the scales, the slope points (parameters, seeds, mean L* curve, mse), the correction
+        (Confirmation.to_dict), the validation (Validation.to_dict), the DEM runs and seconds at each
+        scale."""
+        slopes = [{k: asdict(v)[k] for k in ("parameters", "seeds", "mean", "mse", "seconds")} for v in self.slopes]
+        return {
+            "size_scale": self.size_scale,
+            "coarse_size_scale": self.coarse_size_scale,
+            "slopes": slopes,
+            "correction": self.correction.to_dict(),
+            "validation": self.validation.to_dict(),
+            "coarse_runs": self.coarse_runs,
+            "coarse_seconds": sum(v.seconds for v in self.slopes),
+            "target_runs": self.target_runs,
+            "target_seconds": self.correction.seconds + self.validation.seconds,
+            "seconds": self.seconds,
+        }
+
+
+def star_points(model: Model, theta: Sequence[float], step: float = STAR_STEP) -> np.ndarray:
+    """[2p + 1, p] theta and theta +- step along each parameter in the model's unit box (log axes
+    where it has them), clipped to the box: at a bound the arm on that side is the centre itself."""
+    centre = model.box.to_unit(np.asarray(theta, float))[0]
+    arms = [centre]
+    for i in range(len(centre)):
+        for sign in (-1.0, 1.0):
+            point = centre.copy()
+            point[i] = min(max(centre[i] + sign * step, 0.0), 1.0)
+            arms.append(point)
+    return model.box.from_unit(np.array(arms))
+
+
+def calibrate_at_target(
+    model: Model,
+    column: MeasuredColumn,
+    theta: Sequence[float],
+    coarse: SimulationSettings,
+    target_size_scale: float,
+    runout: RunoutMethod,
+    dem_config: dict | None,
+    n_packings: int,
+    n_validation: int,
+    n_rounds: int,
+    progress: Callable[[float], None] | None = None,
+) -> TargetCalibration:
+    """The coarse answer theta [p] (found at `coarse` settings) corrected at target_size_scale (the
+    module's docstring): the star design at the coarse scale and the correction at the target on
+    n_packings packings (CONFIRM_SEED0 + k) each, n_rounds Gauss-Newton steps, then the lowest
+    validated at the target on n_validation packings."""
+    started = time.perf_counter()
+    target = replace(coarse, size_scale=float(target_size_scale))
+    points = star_points(model, theta)
+    # progress in packings' worth of runs: the star, the start and steps, the validation
+    total = (len(points) + 1 + n_rounds) * n_packings + n_validation
+
+    def part(offset: float, width: float) -> Callable[[float], None] | None:
+        return None if progress is None else (lambda f: progress(min((offset + f * width) / total, 1.0)))
+
+    slopes = []
+    for k, point in enumerate(points):
+        label = f"slope point {k} at size_scale {coarse.size_scale:g}"
+        within = part(k * n_packings, n_packings)
+        own = {"progress": within, "seed0": CONFIRM_SEED0}
+        slopes.append(validate(label, model, column, point, coarse, runout, dem_config, n_packings, **own))
+    done = len(points) * n_packings
+    label = f"the coarse answer at size_scale {target.size_scale:g}"
+    within = part(done, n_packings)
+    own = {"progress": within, "seed0": CONFIRM_SEED0}
+    start = validate(label, model, column, theta, target, runout, dem_config, n_packings, **own)
+    # the coarse DEM is the surrogate here: its value at the start, the star's centre on the same packings
+    correction = Confirmation([start], [slopes[0].mse], 0)
+    ran = [i for i, v in enumerate(slopes) if math.isfinite(v.mse)]
+    if len(ran) > len(theta) and n_rounds > 0:  # a slope in p parameters needs p + 1 points
+        means = np.array([slopes[i].mean for i in ran], float)
+        within = part(done + n_packings, n_rounds * n_packings)
+        own = {"progress": within, "secant": True}
+        correction = refine(model, column, correction, points[ran], means, target, runout, dem_config, n_rounds, **own)
+    chosen = correction.checked[correction.chosen]
+    label = f"the answer at size_scale {target.size_scale:g}"
+    within = part(total - n_validation, n_validation)
+    theta_target = list(chosen.parameters.values())
+    validation = validate(label, model, column, theta_target, target, runout, dem_config, n_validation, progress=within)
+    seconds = time.perf_counter() - started
+    return TargetCalibration(target.size_scale, float(coarse.size_scale), slopes, correction, validation, seconds)
+
+
+def plot_scales(
+    column: MeasuredColumn, answer: dict, coarse_size_scale: float, target: dict | None, transfer: dict | None, path
+) -> None:
+    """The answer across scales: the measured points; the answer at the calibration's scale (its
+    validation: `answer`, a Validation dict), at the target before and after the correction
+    (`target`, TargetCalibration.to_dict(); None: no target) and the held-out transfer (`transfer`,
+    a Validation dict with its size_scale; None: not run), each the mean of its `curves` [R][K] at
+    the column's times with its packing band (+- one std)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from dem.plots import save_figure
+
+    curves = [(answer, f"the answer at size_scale {coarse_size_scale:g}", "tab:blue")]
+    if target:
+        start = target["correction"]["candidates"][0]
+        fine = f"size_scale {target['size_scale']:g}"
+        curves += [
+            (start, f"the same at {fine}", "tab:red"),
+            (target["validation"], f"corrected at {fine}", "tab:green"),
+        ]
+    if transfer:
+        curves.append((transfer, f"held out at size_scale {transfer['size_scale']:g}", "tab:purple"))
+    fig, ax = plt.subplots(figsize=(7.5, 4.8))
+    for record, label, colour in curves:
+        ran = np.array([c for c in record["curves"] if c is not None], float).reshape(-1, len(column.runout))
+        if not len(ran):
+            continue
+        t, mean, std = column.t_over_tstar, ran.mean(axis=0), ran.std(axis=0, ddof=1) if len(ran) > 1 else None
+        if std is not None:
+            ax.fill_between(t, mean - std, mean + std, color=colour, alpha=0.15)
+        mse = record["mse"] if record["mse"] is not None else math.nan
+        ax.plot(t, mean, color=colour, lw=2, label=f"{label}: MSE {mse:.3g} ({len(record['seeds'])} packings)")
+    ax.plot(column.t_over_tstar, column.runout, "ko", ms=6, label=f"measured ({column.name})")
+    ax.set(xlabel="t / t*", ylabel="L* = (L - L_i) / L_i", title="the answer across grain sizes")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left")
+    fig.tight_layout()
+    save_figure(fig, path)
