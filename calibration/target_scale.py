@@ -101,6 +101,22 @@ def star_points(model: Model, theta: Sequence[float], step: float = STAR_STEP) -
     return model.box.from_unit(np.array(arms))
 
 
+def resolution_shift(
+    coarse_mean: Sequence[float | None], fine_mean: Sequence[float | None], fit_mse: float
+) -> tuple[float | None, float | None]:
+    """How far the model's own mean L* curve [T] moves between two grain sizes at the same parameters
+    and packing seeds: (its MSE, the least transfer MSE it allows). By the triangle inequality of the
+    RMS, a curve that misses the measured one by fit_mse at the coarser size misses it by at least
+    (sqrt(shift) - sqrt(fit_mse))^2 at the finer: a fit better than the shift cannot transfer as well
+    as it fits. (None, None) where no time has both means."""
+    pairs = [(c, f) for c, f in zip(coarse_mean, fine_mean, strict=True) if c is not None and f is not None]
+    pairs = [(c, f) for c, f in pairs if math.isfinite(c) and math.isfinite(f)]
+    if not pairs:
+        return None, None
+    shift = float(np.mean([(f - c) ** 2 for c, f in pairs]))
+    return shift, (math.sqrt(shift) - math.sqrt(fit_mse)) ** 2
+
+
 def calibrate_at_target(
     model: Model,
     column: MeasuredColumn,

@@ -12,7 +12,7 @@ from calibration.design_runs import SimulationSettings
 from calibration.measured_column import MeasuredColumn
 from calibration.mechanisms import get_mechanisms
 from calibration.model import Model
-from calibration.target_scale import STAR_STEP, calibrate_at_target, star_points
+from calibration.target_scale import STAR_STEP, calibrate_at_target, resolution_shift, star_points
 from dem.runout import RunoutMethod
 
 RUNOUT = RunoutMethod()
@@ -68,3 +68,16 @@ def test_the_coarse_answer_is_corrected_at_the_target_along_the_coarse_slopes():
     record = carried.to_dict()
     assert record["coarse_runs"] == 14 and record["target_runs"] == 2 * (1 + len(carried.correction.steps)) + 2
     assert record["validation"]["parameters"] == chosen.parameters and len(record["slopes"]) == 7
+
+
+def test_the_resolution_shift_is_the_curves_own_move_and_bounds_the_transfer_from_below():
+    coarse = [1.0, 2.0, 3.0, None]
+    fine = [1.5, 2.5, 3.5, 4.0]  # 0.5 farther at every time both ran
+    shift, least = resolution_shift(coarse, fine, fit_mse=0.04)
+    assert shift == pytest.approx(0.25)
+    assert least == pytest.approx((0.5 - 0.2) ** 2)
+    # a measured curve 0.2 short of the coarse one everywhere meets that bound's worst case
+    measured = np.array([0.8, 1.8, 2.8])
+    assert np.mean((np.array(fine[:3]) - measured) ** 2) >= least
+    assert resolution_shift(coarse, coarse, fit_mse=0.04) == (0.0, pytest.approx(0.04))
+    assert resolution_shift([None, 1.0], [2.0, None], fit_mse=0.1) == (None, None)
