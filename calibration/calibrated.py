@@ -129,6 +129,9 @@ def model_record(model: Model, why: str, name: str = "") -> dict:
         "bounds": model.bounds.tolist(),
         "log_scale": [bool(v) for v in model.box.log_scale],
         "why": why,
+        # the mechanism parameter's physically plausible range for the column's material, and its source
+        "plausible": None if model.mechanism is None else list(model.mechanism.plausible),
+        "plausible_source": None if model.mechanism is None else model.mechanism.plausible_source,
     }
 
 
@@ -154,6 +157,9 @@ def read_model(path: str | os.PathLike, channel_width: float = 0.01) -> tuple[Mo
                 f"[{whole_low:g}, {whole_high:g}]"
             )
         model = Model(replace(model.mechanism, bounds=(low, high)))
+        if record.get("plausible") is not None:  # stated for the column's material (calibration.plausible_ranges)
+            plausible = tuple(map(float, record["plausible"]))
+            model = Model(replace(model.mechanism, plausible=plausible, plausible_source=record["plausible_source"]))
     if bounds[: len(BASE_BOUNDS)] != list(BASE_BOUNDS):
         raise CalibrationError(f"{path}: bounds of friction and restitution {bounds[:2]} are not {list(BASE_BOUNDS)}")
     return model, str(record.get("why", ""))

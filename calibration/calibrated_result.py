@@ -31,7 +31,9 @@ class CalibratedResult:
     column: the column's name in that file.
     model: the calibrated model, "base" or a mechanism's name; parameters [p]: its parameter names
     in the model's order; bounds [p][2]: (low, high) of each, the box every route searched; why:
-    why this model (the config, or the diagnosis' answer), in words.
+    why this model (the config, or the diagnosis' answer), in words. plausible: the physically
+    plausible range of the mechanism's parameter for the column's material, {parameter, range [low,
+    high], source} (model.json's, calibration.mechanisms.plausible_for); None for the base model.
     answer: the route label (a `route` of routes) of the answer.
     routes: every validated route, run_validation's record (Validation.to_dict() with `key`,
     `model`, where given `own_dem_runs`, and `versus_answer`: {mse_difference, se}, its MSE minus
@@ -69,6 +71,7 @@ class CalibratedResult:
     parameters: list[str]
     bounds: list[list[float]]
     why: str
+    plausible: dict[str, Any] | None
     answer: str
     routes: list[dict[str, Any]]
     runoff: list[dict[str, Any]]

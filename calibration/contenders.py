@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -29,7 +29,7 @@ from calibration.calibrated import VALIDATION_SEED0, CalibrationError, diagnosis
 from calibration.design_runs import SimulationSettings
 from calibration.diagnosis_result import Diagnosis
 from calibration.measured_column import MeasuredColumn
-from calibration.mechanisms import get_mechanisms
+from calibration.mechanisms import get_mechanisms, plausible_for
 from calibration.model import Model
 from calibration.prediction import predict
 from calibration.scaling_laws import QUASI_2D_SOURCE, ScalingCheck, check_scaling
@@ -273,13 +273,20 @@ def check_contenders(
     law_log_std: float = LAW_LOG_STD,
     name: str = "",
     progress: Callable[[float], None] | None = None,
+    plausible_ranges: Mapping[str, Mapping[str, Mapping]] | None = None,
 ) -> ContenderChoice:
     """Predict every DEM-scored model of `diagnosis` at its fit on `column`'s material and L_i at
     each aspect ratio, on n_packings packings (seeds VALIDATION_SEED0 + k, calibration.prediction),
-    score each against the quasi-2D law and choose (module docstring)."""
+    score each against the quasi-2D law and choose (module docstring). Each mechanism's parameter
+    is judged against its plausible range for the column's material (plausible_for over
+    plausible_ranges, the config's calibration.plausible_ranges)."""
     if not law_log_std > 0:
         raise CalibrationError(f"calibration.scaling_log_std: {law_log_std!r} must be positive")
-    models = contender_models(diagnosis, channel_width)
+    material = column.material_properties.name
+    models = [
+        m if m.mechanism is None else Model(plausible_for(m.mechanism, material, plausible_ranges or {}))
+        for m in contender_models(diagnosis, channel_width)
+    ]
     seeds = [VALIDATION_SEED0 + k for k in range(n_packings)]
     contenders, seconds, done, total = [], 0.0, 0, len(models) * len(seeds)
     for model in models:

@@ -27,8 +27,8 @@ emulator then needs few runs):
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
 from typing import ClassVar
 
 from dem.case import GRAVITY, CollapseCase
@@ -203,6 +203,43 @@ def candidate_mechanisms(channel_width: float = 0.01) -> dict[str, Mechanism]:
         ),
     )
     return {m.name: m for m in candidates}
+
+
+# The materials the built-in plausible ranges are stated for: the paper's dry quartz and copper
+# grains (dem.case.MATERIALS). Another material takes them as defaults unless the config states its own.
+PLAUSIBLE_STATED_FOR = ("quartz", "copper")
+
+
+def check_plausible_range(mechanism: Mechanism, low: float, high: float) -> None:
+    """MechanismError unless [low, high] is an interval that meets the mechanism's bounds: a range
+    the calibration can never reach would call every answer effective by construction."""
+    b_low, b_high = mechanism.bounds
+    if not (math.isfinite(low) and math.isfinite(high) and low <= high):
+        raise MechanismError(f"{mechanism.name}: plausible range [{low}, {high}] is not an interval [low, high]")
+    if high < b_low or low > b_high:
+        unit = "" if mechanism.unit == "-" else f" {mechanism.unit}"
+        raise MechanismError(
+            f"{mechanism.name}: plausible range [{low:g}, {high:g}]{unit} lies outside the "
+            f"{mechanism.parameter} bounds [{b_low:g}, {b_high:g}]{unit} the calibration searches"
+        )
+
+
+def plausible_for(mechanism: Mechanism, material: str, ranges: Mapping[str, Mapping[str, Mapping]]) -> Mechanism:
+    """`mechanism` with the plausible range of its parameter for `material`: ranges[material][name]
+    ({range: [low, high], source}) where the config states one, else the built-in range, whose
+    source then says it is a default for a material it was not stated for."""
+    stated = ranges.get(material, {}).get(mechanism.name)
+    if stated is not None:
+        low, high = map(float, stated["range"])
+        check_plausible_range(mechanism, low, high)
+        return replace(mechanism, plausible=(low, high), plausible_source=str(stated["source"]))
+    if material in PLAUSIBLE_STATED_FOR:
+        return mechanism
+    return replace(
+        mechanism,
+        plausible_source=f"the default for dry grains of 0.1-1 mm, as {material!r} states none "
+        f"(calibration.plausible_ranges): {mechanism.plausible_source}",
+    )
 
 
 def get_mechanisms(names: Sequence[str] | None = None, channel_width: float = 0.01) -> list[Mechanism]:

@@ -30,6 +30,7 @@ from calibration.confirmation import CONFIRM_SEED0, Confirmation, refine
 from calibration.design_runs import SimulationSettings
 from calibration.measured_column import MeasuredColumn
 from calibration.model import Model
+from dem.atomic import StrPath
 from dem.runout import RunoutMethod
 
 # The star's arm in the unit box: long enough that a slope stands above the packing noise of the
@@ -172,7 +173,12 @@ def calibrate_at_target(
 
 
 def plot_scales(
-    column: MeasuredColumn, answer: dict, coarse_size_scale: float, target: dict | None, transfer: dict | None, path
+    column: MeasuredColumn,
+    answer: dict,
+    coarse_size_scale: float,
+    target: dict | None,
+    transfer: dict | None,
+    path: StrPath,
 ) -> None:
     """The answer across scales: the measured points; the answer at the calibration's scale (its
     validation: `answer`, a Validation dict), at the target before and after the correction

@@ -40,7 +40,9 @@ from calibration.confirmation import confirm, refine
 from calibration.contenders import ContenderChoice, resolve_by_prediction
 from calibration.diagnosis_result import Diagnosis
 from calibration.inverse_result import read_result
+from calibration.measured import load_column
 from calibration.measured_column import MeasuredColumn
+from calibration.mechanisms import plausible_for
 from calibration.model import Model
 from calibration.prediction import PREDICTION_TSTAR, predict
 from calibration.scaling_laws import DISC_2D_SOURCE, QUASI_2D_SOURCE, disc_2d_runout, quasi_2d_height, quasi_2d_runout
@@ -103,12 +105,16 @@ def choose_model(
     name: str = "",
     box: str = "diagnosis",
     contenders_path: StrPath | None = None,
+    measured_path: StrPath | None = None,
+    plausible_ranges: dict | None = None,
 ) -> dict:
     """model.json of one measured column (workflow rule calibrated_model): the config's choice
     (calibration.model), `auto` resolved by the diagnosis at diagnosis_path and, where
     contenders_path (contenders.json, run_contenders) is given, by what the contenders predict across
     a too (calibration.contenders), with the range its mechanism is calibrated in (calibration.box,
-    calibration.calibrated.calibration_box). Returns the record."""
+    calibration.calibrated.calibration_box), and the plausible range of its mechanism's parameter for
+    the material of the column at measured_path (calibration.mechanisms.plausible_for over the
+    config's calibration.plausible_ranges). Returns the record."""
     diagnosis = read_diagnosis(diagnosis_path) if diagnosis_path else None
     model, why = resolve_model(choice, diagnosis, channel_width)
     by_prediction = bool(contenders_path) and choice == "auto"
@@ -121,6 +127,9 @@ def choose_model(
             f"{boxed.mechanism.bounds[1]:.3g}] (calibration.box {box}: the diagnosis' 95% interval widened, of the "
             f"whole range [{model.mechanism.bounds[0]:g}, {model.mechanism.bounds[1]:g}])."
         )
+    if boxed.mechanism is not None and measured_path is not None:
+        material = load_column(measured_path).material_properties.name
+        boxed = Model(plausible_for(boxed.mechanism, material, plausible_ranges or {}))
     record = dict(model_record(boxed, why, name), scaling_check=by_prediction)
     write_json(out_json, record)
     return record
@@ -338,6 +347,13 @@ def run_calibrated(
         parameters=list(model.parameter_names),
         bounds=model.bounds.tolist(),
         why=why,
+        plausible=None
+        if model.mechanism is None
+        else {
+            "parameter": model.mechanism.parameter,
+            "range": list(model.mechanism.plausible),
+            "source": model.mechanism.plausible_source,
+        },
         answer=best["route"],
         routes=routes,
         # the routes not told apart from the best on the shared packings, on answer_packings (none: no runoff)

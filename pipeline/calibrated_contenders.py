@@ -36,7 +36,8 @@ def run_contenders(
 ) -> ContenderChoice:
     """Every model the diagnosis scored in the DEM, at its fit, predicted at
     section["predict_aspect_ratios"] on section["scaling_packings"] packings and held against the
-    quasi-2D law with tolerance section["scaling_log_std"] (calibration.contenders) -> contenders.json
+    quasi-2D law with tolerance section["scaling_log_std"], each mechanism's parameter against its
+    range in section["plausible_ranges"] for the column's material (calibration.contenders) -> contenders.json
     and its figure. The grains and the runout reading are the diagnosis' (CalibratedColumn's); its
     finished DEM runs are kept, so a killed job loses only the run in flight."""
     column = load_column(measured_path)
@@ -53,6 +54,7 @@ def run_contenders(
         law_log_std=section["scaling_log_std"],
         name=name,
         progress=progress_logger(f"{name}: the diagnosis' contenders predicted across a", log),
+        plausible_ranges=section.get("plausible_ranges"),
     )
     choice.to_json(out_json)
     plot_contenders(choice, column.aspect_ratio, float(column.runout[-1]), out_figure)

@@ -9,6 +9,7 @@ import json
 import math
 import os
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 
 from calibration.answer_choice import not_told_apart
@@ -92,7 +93,7 @@ def answer_lines(result: dict, score: dict) -> list[str]:
         f"+- {format_se(score['mse_se'])} on the mean of {score['n_ran']} packings "
         f"(each packing alone: {format_span(score['mse_each'])}).",
         "",
-        *plausibility_lines(answer["parameters"]),
+        *plausibility_lines(answer["parameters"], result.get("plausible")),
         *runoff_lines(result),
         f"Why this model: {result['why']}",
         "",
@@ -303,6 +304,7 @@ def target_lines(result: dict, figure: str) -> list[str]:
         f"on {len(validation['seeds'])} packings (each alone: {format_span(validation['mse_each'])}). Use these "
         f"parameters at {fine}; its predictions below run there.",
         "",
+        *plausibility_lines(validation["parameters"], result.get("plausible")),
         "| scale | DEM runs for | runs | s |",
         "| --- | --- | --- | --- |",
         *(f"| {scale} | {what} | {runs} | {seconds:.0f} |" for scale, what, runs, seconds in rows),
@@ -461,10 +463,17 @@ def run_section(json_paths: Sequence[StrPath], figure_paths: Sequence[StrPath], 
     write_text(section_path, section_markdown(results, section_path))
 
 
-def plausibility_lines(parameters: dict[str, float]) -> list[str]:
-    """Each fitted mechanism parameter of {name: value} against its physically plausible range
-    (calibration.mechanisms), in words; none for the base model's friction and restitution."""
+def plausibility_lines(parameters: dict[str, float], plausible: dict | None = None) -> list[str]:
+    """Each fitted mechanism parameter of {name: value} against its physically plausible range, in
+    words: `plausible` ({parameter, range, source}: calibrated.json's, for the column's material)
+    where given, else the built-in one (calibration.mechanisms); none for the base model's friction
+    and restitution."""
     by_parameter = {m.parameter: m for m in get_mechanisms()}
+    if plausible is not None:
+        stated = by_parameter[plausible["parameter"]]
+        by_parameter[stated.parameter] = replace(
+            stated, plausible=tuple(plausible["range"]), plausible_source=plausible["source"]
+        )
     said = [by_parameter[name].plausibility(value) for name, value in parameters.items() if name in by_parameter]
     return [f"**Plausibility.** {'; '.join(said)}.", ""] if said else []
 

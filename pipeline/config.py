@@ -21,7 +21,7 @@ from collections.abc import Iterable
 from calibration.geometry import InverseDesignError, check_geometry_of_dataset, nearest_dataset
 from calibration.measured import MeasuredDataError, MeasuredDataWarning, load_column, read_measured
 from calibration.measured_column import MeasuredColumn
-from calibration.mechanisms import get_mechanisms
+from calibration.mechanisms import MechanismError, candidate_mechanisms, check_plausible_range, get_mechanisms
 from calibration.model import Model
 from calibration.residuals import MIN_RUNOUT_POINTS, MIN_SPARE_VALUES
 from dem.case import (
@@ -364,6 +364,7 @@ def check_calibration(config: dict, inverse_datasets: dict[str, str] | None = No
             "scratch, but calibration.gns_warm_start fine-tunes the base GNS on its own schedule; set it to null"
         )
     check_target_scale(config)
+    check_plausible_ranges(config)
     model = section["model"]
     if model == "auto" and not config["diagnosis"]["enabled"]:
         raise ConfigError(
@@ -410,6 +411,20 @@ def check_target_scale(config: dict) -> None:
             for column in _measured_columns(config, name).values():
                 where = f"calibration.{key} (measured {name!r}, column {column.name!r})"
                 _guard(column.L_i, column.material_properties, size_scale, config, where)
+
+
+def check_plausible_ranges(config: dict) -> None:
+    """Every range of calibration.plausible_ranges names a known mechanism and meets its bounds."""
+    known = candidate_mechanisms(config["diagnosis"]["channel_width"])
+    for material, stated in config["calibration"].get("plausible_ranges", {}).items():
+        for name, entry in stated.items():
+            key = f"calibration.plausible_ranges.{material}.{name}"
+            if name not in known:
+                raise ConfigError(f"config key {key}: {name!r} is not a candidate mechanism (known: {list(known)})")
+            try:
+                check_plausible_range(known[name], *map(float, entry["range"]))
+            except MechanismError as exc:
+                raise ConfigError(f"config key {key}: {exc}") from exc
 
 
 def inverse_datasets(config: dict, cases: dict[str, dict]) -> dict[str, str]:

@@ -33,9 +33,10 @@ def calibrated_record():
     return {
         "name": "tiny", "measured": "tiny.csv", "column": "tiny", "model": "base",
         "parameters": ["friction", "restitution"], "bounds": [[0.3, 0.9], [0.3, 0.9]], "why": "the config",
-        "answer": "base, BO on DEM", "routes": [route], "runoff": [runoff],
+        "plausible": None, "answer": "base, BO on DEM", "routes": [route], "runoff": [runoff],
         "answer_packings": 3, "intervals": None, "gns_intervals": None, "gns_sensitivity": None, "gns_vs_doe": [],
-        "transfer": None, "prediction": prediction, "measured_final_runout": 1.9, "prediction_measured_a": 2.0,
+        "target": None, "transfer": None, "prediction": prediction, "prediction_size_scale": 4.0,
+        "measured_final_runout": 1.9, "prediction_measured_a": 2.0,
         "size_scale": 4.0, "engine": "builtin", "runout": RUNOUT.to_config(), "runout_stated": False,
         "validation_packings": 2, "calibration_packing": 0, "seconds": 41.0,
     }  # fmt: skip

@@ -296,6 +296,17 @@ def test_the_model_file_names_the_model_and_refuses_what_is_not_one(tmp_path):
     write_json(tmp_path / "other.json", dict(model_record(model, why), parameters=["friction", "restitution"]))
     with pytest.raises(CalibrationError, match="differ from model cohesion's"):
         read_model(tmp_path / "other.json")
+    # the mechanism's plausible range for the column's material travels with the model
+    csv = tmp_path / "glass.csv"
+    csv.write_text("column,material,aspect_ratio,L_i,kind,x,value,std\n" + "".join(
+        f"glass,quartz,2,0.01,runout,{t},{v},\n" for t, v in zip(COLUMN.t_over_tstar, COLUMN.runout)
+    ))  # fmt: skip
+    ranges = {"quartz": {"cohesion": {"range": [0.0, 5.0], "source": "our shear cell"}}}
+    record = choose_model(None, tmp_path / "stated.json", "cohesion", 0.01, measured_path=csv, plausible_ranges=ranges)
+    assert record["plausible"] == [0.0, 5.0] and record["plausible_source"] == "our shear cell"
+    stated, _ = read_model(tmp_path / "stated.json")
+    assert stated.mechanism.plausible == (0.0, 5.0) and "effective" not in stated.mechanism.plausibility(4.0)
+    assert read_model(tmp_path / "model.json")[0].mechanism.plausible == (0.0, 1.0)  # the built-in
 
 
 def test_the_models_gns_dataset_varies_every_parameter_on_its_own_packings():

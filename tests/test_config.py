@@ -301,6 +301,27 @@ def test_a_target_scale_coarser_than_the_calibration_or_no_coarser_than_its_tran
     assert GUARD in message
 
 
+def test_a_plausible_range_of_an_unknown_mechanism_upside_down_or_outside_its_bounds_is_refused():
+    """calibration.plausible_ranges: each entry names a candidate mechanism and an interval that
+    meets the bounds the calibration searches; the error names the key down to the mechanism."""
+    stated = {"range": [0.05, 0.25], "source": "shear-box tests of this sand on the channel's acrylic"}
+    ranges = {"quartz": {"sidewall_friction": stated}}
+    config = validated(edit=lambda c: c["calibration"].update(plausible_ranges=ranges))
+    check_cross_keys(config, case_table(config))
+    for mechanism, low_high, says in (
+        ("wall_friction", [0.1, 0.2], "'wall_friction' is not a candidate mechanism"),
+        ("sidewall_friction", [0.25, 0.05], "plausible range [0.25, 0.05] is not an interval"),
+        ("cohesion", [70.0, 90.0], "plausible range [70, 90] lies outside the bond_number bounds [0, 60]"),
+    ):
+        entry = {"quartz": {mechanism: dict(stated, range=low_high)}}
+        config = validated(edit=lambda c, entry=entry: c["calibration"].update(plausible_ranges=entry))
+        message = cross_key_error(config)
+        assert message.startswith(f"config key calibration.plausible_ranges.quartz.{mechanism}: "), message
+        assert says in message, message
+    with pytest.raises(Exception, match="source"):  # a range needs its source
+        validated(edit=lambda c: c["calibration"].update(plausible_ranges={"quartz": {"cohesion": {"range": [0, 1]}}}))
+
+
 def test_doe_column_too_few_grains_across_at_doe_size_scale():
     """The measured quartz column (L_i = 0.02 m) at doe.size_scale 6 is 7.8 across; 0.02/(8 x 425 um) = 5.88."""
     config = validated(edit=lambda c: c["doe"].update(size_scale=6))

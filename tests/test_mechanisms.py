@@ -5,7 +5,7 @@ import math
 import pytest
 from scipy.optimize import minimize_scalar
 
-from calibration.mechanisms import get_mechanisms
+from calibration.mechanisms import get_mechanisms, plausible_for
 from calibration.model import Model
 from dem.case import GRAVITY, CollapseCase
 from dem.collapse import simulate_collapse
@@ -160,3 +160,23 @@ def test_each_mechanism_states_its_physical_range_and_a_fit_outside_it_is_called
     assert line.startswith("**Plausibility.** bond_number = 55.6 lies outside the physical range [0, 1]")
     assert "Castellanos 2005" in line and "friction =" not in line
     assert plausibility_lines({"friction": 0.5, "restitution": 0.6}) == []
+
+
+def test_a_material_states_its_own_plausible_ranges_or_is_told_it_takes_the_defaults():
+    """calibration.plausible_ranges: a stated range and source replace the built-in one for that
+    material; the table's quartz and copper keep the built-in ones as they are; a material of the
+    user's own that states none takes them, and its plausibility says so; the report's sentence
+    follows the range calibrated.json carries."""
+    wall = get_mechanisms(["sidewall_friction"])[0]
+    stated = {"glass_beads": {"sidewall_friction": {"range": [0.05, 0.15], "source": "our tilting-plane tests"}}}
+    own = plausible_for(wall, "glass_beads", stated)
+    assert own.plausible == (0.05, 0.15) and own.bounds == wall.bounds and own.channel_width == wall.channel_width
+    assert own.plausibility(0.2).endswith("(our tilting-plane tests): an effective parameter, not a physical one")
+    assert "effective" not in wall.plausibility(0.2)  # the built-in [0.1, 0.6] calls it physical
+    assert plausible_for(wall, "quartz", stated) == wall
+    default = plausible_for(wall, "basalt", stated)
+    assert default.plausible == wall.plausible
+    assert "the default for dry grains of 0.1-1 mm, as 'basalt' states none" in default.plausibility(0.2)
+    plausible = {"parameter": "sidewall_friction", "range": [0.05, 0.15], "source": "our tilting-plane tests"}
+    (line, _) = plausibility_lines({"friction": 0.4, "restitution": 0.6, "sidewall_friction": 0.2}, plausible)
+    assert "outside the physical range [0.05, 0.15] (our tilting-plane tests)" in line

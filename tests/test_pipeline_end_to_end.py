@@ -391,6 +391,7 @@ def test_the_contenders_are_predicted_across_a_before_the_model_is_chosen(result
     assert (calibrated / "contenders.png").read_bytes().startswith(PNG)
     section = (results / "report" / "calibrated.md").read_text()
     assert "**The contenders, judged by what they predict.**" in section and "contenders.png" in section
+    assert "**Plausibility.** rolling_friction = " in section and "as 'glass' states none" in section
 
 
 def test_calibrated_model_routes_and_validations(results):
@@ -465,6 +466,10 @@ def test_calibrated_answer_transfer_and_prediction(results):
         mse = {k: (scored[k] if both else routes[k])["mse"] for k in ("model-inverse", v["doe_key"])}
         assert v["packings"] == (4 if both else 3)
         assert v["mse_difference"] == pytest.approx(mse["model-inverse"] - mse[v["doe_key"]])
+    # glass states no plausible range of its own (calibration.plausible_ranges): the built-in one, said so
+    plausible = answer["plausible"]
+    assert (plausible["parameter"], plausible["range"]) == ("rolling_friction", [0.0, 0.3])
+    assert plausible["source"].startswith("the default for dry grains of 0.1-1 mm, as 'glass' states none")
     # carried from size_scale 4 to the target 3.5 (the star: 7 points x 2 packings, then one step), then 3
     target, transfer = answer["target"], answer["transfer"]
     assert (target["coarse_size_scale"], target["size_scale"], target["coarse_runs"]) == (4, 3.5, 14)

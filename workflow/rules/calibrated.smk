@@ -51,6 +51,7 @@ rule calibrated_contenders:
 # once per column; every job of the stage reads it, so a new measured curve needs no hand edit.
 rule calibrated_model:
     input:
+        measured=lambda w: config["measured"][w.name],
         diagnosis=lambda w: (f"results/diagnosis/{w.name}/diagnosis.json" if config["diagnosis"]["enabled"] else []),
         contenders=lambda w: (f"results/calibrated/{w.name}/contenders.json" if SCALING_CHECK else []),
     output:
@@ -67,6 +68,7 @@ rule calibrated_model:
         model=CALIBRATION["model"],
         channel_width=CHANNEL_WIDTH,
         box=CALIBRATION["box"],
+        plausible_ranges=CALIBRATION["plausible_ranges"],
     script:
         "../scripts/calibrated_model.py"
 

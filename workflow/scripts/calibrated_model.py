@@ -13,5 +13,7 @@ record = choose_model(
     name=snakemake.wildcards.name,
     box=snakemake.params.box,
     contenders_path=snakemake.input.contenders or None,
+    measured_path=snakemake.input.measured,
+    plausible_ranges=snakemake.params.plausible_ranges,
 )
 logging.info("%s: %s (%s)", record["name"], record["model"], record["why"])
