@@ -8,24 +8,12 @@ import pytest
 
 from calibration.calibrated import model_runout
 from calibration.confirmation import CONFIRM_SEED0
-from calibration.design_runs import SimulationSettings
-from calibration.measured_column import MeasuredColumn
 from calibration.mechanisms import get_mechanisms
 from calibration.model import Model
 from calibration.target_scale import STAR_STEP, calibrate_at_target, resolution_shift, star_points
-from dem.runout import RunoutMethod
+from tests.test_calibrated import COLUMN, RUNOUT, SETTINGS
 
-RUNOUT = RunoutMethod()
-COARSE = SimulationSettings(size_scale=4.0)
-COLUMN = MeasuredColumn(
-    name="tiny",
-    material="quartz",
-    aspect_ratio=2.0,
-    L_i=0.01,
-    t_over_tstar=np.array([0.5, 1.0, 1.5, 2.0]),
-    runout=np.array([0.2, 0.8, 1.5, 1.9]),
-    source="test",
-)
+COARSE = SETTINGS  # the tiny quartz column (a = 2, L_i = 0.01 m) at size_scale 4: 77 grains
 
 
 def test_the_star_design_steps_each_parameter_both_ways_in_the_unit_box_and_stays_inside_it():
