@@ -1,6 +1,6 @@
 """The diagnosis' contenders predicted across aspect ratios before the model is chosen (workflow rule
 calibrated_contenders): contenders.json and its figure (its table in the report:
-pipeline/calibrated_section.py)."""
+pipeline/contenders_section.py)."""
 
 from __future__ import annotations
 

@@ -138,7 +138,7 @@ def test_the_deciding_column_is_where_the_two_best_part_most_against_the_packing
 
 
 def test_the_report_names_the_experiment_that_would_decide():
-    from pipeline.calibrated_section import contenders_lines
+    from pipeline.contenders_section import contenders_lines
 
     cohesive = contender("cohesion", 100.0, [0.05, 0.1, 0.3, 0.9, 1.0])
     walls = contender("sidewall_friction", 103.0, [0.9, 0.95, 1.1, 1.0, 1.05])

@@ -12,7 +12,7 @@ from dem.collapse import simulate_collapse
 from dem.engines.liggghts_hertz import MAX_OVERLAP, hertz_parameters, sjkr_energy_density, sjkr_pull_off_force
 from dem.forces import ContactLaw
 from dem.integrate import State, run
-from pipeline.calibrated_section import plausibility_lines
+from pipeline.contenders_section import plausibility_lines
 
 RADIUS = 212.5e-6
 DENSITY = 2650.0
