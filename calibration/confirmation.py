@@ -240,7 +240,7 @@ def refine(
         )  # fmt: skip
         steps.append(step)
         predicted.append(float(np.mean((residual - slope @ move) ** 2)))
-        if secant and math.isfinite(step.mse):
+        if secant and math.isfinite(step.mse) and float(move @ move) > 0:  # a step of no length teaches no slope
             missed = np.asarray(step.mean, float) - np.asarray(current.mean, float) - slope @ move
             learnt = learnt + np.outer(missed, move) / float(move @ move)
         if math.isfinite(step.mse) and step.mse < current.mse:

@@ -4,13 +4,16 @@ coarse grains, corrected by a few DEM runs at the target size_scale.
 A coarse-grained calibration gives effective parameters of its scale: the finer the grains, the
 farther the same column runs (docs/experiments/grain-size.md: L* at 4 t* 13% higher at size_scale
 3 than at 5), so the coarse answer misses at the target by more than the fit it was chosen on.
-What changes little between the scales is how the curve responds to each parameter. So the coarse
+What changes less between the scales is which way the curve responds to each parameter. So the coarse
 DEM measures the slopes of L* in the parameters (a star design about the coarse answer, cheap at
 the coarse scale) and the target DEM only the level: Gauss-Newton steps of the target's own
 residual along those slopes, damped by the packing noise and bounded by a trust region
 (calibration.confirmation.refine, an output space mapping: the shape from the coarse model, the
-level from the fine one). The point the target DEM scores lowest on its correction packings is then
-validated at the target on the validation packings, which neither scale calibrated on.
+level from the fine one). The coarse slopes point the right way but their size is the coarse
+scale's, so each step updates them by the secant (Broyden) rule from what the target DEM answered;
+without it the steps overshot and undershot in turn (docs/experiments/target-scale.md). The point
+the target DEM scores lowest on its correction packings is then validated at the target on the
+validation packings, which neither scale calibrated on.
 
 Cost: (2p + 1) x packings coarse runs for the slopes, (1 + rounds) x packings + validation runs at
 the target, against a whole calibration at the target.

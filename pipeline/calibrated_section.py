@@ -351,7 +351,8 @@ def prediction_lines(result: dict, figure: str) -> list[str]:
     check = check_scaling(p["aspect_ratios"], p["final_runout"], p["height_over_L_i"])
     fractions = [f"{v:.2f}" if v is not None else "failed" for v in check.runout_fraction()]
     lines = [
-        "**Prediction** (same material, L_i and scale; one packing each): final runout at t/t* = "
+        f"**Prediction** (same material and L_i, size_scale {result['prediction_size_scale']:g}; one packing "
+        "each): final runout at t/t* = "
         f"{PREDICTION_TSTAR:g} and deposit height by aspect ratio; the measured column (a = "
         f"{result['prediction_measured_a']:g}) reached L* = {result['measured_final_runout']:.3g} by its "
         "last time.",
