@@ -125,8 +125,9 @@ def _transfer(result: dict, score: dict) -> str:
         return text
     reference_mse, reference_scale = transfer_reference(result, score)
     holds = transfer_holds(transfer, reference_mse)
+    at = f" (size_scale {transfer['size_scale']:g})" if "size_scale" in transfer else ""
     return text + (
-        f" Finer still, held out, the same parameters score MSE {transfer['mse']:.3g} (at size_scale "
+        f" Finer still{at}, held out, the same parameters score MSE {transfer['mse']:.3g} (at size_scale "
         f"{reference_scale:g}: {reference_mse:.3g} on as many packings)"
         + (": the answer transfers." if holds else ": recalibrate at the scale you run.")
     )
