@@ -383,8 +383,7 @@ def run_calibrated(
     plot_calibrated(result, column, out_figure)
     plot_prediction(result, column, out_prediction)
     if out_scales is not None:
-        answer = next(r for r in routes if r["route"] == best["route"])
-        plot_scales(column, answer, settings.size_scale, result.target, result.transfer, out_scales)
+        plot_scales(column, best, settings.size_scale, result.target, result.transfer, out_scales)
     return result
 
 

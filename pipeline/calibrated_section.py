@@ -323,23 +323,23 @@ def transfer_lines(result: dict, score: dict) -> list[str]:
         if transfer_holds(transfer, reference_mse)
         else "the parameters are effective values of their scale: recalibrate at the scale you run."
     )
-    lines = [
-        f"**Scale transfer.** The same parameters at finer grains, held out ({transfer['route']}): validated "
-        f"MSE **{transfer['mse']:.3g}** (each packing {format_span(transfer['mse_each'])}) against "
-        f"{reference_mse:.3g} at size_scale {reference_scale:g} on as many packings: {verdict}",
-        "",
-    ]
-    target = result.get("target")
+    shift, least, target = None, None, result.get("target")
     if target and target["validation"]["seeds"] == transfer["seeds"]:
         shift, least = resolution_shift(target["validation"]["mean"], transfer["mean"], reference_mse)
-        if shift is not None:
-            lines[-2] += (
-                f" On the same packing seeds the model's own mean curve moves by MSE {shift:.3g} from size_scale "
-                f"{reference_scale:g} to {transfer['size_scale']:g}: its runout depends on grain size, so these "
-                f"parameters, fitting at {reference_scale:g} to {reference_mse:.3g}, cannot score below {least:.3g} "
-                f"at {transfer['size_scale']:g} (the RMS's triangle inequality)."
-            )
-    return lines
+    moved = (
+        ""
+        if shift is None
+        else f" On the same packing seeds the model's own mean curve moves by MSE {shift:.3g} from size_scale "
+        f"{reference_scale:g} to {transfer['size_scale']:g}: its runout depends on grain size, so these "
+        f"parameters, fitting at {reference_scale:g} to {reference_mse:.3g}, cannot score below {least:.3g} "
+        f"at {transfer['size_scale']:g} (the RMS's triangle inequality)."
+    )
+    return [
+        f"**Scale transfer.** The same parameters at finer grains, held out ({transfer['route']}): validated "
+        f"MSE **{transfer['mse']:.3g}** (each packing {format_span(transfer['mse_each'])}) against "
+        f"{reference_mse:.3g} at size_scale {reference_scale:g} on as many packings: {verdict}{moved}",
+        "",
+    ]
 
 
 def prediction_lines(result: dict, figure: str) -> list[str]:

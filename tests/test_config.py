@@ -318,7 +318,7 @@ def test_a_plausible_range_of_an_unknown_mechanism_upside_down_or_outside_its_bo
         message = cross_key_error(config)
         assert message.startswith(f"config key calibration.plausible_ranges.quartz.{mechanism}: "), message
         assert says in message, message
-    with pytest.raises(Exception, match="source"):  # a range needs its source
+    with pytest.raises(ConfigError, match="source"):  # a range needs its source
         validated(edit=lambda c: c["calibration"].update(plausible_ranges={"quartz": {"cohesion": {"range": [0, 1]}}}))
 
 
