@@ -41,8 +41,8 @@ from calibration.design_runs import SimulationSettings
 from calibration.diagnosis_result import Diagnosis
 from calibration.emulator import latin_hypercube
 from calibration.measured_column import MeasuredColumn
-from calibration.mechanisms import BASE_BOUNDS, candidate_mechanisms, get_mechanisms
-from calibration.model import Model
+from calibration.mechanisms import BASE_BOUNDS, MechanismError, candidate_mechanisms
+from calibration.model import Model, model_named
 from calibration.objective import runout_mse, simulated_runout_at
 from calibration.optimise import OptimisationHistory, PointFailed, one_at_a_time
 from dem.case import CollapseCase
@@ -55,7 +55,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-MODELS = ("auto", "base") + tuple(candidate_mechanisms())
+MODELS = ("auto", "base") + tuple(candidate_mechanisms())  # and pairs of mechanisms, "a+b" (model_named)
 CALIBRATION_SEED = 0  # the packing the Bayesian optimisation runs on
 VALIDATION_SEED0 = 5001  # validation packings: never a calibration's, a diagnosis' or a hidden truth's
 
@@ -66,26 +66,33 @@ class CalibrationError(ValueError):
 
 # -- which model --------------------------------------------------------------------------------
 def resolve_model(choice: str, diagnosis: Diagnosis | None, channel_width: float = 0.01) -> tuple[Model, str]:
-    """(Model, why it was chosen). choice: `base`, a candidate mechanism's name, or `auto` (the
-    diagnosis' cause, else its best candidate: `diagnosis` is then required)."""
+    """(Model, why it was chosen). choice: `base`, a candidate mechanism's name, two joined by "+"
+    (a pair), or `auto` (the diagnosis' cause, else its best candidate: `diagnosis` is then required)."""
     if choice not in MODELS:
-        raise CalibrationError(f"calibration.model: unknown model {choice!r}; choose one of {list(MODELS)}")
+        try:
+            model = model_named(choice, channel_width)
+        except MechanismError as exc:
+            raise CalibrationError(
+                f"calibration.model: unknown model {choice!r} ({exc}); choose one of {list(MODELS)} "
+                "or a pair of mechanisms joined by '+'"
+            ) from None
+        return model, f"the config asks for the base model + {' + '.join(m.name for m in model.mechanisms)}"
     if choice == "base":
         return Model(), "the config asks for the base model (mu, e)"
     if choice != "auto":
-        return Model(get_mechanisms([choice], channel_width)[0]), f"the config asks for the base model + {choice}"
+        return model_named(choice, channel_width), f"the config asks for the base model + {choice}"
     if diagnosis is None:
         raise CalibrationError("calibration.model: auto needs the diagnosis of this column (diagnosis.enabled)")
     if diagnosis.cause != "none":
         return (
-            Model(get_mechanisms([diagnosis.cause], channel_width)[0]),
+            model_named(diagnosis.cause, channel_width),
             f"auto: the diagnosis named {diagnosis.cause} (every check of its decision rule passed). "
             + diagnosis.verdict,
         )
     failed = [name for name, passed in diagnosis.checks.items() if not passed]
     best = diagnosis.best_candidate
     return (
-        Model(get_mechanisms([best], channel_width)[0]),
+        model_named(best, channel_width),
         f"auto: the diagnosis named no cause ({', '.join(failed)} failed), so its best candidate, {best}, is "
         f"calibrated: weaker evidence than a named cause. {diagnosis.verdict}",
     )
@@ -101,12 +108,13 @@ def calibration_box(model: Model, diagnosis: Diagnosis | None, box: str = "diagn
     estimate, BOX_WIDENING times its 95% interval and at least BOX_MIN_FRACTION of the whole range,
     inside it. Every route (GNS dataset, DoE, BO) then spends its runs where the measurement puts
     the parameter instead of across magnitudes the diagnosis has ruled out; a parameter the
-    diagnosis could not pin down (not identifiable) keeps the whole range."""
+    diagnosis could not pin down (not identifiable) keeps the whole range, and so does each
+    parameter of a pair, which the diagnosis (one mechanism at a time) never fitted."""
     if box not in ("diagnosis", "full"):
         raise CalibrationError(f"calibration.box: unknown box {box!r}; choose diagnosis or full")
-    mechanism = model.mechanism
-    if mechanism is None or box == "full" or diagnosis is None:
+    if len(model.mechanisms) != 1 or box == "full" or diagnosis is None:
         return model
+    mechanism = model.mechanism
     estimate = diagnosis_parameters(diagnosis, model)[-1]
     (interval,) = [
         p for p in diagnosis.candidates[model.name].emulator.posterior.parameters if p.name == mechanism.parameter
@@ -129,9 +137,9 @@ def model_record(model: Model, why: str, name: str = "") -> dict:
         "bounds": model.bounds.tolist(),
         "log_scale": [bool(v) for v in model.box.log_scale],
         "why": why,
-        # the mechanism parameter's physically plausible range for the column's material, and its source
-        "plausible": None if model.mechanism is None else list(model.mechanism.plausible),
-        "plausible_source": None if model.mechanism is None else model.mechanism.plausible_source,
+        # each mechanism parameter's physically plausible range for the column's material, and its source
+        "plausible": [list(m.plausible) for m in model.mechanisms],
+        "plausible_source": [m.plausible_source for m in model.mechanisms],
     }
 
 
@@ -141,34 +149,41 @@ def read_model(path: str | os.PathLike, channel_width: float = 0.01) -> tuple[Mo
     try:
         record = json.loads(Path(path).read_text())
         choice = record["model"]
-        model = Model() if choice == "base" else Model(get_mechanisms([choice], channel_width)[0])
+        model = model_named(choice, channel_width)
         bounds = [tuple(map(float, b)) for b in record["bounds"]]
+        plausible = [tuple(map(float, r)) for r in record.get("plausible") or []]
+        sources = list(record.get("plausible_source") or [])
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise CalibrationError(f"{path}: not a calibrated-model file ({type(exc).__name__}: {exc})") from exc
     if list(model.parameter_names) != list(record.get("parameters", [])):
         raise CalibrationError(
             f"{path}: parameters {record.get('parameters')} differ from model {choice}'s {list(model.parameter_names)}"
         )
-    if model.mechanism is not None:  # the calibration box of the mechanism, inside its whole range
-        (low, high), (whole_low, whole_high) = bounds[-1], model.mechanism.bounds
+    if plausible and (len(plausible) != len(model.mechanisms) or len(sources) != len(plausible)):
+        raise CalibrationError(f"{path}: plausible ranges {record['plausible']} are not one per mechanism of {choice}")
+    mechanisms = []
+    for k, mechanism in enumerate(model.mechanisms):  # the calibration box of each, inside its whole range
+        (low, high), (whole_low, whole_high) = bounds[len(BASE_BOUNDS) + k], mechanism.bounds
         if not whole_low <= low < high <= whole_high:
             raise CalibrationError(
-                f"{path}: {model.mechanism.parameter} range [{low:g}, {high:g}] is not inside its whole range "
+                f"{path}: {mechanism.parameter} range [{low:g}, {high:g}] is not inside its whole range "
                 f"[{whole_low:g}, {whole_high:g}]"
             )
-        model = Model(replace(model.mechanism, bounds=(low, high)))
-        if record.get("plausible") is not None:  # stated for the column's material (calibration.plausible_ranges)
-            plausible = tuple(map(float, record["plausible"]))
-            model = Model(replace(model.mechanism, plausible=plausible, plausible_source=record["plausible_source"]))
+        mechanism = replace(mechanism, bounds=(low, high))
+        if plausible:  # stated for the column's material (calibration.plausible_ranges)
+            mechanism = replace(mechanism, plausible=plausible[k], plausible_source=str(sources[k]))
+        mechanisms.append(mechanism)
     if bounds[: len(BASE_BOUNDS)] != list(BASE_BOUNDS):
         raise CalibrationError(f"{path}: bounds of friction and restitution {bounds[:2]} are not {list(BASE_BOUNDS)}")
-    return model, str(record.get("why", ""))
+    return Model(*mechanisms), str(record.get("why", ""))
 
 
 def diagnosis_parameters(diagnosis: Diagnosis, model: Model) -> np.ndarray:
     """theta [p] the diagnosis calibrated `model` to: its DEM-scored optimum where it has one, else
-    its emulator's."""
-    evidence = diagnosis.base if model.mechanism is None else diagnosis.candidates[model.name]
+    its emulator's. CalibrationError for a model the diagnosis did not fit (a pair)."""
+    evidence = diagnosis.base if model.name == "base" else diagnosis.candidates.get(model.name)
+    if evidence is None:
+        raise CalibrationError(f"the diagnosis fitted no model {model.name!r} (it fits one mechanism at a time)")
     parameters = evidence.dem.parameters if evidence.dem is not None else evidence.emulator.parameters
     return np.array([parameters[name] for name in model.parameter_names], float)
 

@@ -9,7 +9,10 @@ so it enters as pseudo-data: law_chi2 = sum over a of (ln(predicted / law) / law
 predicted final runout the mean over packings. A contender's combined score is its DEM BIC on the
 measured curve plus law_chi2; the lowest combined score among the candidate mechanisms is calibrated.
 The base model is predicted too, for contrast (a 2D disc model runs out like discs, not like sand),
-but not chosen here: whether a mechanism is needed at all is the diagnosis' BIC test.
+but not chosen here: whether a mechanism is needed at all is the diagnosis' BIC test. Pairs of
+mechanisms join the candidates (`pairs`: by default the two best single candidates together), each
+fitted in the DEM from its better member's fit and scored by a BIC on the diagnosis' terms
+(calibration.pairs), so that a pair of physical values can beat one effective value.
 
 The law is that of dry, cohesionless grains in a quasi-2D channel; for a material that is not
 (a cohesive powder, a wet sand) switch the check off (`calibration.scaling_check: false`).
@@ -20,7 +23,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -29,8 +32,9 @@ from calibration.calibrated import VALIDATION_SEED0, CalibrationError, diagnosis
 from calibration.design_runs import SimulationSettings
 from calibration.diagnosis_result import Diagnosis
 from calibration.measured_column import MeasuredColumn
-from calibration.mechanisms import get_mechanisms, plausible_for
-from calibration.model import Model
+from calibration.mechanisms import MechanismError, get_mechanisms, plausible_for
+from calibration.model import Model, model_named
+from calibration.pairs import PairFit, fit_pair
 from calibration.prediction import predict
 from calibration.scaling_laws import QUASI_2D_SOURCE, ScalingCheck, check_scaling
 from dem.atomic import StrPath, write_json
@@ -43,11 +47,15 @@ LAW_LOG_STD = 0.25  # default tolerance of the law, in ln(L*): a prediction 25% 
 class Contender:
     """One model of the diagnosis at its fit, predicted across a.
 
-    model: "base" or a mechanism; parameters {name: value} (the diagnosis' DEM-scored fit); bic:
-    its DEM BIC on the measured data; runout_each [packings][A], height_each [packings][A]: final L*
-    and H_f / L_i per packing (None where a run failed); scaling: the check of their means per a;
-    law_chi2: sum over the a that ran of (ln(mean / law) / law_log_std)^2; plausibility: the
-    mechanism's fitted value against its physical range in words ("" for the base model)."""
+    model: "base", a mechanism or a pair ("a+b"); parameters {name: value} (the diagnosis' DEM-scored
+    fit, a pair's its own DEM fit); bic: its DEM BIC on the measured data; runout_each [packings][A],
+    height_each [packings][A]: final L* and H_f / L_i per packing (None where a run failed);
+    scaling: the check of their means per a; law_chi2: sum over the a that ran of
+    (ln(mean / law) / law_log_std)^2; plausibility: each mechanism's fitted value against its
+    physical range in words ("" for the base model); physical: every one inside; pair_fit: how a
+    pair was fitted (calibration.pairs.PairFit; None for the diagnosis' own models); switched_off:
+    the mechanisms of a pair its fit leaves off (Mechanism.switched_on): such a pair is its other
+    member at another point, reported but never chosen."""
 
     model: str
     parameters: dict[str, float]
@@ -58,6 +66,8 @@ class Contender:
     law_chi2: float
     plausibility: str
     physical: bool
+    pair_fit: PairFit | None = None
+    switched_off: list[str] = field(default_factory=list)
 
     @property
     def combined(self) -> float:
@@ -71,6 +81,8 @@ class Contender:
     def from_dict(cls, data: dict) -> Contender:
         fields = {k: v for k, v in data.items() if k != "combined"}
         fields["scaling"] = ScalingCheck(**fields["scaling"])
+        if fields.get("pair_fit") is not None:
+            fields["pair_fit"] = PairFit(**fields["pair_fit"])
         return cls(**fields)
 
 
@@ -110,6 +122,9 @@ class ContenderChoice:
     seconds: float
     L_i: float | None = None  # m, the measured column's, at which every contender is predicted
     deciding: DecidingColumn | None = None  # where the two best would differ most (deciding_column)
+    # the DEM runs and seconds of the diagnosis whose fits these are (a pair's fit adds its own)
+    diagnosis_runs: int = 0
+    diagnosis_seconds: float = 0.0
 
     def contender(self, model: str) -> Contender:
         return next(c for c in self.contenders if c.model == model)
@@ -174,16 +189,16 @@ def score_contender(
     runout_each: Sequence[Sequence[float | None]],
     height_each: Sequence[Sequence[float | None]],
     law_log_std: float,
+    pair_fit: PairFit | None = None,
 ) -> Contender:
     """A contender from its predictions per packing [packings][A] (final L*, H_f / L_i)."""
     runout = [mean_or_none(column) for column in zip(*runout_each)]
     height = [mean_or_none(column) for column in zip(*height_each)]
     check = check_scaling(aspect_ratios, runout, height)
-    if model.mechanism is None:
-        plausibility, physical = "", True
-    else:
-        value = parameters[model.mechanism.parameter]
-        plausibility, physical = model.mechanism.plausibility(value), model.mechanism.is_plausible(value)
+    plausibility = "; ".join(m.plausibility(parameters[m.parameter]) for m in model.mechanisms)
+    physical = all(m.is_plausible(parameters[m.parameter]) for m in model.mechanisms)
+    pair = len(model.mechanisms) > 1
+    switched_off = [m.name for m in model.mechanisms if pair and not m.switched_on(parameters)]
     return Contender(
         model=model.name,
         parameters={k: float(v) for k, v in parameters.items()},
@@ -194,12 +209,16 @@ def score_contender(
         law_chi2=law_chi2(check, law_log_std),
         plausibility=plausibility,
         physical=physical,
+        pair_fit=pair_fit,
+        switched_off=switched_off,
     )
 
 
 def ranked_candidates(contenders: Sequence[Contender]) -> list[Contender]:
-    """The candidate mechanisms (every contender but "base"), lowest combined score first (BIC breaks ties)."""
-    return sorted((c for c in contenders if c.model != "base"), key=lambda c: (c.combined, c.bic))
+    """The candidate mechanisms (every contender but "base" and a pair fitted with a mechanism off),
+    lowest combined score first (BIC breaks ties)."""
+    candidates = (c for c in contenders if c.model != "base" and not c.switched_off)
+    return sorted(candidates, key=lambda c: (c.combined, c.bic))
 
 
 def choose(contenders: Sequence[Contender]) -> tuple[str, str]:
@@ -260,6 +279,25 @@ def contender_models(diagnosis: Diagnosis, channel_width: float) -> list[Model]:
     return [Model()] + [Model(m) for m in get_mechanisms(names, channel_width)]
 
 
+def contender_pairs(pairs: str | Sequence[Sequence[str]], singles: Sequence[Contender]) -> list[list[str]]:
+    """The pairs of mechanisms to fit: `pairs` as given ([[a, b], ...]), or "auto": the two single
+    candidates of lowest combined score together (none with fewer than two). CalibrationError
+    naming calibration.contender_pairs for a pair that is not two different known mechanisms."""
+    if pairs == "auto":
+        ranked = ranked_candidates(singles)
+        return [[ranked[0].model, ranked[1].model]] if len(ranked) >= 2 else []
+    out = []
+    for k, pair in enumerate(pairs):
+        try:
+            if isinstance(pair, str) or len(pair) != 2:
+                raise MechanismError(f"{pair!r} is not a pair of two mechanisms")
+            Model(*get_mechanisms(list(pair)))
+        except MechanismError as exc:
+            raise CalibrationError(f"calibration.contender_pairs[{k}]: {exc}") from None
+        out.append(list(pair))
+    return out
+
+
 def check_contenders(
     diagnosis: Diagnosis,
     column: MeasuredColumn,
@@ -274,36 +312,73 @@ def check_contenders(
     name: str = "",
     progress: Callable[[float], None] | None = None,
     plausible_ranges: Mapping[str, Mapping[str, Mapping]] | None = None,
+    pairs: str | Sequence[Sequence[str]] = (),
+    pair_packings: int = 4,
+    pair_rounds: int = 3,
 ) -> ContenderChoice:
     """Predict every DEM-scored model of `diagnosis` at its fit on `column`'s material and L_i at
     each aspect ratio, on n_packings packings (seeds VALIDATION_SEED0 + k, calibration.prediction),
-    score each against the quasi-2D law and choose (module docstring). Each mechanism's parameter
-    is judged against its plausible range for the column's material (plausible_for over
-    plausible_ranges, the config's calibration.plausible_ranges)."""
+    score each against the quasi-2D law and choose (module docstring). `pairs` (contender_pairs)
+    join them, each fitted first (calibration.pairs.fit_pair: pair_packings confirmation packings,
+    pair_rounds Gauss-Newton steps). Each mechanism's parameter is judged against its plausible
+    range for the column's material (plausible_for over plausible_ranges, the config's
+    calibration.plausible_ranges)."""
     if not law_log_std > 0:
         raise CalibrationError(f"calibration.scaling_log_std: {law_log_std!r} must be positive")
     material = column.material_properties.name
-    models = [
-        m if m.mechanism is None else Model(plausible_for(m.mechanism, material, plausible_ranges or {}))
-        for m in contender_models(diagnosis, channel_width)
-    ]
+
+    def judged(model: Model) -> Model:
+        return Model(*(plausible_for(m, material, plausible_ranges or {}) for m in model.mechanisms))
+
+    singles = [judged(m) for m in contender_models(diagnosis, channel_width)]
     seeds = [VALIDATION_SEED0 + k for k in range(n_packings)]
-    contenders, seconds, done, total = [], 0.0, 0, len(models) * len(seeds)
-    for model in models:
-        theta = diagnosis_parameters(diagnosis, model)
-        evidence = diagnosis.base if model.mechanism is None else diagnosis.candidates[model.name]
+    contenders, seconds, done = [], [0.0], [0]
+    # progress in packings' worth of prediction runs, a pair's fit counted as two of them (auto: one
+    # pair where two candidates were scored)
+    n_pairs = (len(singles) > 2) if pairs == "auto" else len(pairs)
+    total = [(len(singles) + n_pairs) * len(seeds) + 2 * n_pairs]
+
+    def predicted(model: Model, theta: Sequence[float], bic: float, pair_fit: PairFit | None = None) -> Contender:
         runouts, heights = [], []
         for seed in seeds:
-            within = None if progress is None else (lambda f, done=done: progress((done + f) / total))
+            within = None if progress is None else (lambda f, d=done[0]: progress(min((d + f) / total[0], 1.0)))
             p = predict(model, column, theta, settings, aspect_ratios, runout, dem_config, seed=seed, progress=within)
             runouts.append(p.final_runout)
             heights.append(p.height_over_L_i)
-            seconds += p.seconds
-            done += 1
+            seconds[0] += p.seconds
+            done[0] += 1
         parameters = dict(zip(model.parameter_names, map(float, theta)))
-        contenders.append(
-            score_contender(model, parameters, evidence.dem.bic, aspect_ratios, runouts, heights, law_log_std)
+        return score_contender(model, parameters, bic, aspect_ratios, runouts, heights, law_log_std, pair_fit)
+
+    for model in singles:
+        evidence = diagnosis.base if model.name == "base" else diagnosis.candidates[model.name]
+        contenders.append(predicted(model, diagnosis_parameters(diagnosis, model), evidence.dem.bic))
+    to_fit = contender_pairs(pairs, contenders)
+    for pair_names in to_fit:
+        pair = judged(model_named("+".join(pair_names), channel_width))
+        members = [c for c in ranked_candidates(contenders) if c.model in pair_names and c.pair_fit is None]
+        if not members:
+            raise CalibrationError(
+                f"calibration.contender_pairs: the diagnosis scored neither of {pair_names} in the DEM, so no start"
+            )
+        start = judged(model_named(members[0].model, channel_width))
+        within = None if progress is None else (lambda f, d=done[0]: progress(min((d + 2 * f) / total[0], 1.0)))
+        fit = fit_pair(
+            pair,
+            start,
+            list(members[0].parameters.values()),
+            diagnosis,
+            column,
+            runout,
+            dem_config,
+            pair_packings,
+            pair_rounds,
+            within,
         )
+        done[0] += 2
+        seconds[0] += fit.seconds
+        theta = [fit.parameters[n] for n in pair.parameter_names]
+        contenders.append(predicted(pair, theta, fit.bic, fit))
     chosen, by_fit = choose(contenders)
     return ContenderChoice(
         name=name,
@@ -313,9 +388,11 @@ def check_contenders(
         law_log_std=float(law_log_std),
         law=QUASI_2D_SOURCE,
         seeds=seeds,
-        seconds=seconds,
+        seconds=seconds[0],
         L_i=float(column.L_i),
         deciding=deciding_column(contenders, column.L_i),
+        diagnosis_runs=sum(diagnosis.simulator.design_runs.values()) + diagnosis.simulator.refinement_runs,
+        diagnosis_seconds=float(diagnosis.seconds),
     )
 
 
@@ -325,8 +402,7 @@ def resolve_by_prediction(model: Model, why: str, choice: ContenderChoice, chann
     choose another candidate."""
     if choice.chosen == model.name:
         return model, f"{why} Judged by its predictions across a too: {choice.why}"
-    (mechanism,) = get_mechanisms([choice.chosen], channel_width)
-    return Model(mechanism), (
+    return model_named(choice.chosen, channel_width), (
         f"auto: by the measured curve alone the diagnosis chose {model.name}; judged by what each contender "
         f"predicts across a as well, {choice.chosen} is calibrated. {choice.why}"
     )

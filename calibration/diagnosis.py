@@ -429,20 +429,10 @@ def _errors(
 LIBRARY_SETTINGS = ("size_scale", "packing_seeds", "candidates", "channel_width", "n_base", "n_per_mechanism", "seed")
 
 
-# A candidate whose fit leaves its mechanism at the off value is the base model at another (mu, e):
-# its BIC gain over the base is the base's own fit falling short (a chaotic objective, searched from
-# other runs), not evidence for the mechanism. Found on LIGGGHTS data (basal friction 0.23, where
-# "gate lift" won at gate slowness 0 by ΔBIC 38): docs/experiments/diagnosis.md,
-# "2026-11-30: another solver's data (LIGGGHTS)".
-OFF_TOLERANCE = 0.01  # of the mechanism's range: closer than this to its off value is off
-
-
 def mechanism_on(model: Model, parameters: dict) -> bool:
-    """Whether `model`'s fitted `parameters` switch its mechanism on (beyond OFF_TOLERANCE of its
-    range from the off value at the fitted (mu, e)); the base model's: False."""
-    if model.mechanism is None:
-        return False
-    mechanism = model.mechanism
-    off = mechanism.off_value(parameters["friction"], parameters["restitution"])
-    low, high = mechanism.bounds
-    return abs(parameters[mechanism.parameter] - off) > OFF_TOLERANCE * (high - low)
+    """Whether `model`'s fitted `parameters` switch its mechanism on (Mechanism.switched_on: beyond
+    OFF_TOLERANCE of its range from the off value at the fitted (mu, e)); the base model's: False.
+    A candidate fitted with its mechanism off is the base model at another (mu, e): its BIC gain
+    over the base is the base's own fit falling short (a chaotic objective, searched from other
+    runs), not evidence for the mechanism."""
+    return model.mechanism is not None and model.mechanism.switched_on(parameters)

@@ -38,6 +38,13 @@ BASE_PARAMETERS = ("friction", "restitution")
 BASE_BOUNDS = ((0.3, 0.9), (0.3, 0.9))
 
 
+# A fit that leaves a mechanism this close to its off value (a fraction of its range) has it off: the
+# model is then the one without it at another point, and its gain in fit is no evidence for it.
+# Found on LIGGGHTS data (basal friction 0.23, where "gate lift" won at gate slowness 0 by ΔBIC 38):
+# docs/experiments/diagnosis.md, "2026-11-30: another solver's data (LIGGGHTS)".
+OFF_TOLERANCE = 0.01
+
+
 class MechanismError(ValueError):
     """An unknown candidate name or a parameter value outside what the candidate allows."""
 
@@ -65,6 +72,13 @@ class Mechanism:
     def off_value(self, friction: float, restitution: float) -> float:
         """The parameter value at which the extended model is the base model at (mu, e)."""
         return 0.0
+
+    def switched_on(self, parameters: Mapping[str, float]) -> bool:
+        """Whether fitted `parameters` ({name: value}, friction and restitution among them) put this
+        mechanism's parameter beyond OFF_TOLERANCE of its range from its off value."""
+        off = self.off_value(parameters["friction"], parameters["restitution"])
+        low, high = self.bounds
+        return abs(parameters[self.parameter] - off) > OFF_TOLERANCE * (high - low)
 
     def is_plausible(self, value: float) -> bool:
         """Whether `value` lies in the physically plausible range (its ends included)."""

@@ -121,15 +121,16 @@ def choose_model(
     if by_prediction:
         model, why = resolve_by_prediction(model, why, ContenderChoice.read(contenders_path), channel_width)
     boxed = calibration_box(model, diagnosis, box)
-    if boxed.mechanism is not None and boxed.mechanism.bounds != model.mechanism.bounds:
-        why += (
-            f" Calibrated in {boxed.mechanism.parameter} [{boxed.mechanism.bounds[0]:.3g}, "
-            f"{boxed.mechanism.bounds[1]:.3g}] (calibration.box {box}: the diagnosis' 95% interval widened, of the "
-            f"whole range [{model.mechanism.bounds[0]:g}, {model.mechanism.bounds[1]:g}])."
-        )
-    if boxed.mechanism is not None and measured_path is not None:
+    for inside, whole in zip(boxed.mechanisms, model.mechanisms, strict=True):
+        if inside.bounds != whole.bounds:
+            why += (
+                f" Calibrated in {inside.parameter} [{inside.bounds[0]:.3g}, {inside.bounds[1]:.3g}] "
+                f"(calibration.box {box}: the diagnosis' 95% interval widened, of the whole range "
+                f"[{whole.bounds[0]:g}, {whole.bounds[1]:g}])."
+            )
+    if boxed.mechanisms and measured_path is not None:
         material = load_column(measured_path).material_properties.name
-        boxed = Model(plausible_for(boxed.mechanism, material, plausible_ranges or {}))
+        boxed = Model(*(plausible_for(m, material, plausible_ranges or {}) for m in boxed.mechanisms))
     record = dict(model_record(boxed, why, name), scaling_check=by_prediction)
     write_json(out_json, record)
     return record
@@ -160,10 +161,21 @@ def route_optimum(key: str, source: StrPath, model: Model) -> tuple[str, Model, 
     runs and seconds are 0 where the file does not hold them (the stage passes the route's
     benchmark files instead). The keys (workflow rule calibrated_validate, one job each):
       diagnosis-base, diagnosis-model  the diagnosis' own fits (diagnosis.json) of the paper's model and of the model
+                                       (under the scaling check contenders.json, whose pairs it fitted itself)
       base-inverse, base-bayesopt      the paper's base-model routes (inverse/<name>/inverse.json, bayesopt.json)
       base-doe-<eq9|quadratic>         the paper's DoE (doe/<name>/analysis.json)
       model-inverse, model-bayesopt    the model's own routes (calibrated/<name>/*.json)
       model-doe, model-doe-ff          its DoE: face-centred CCD, 3-level full factorial (doe*.json)"""
+    if key == "diagnosis-model" and Path(source).name == "contenders.json":  # auto chose among them
+        choice = ContenderChoice.read(source)
+        contender = choice.contender(model.name)
+        theta = [contender.parameters[k] for k in model.parameter_names]
+        runs, seconds = choice.diagnosis_runs, choice.diagnosis_seconds
+        if contender.pair_fit is None:  # one mechanism: the diagnosis' own fit
+            return f"{model.name}, diagnosis fit", model, theta, runs, seconds, {}
+        fit = contender.pair_fit  # a pair: fitted from its member's diagnosis fit
+        label = f"{model.name}, pair fit from {fit.start}'s diagnosis fit"
+        return label, model, theta, runs + fit.dem_runs, seconds + fit.seconds, {}
     if key.startswith("diagnosis-"):
         diagnosis = read_diagnosis(source)
         route_model = Model() if key == "diagnosis-base" else model
@@ -347,13 +359,11 @@ def run_calibrated(
         parameters=list(model.parameter_names),
         bounds=model.bounds.tolist(),
         why=why,
-        plausible=None
-        if model.mechanism is None
-        else {
-            "parameter": model.mechanism.parameter,
-            "range": list(model.mechanism.plausible),
-            "source": model.mechanism.plausible_source,
-        },
+        plausible=[
+            {"parameter": m.parameter, "range": list(m.plausible), "source": m.plausible_source}
+            for m in model.mechanisms
+        ]
+        or None,
         answer=best["route"],
         routes=routes,
         # the routes not told apart from the best on the shared packings, on answer_packings (none: no runoff)
@@ -387,11 +397,12 @@ def run_calibrated(
     return result
 
 
-def model_intervals(diagnosis: Diagnosis, model: Model) -> list[dict]:
+def model_intervals(diagnosis: Diagnosis, model: Model) -> list[dict] | None:
     """[{name, value, std, low, high, identifiable, why}] of `model`'s parameters: the diagnosis'
-    Laplace posterior of its emulator fit (calibration/uncertainty.py)."""
-    evidence = diagnosis.base if model.mechanism is None else diagnosis.candidates[model.name]
-    return [asdict(p) for p in evidence.emulator.posterior.parameters]
+    Laplace posterior of its emulator fit (calibration/uncertainty.py); None for a model the diagnosis
+    did not fit (a pair)."""
+    evidence = diagnosis.base if model.name == "base" else diagnosis.candidates.get(model.name)
+    return None if evidence is None else [asdict(p) for p in evidence.emulator.posterior.parameters]
 
 
 # -- figure and report section -----------------------------------------------------------------------

@@ -34,7 +34,8 @@ def run_contenders(
     dem: dict | None,
     name: str = "",
 ) -> ContenderChoice:
-    """Every model the diagnosis scored in the DEM, at its fit, predicted at
+    """Every model the diagnosis scored in the DEM, at its fit, and the pairs of
+    section["contender_pairs"] at their DEM fits (calibration.pairs), predicted at
     section["predict_aspect_ratios"] on section["scaling_packings"] packings and held against the
     quasi-2D law with tolerance section["scaling_log_std"], each mechanism's parameter against its
     range in section["plausible_ranges"] for the column's material (calibration.contenders) -> contenders.json
@@ -55,6 +56,9 @@ def run_contenders(
         name=name,
         progress=progress_logger(f"{name}: the diagnosis' contenders predicted across a", log),
         plausible_ranges=section.get("plausible_ranges"),
+        pairs=section.get("contender_pairs", "auto"),
+        pair_packings=section.get("pair_packings", 4),
+        pair_rounds=section.get("pair_rounds", 3),
     )
     choice.to_json(out_json)
     plot_contenders(choice, column.aspect_ratio, float(column.runout[-1]), out_figure)

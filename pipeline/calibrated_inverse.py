@@ -44,9 +44,7 @@ def run_model_inverse(
     dataset_paths: the DEM runs of the model's GNS dataset: the GNS's response to each parameter is
     checked against theirs (calibration.sensitivity), drawn to out_sensitivity."""
     model, _ = read_model(model_json, channel_width)
-    start_values = {}
-    if model.mechanism is not None:
-        start_values[model.mechanism.parameter] = model.mechanism.off_value(*settings["start"])
+    start_values = {m.parameter: m.off_value(*settings["start"]) for m in model.mechanisms}
     result = run_inverse_design(
         gns_model_path,
         metadata_path,

@@ -371,7 +371,17 @@ def check_calibration(config: dict, inverse_datasets: dict[str, str] | None = No
             "config key calibration.model: auto takes the diagnosis' answer, but diagnosis.enabled is false; "
             "name the model (base or a mechanism) or enable the diagnosis"
         )
-    names = config["diagnosis"]["candidates"] if model == "auto" else [] if model == "base" else [model]
+    pairs = section.get("contender_pairs", "auto") if model == "auto" and section.get("scaling_check", True) else []
+    for k, pair in enumerate([] if pairs == "auto" else pairs):
+        if pair[0] == pair[1]:
+            raise ConfigError(f"config key calibration.contender_pairs[{k}]: {pair} pairs {pair[0]} with itself")
+    if model == "auto":
+        names = list(config["diagnosis"]["candidates"] or candidate_mechanisms())
+        names += [m for pair in ([] if pairs == "auto" else pairs) for m in pair if m not in names]
+    else:
+        names = [] if model == "base" else model.split("+")
+        if len(set(names)) < len(names):
+            raise ConfigError(f"config key calibration.model: {model} pairs {names[0]} with itself")
     name = config["dem"]["engine"]
     try:  # auto: the engine it picks on this machine; a named one need not be installed to be judged
         engine = get_engine(name, config["dem"]) if name == "auto" else ENGINES[name]

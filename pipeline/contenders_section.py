@@ -14,16 +14,15 @@ from calibration.mechanisms import get_mechanisms
 from calibration.scaling_laws import QUASI_2D_SOURCE, ScalingCheck
 
 
-def plausibility_lines(parameters: dict[str, float], plausible: dict | None = None) -> list[str]:
+def plausibility_lines(parameters: dict[str, float], plausible: list[dict] | None = None) -> list[str]:
     """Each fitted mechanism parameter of {name: value} against its physically plausible range, in
-    words: `plausible` ({parameter, range, source}: calibrated.json's, for the column's material)
+    words: `plausible` ([{parameter, range, source}], calibrated.json's, for the column's material)
     where given, else the built-in one (calibration.mechanisms); none for the base model's friction
     and restitution."""
     by_parameter = {m.parameter: m for m in get_mechanisms()}
-    if plausible is not None:
-        stated = by_parameter[plausible["parameter"]]
-        by_parameter[stated.parameter] = replace(
-            stated, plausible=tuple(plausible["range"]), plausible_source=plausible["source"]
+    for stated in plausible or []:
+        by_parameter[stated["parameter"]] = replace(
+            by_parameter[stated["parameter"]], plausible=tuple(stated["range"]), plausible_source=stated["source"]
         )
     said = [by_parameter[name].plausibility(value) for name, value in parameters.items() if name in by_parameter]
     return [f"**Plausibility.** {'; '.join(said)}.", ""] if said else []
@@ -51,8 +50,8 @@ def contenders_lines(choice: ContenderChoice) -> list[str]:
     head = f"| model | parameters | DEM BIC | {per_a} | law chi^2 | combined | plausible |"
     lines = [
         f"**The contenders, judged by what they predict.** Each model the diagnosis scored in the DEM, at its "
-        f"fit, predicted across a on {len(choice.seeds)} packings; per a its mean final L* over the "
-        f"{QUASI_2D_SOURCE} law (1 = on the law). The law enters as pseudo-data with tolerance "
+        f"fit, {pairs_clause(choice)}predicted across a on {len(choice.seeds)} packings; per a its mean final L* "
+        f"over the {QUASI_2D_SOURCE} law (1 = on the law). The law enters as pseudo-data with tolerance "
         f"{choice.law_log_std:g} in ln L*; combined = BIC + law chi^2 ({choice.seconds:.0f} s of DEM).",
         "",
         head,
@@ -62,6 +61,8 @@ def contenders_lines(choice: ContenderChoice) -> list[str]:
         fractions = " | ".join("failed" if f is None else f"{f:.2f}" for f in c.scaling.runout_fraction())
         parameters = ", ".join(f"{k} {v:.3g}" for k, v in c.parameters.items())
         plausible = "-" if c.model == "base" else ("yes" if c.physical else "no: effective")
+        if c.switched_off:
+            plausible += f"; fitted with {', '.join(c.switched_off)} off: not a pair"
         mark = f"**{c.model}**" if c.model == choice.chosen else c.model
         chi2 = f"{c.law_chi2:.1f}" if math.isfinite(c.law_chi2) else "-"
         lines.append(f"| {mark} | {parameters} | {c.bic:.1f} | {fractions} | {chi2} | {c.combined:.1f} | {plausible} |")
@@ -69,6 +70,23 @@ def contenders_lines(choice: ContenderChoice) -> list[str]:
     if choice.deciding is not None:
         lines += [deciding_sentence(choice), ""]
     return lines
+
+
+def pairs_clause(choice: ContenderChoice) -> str:
+    """How the pairs among the contenders were fitted, in words ("" without pairs)."""
+    fits = [(c.model, c.pair_fit) for c in choice.contenders if c.pair_fit is not None]
+    if not fits:
+        return ""
+    said = "; ".join(
+        f"{model} from {fit.start}'s fit, runout MSE {fit.start_mse:.3g} to {fit.fit_mse:.3g} on packings of its "
+        f"own, {fit.dem_runs} DEM runs, {fit.seconds:.0f} s"
+        for model, fit in fits
+    )
+    return (
+        f"and each pair of mechanisms fitted in the DEM from its better member's fit and scored by a BIC on the "
+        f"diagnosis' packings and noise; a pair whose fit leaves one mechanism off is its other member at "
+        f"another point and is not chosen ({said}), "
+    )
 
 
 def deciding_sentence(choice: ContenderChoice) -> str:

@@ -30,8 +30,7 @@ from calibration.calibrated import Validation, validate
 from calibration.calibrated_result import CalibratedResult
 from calibration.design_runs import SimulationSettings
 from calibration.measured import load_column
-from calibration.mechanisms import get_mechanisms
-from calibration.model import Model
+from calibration.model import Model, model_named
 from calibration.objective import runout_mse
 from dem.atomic import StrPath, write_json, write_text
 from dem.integrate import ENGINE_VERSION
@@ -74,7 +73,7 @@ class ShippedAnswer:
 
     def model_of(self) -> Model:
         """The Model the answer calibrates (its parameters in this answer's order)."""
-        model = Model() if self.model == "base" else Model(get_mechanisms([self.model], self.channel_width)[0])
+        model = model_named(self.model, self.channel_width)
         if list(model.parameter_names) != list(self.parameters):
             raise ValueError(f"{self.name}: parameters {list(self.parameters)} are not model {self.model}'s")
         return model

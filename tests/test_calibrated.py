@@ -303,10 +303,23 @@ def test_the_model_file_names_the_model_and_refuses_what_is_not_one(tmp_path):
     ))  # fmt: skip
     ranges = {"quartz": {"cohesion": {"range": [0.0, 5.0], "source": "our shear cell"}}}
     record = choose_model(None, tmp_path / "stated.json", "cohesion", 0.01, measured_path=csv, plausible_ranges=ranges)
-    assert record["plausible"] == [0.0, 5.0] and record["plausible_source"] == "our shear cell"
+    assert record["plausible"] == [[0.0, 5.0]] and record["plausible_source"] == ["our shear cell"]
     stated, _ = read_model(tmp_path / "stated.json")
     assert stated.mechanism.plausible == (0.0, 5.0) and "effective" not in stated.mechanism.plausibility(4.0)
     assert read_model(tmp_path / "model.json")[0].mechanism.plausible == (0.0, 1.0)  # the built-in
+    # a pair of mechanisms: named by the config, each parameter with its own box and plausible range
+    record = choose_model(None, tmp_path / "pair.json", "sidewall_friction+cohesion", 0.01, measured_path=csv,
+                          plausible_ranges=ranges)  # fmt: skip
+    pair, why = read_model(tmp_path / "pair.json")
+    assert pair.name == "sidewall_friction+cohesion" and "sidewall_friction + cohesion" in why
+    assert pair.parameter_names == ("friction", "restitution", "sidewall_friction", "bond_number")
+    assert [m.plausible for m in pair.mechanisms] == [(0.1, 0.6), (0.0, 5.0)]
+    assert pair.at(COLUMN.collapse_case(0.5, 0.5, size_scale=4.0), [0.4, 0.5, 0.2, 3.0]).sidewall_friction == 0.2
+    with pytest.raises(CalibrationError, match=r"unknown model 'cohesion\+magic'.*unknown candidate"):
+        resolve_model("cohesion+magic", None)
+    with pytest.raises(CalibrationError, match="pair.json: plausible ranges .* not one per mechanism"):
+        write_json(tmp_path / "pair.json", dict(record, plausible=[[0.1, 0.6]]))
+        read_model(tmp_path / "pair.json")
 
 
 def test_the_models_gns_dataset_varies_every_parameter_on_its_own_packings():

@@ -12,13 +12,14 @@ from calibration.calibrated import CalibrationError
 from calibration.contenders import (
     ContenderChoice,
     choose,
+    contender_pairs,
     deciding_column,
     law_chi2,
     resolve_by_prediction,
     score_contender,
 )
-from calibration.mechanisms import get_mechanisms
-from calibration.model import Model
+from calibration.mechanisms import MechanismError, get_mechanisms
+from calibration.model import Model, model_named
 from calibration.scaling_laws import check_scaling, quasi_2d_runout
 
 A = [0.5, 1.0, 2.0, 3.0, 6.0]
@@ -158,3 +159,46 @@ def test_the_report_names_the_experiment_that_would_decide():
     even = [contender("cohesion", 100.0, [1.0] * len(A)), contender("sidewall_friction", 103.0, [1.01] * len(A))]
     tie = ContenderChoice("q", even, *choose(even), 0.25, "the law", [1, 2], 1.0, 0.02, deciding_column(even, 0.02))
     assert "within the margin of 6: the data do not decide" in "\n".join(contenders_lines(tie))
+
+
+def test_auto_pairs_the_two_best_single_candidates_and_a_bad_pair_names_its_key():
+    cohesive = contender("cohesion", 100.0, [0.05, 0.1, 0.3, 0.9, 1.0])
+    walls = contender("sidewall_friction", 107.5, [0.9, 0.95, 1.1, 1.0, 1.05])
+    base = contender("base", 300.0, [2.5, 2.5, 2.0, 1.9, 1.8])
+    # by combined score (fit and law), not by fit alone: side-wall friction first
+    assert contender_pairs("auto", [base, cohesive, walls]) == [["sidewall_friction", "cohesion"]]
+    assert contender_pairs("auto", [base, walls]) == []  # one candidate: nothing to pair
+    given = [["rolling_resistance", "sidewall_friction"]]
+    assert contender_pairs(given, [base, cohesive, walls]) == given
+    for bad, why in (([["cohesion", "cohesion"]], "each mechanism once"), ([["cohesion", "magic"]], "magic")):
+        with pytest.raises(CalibrationError, match=rf"calibration.contender_pairs\[0\]: .*{why}"):
+            contender_pairs(bad, [base, cohesive, walls])
+
+
+def test_a_pair_is_physical_only_where_both_its_values_are_and_can_be_chosen():
+    pair = model_named("sidewall_friction+rolling_resistance")
+    assert pair.parameter_names == ("friction", "restitution", "sidewall_friction", "rolling_friction")
+    walls = contender("sidewall_friction", 107.5, [0.9, 0.95, 1.1, 1.0, 1.05])
+    # from its member's fit, the other mechanism off
+    start = pair.embed(model_named("sidewall_friction"), list(walls.parameters.values()))
+    assert start.tolist() == [0.5, 0.6, 0.15, 0.0]
+    each, heights = [[f * law for f, law in zip([1.0] * len(A), LAW)]], [[1.0] * len(A)]
+    inside = dict(zip(pair.parameter_names, [0.5, 0.6, 0.2, 0.1]))
+    outside = dict(inside, rolling_friction=0.38)  # beyond rolling resistance's physical 0.3
+    on_law = score_contender(pair, inside, 109.0, A, each, heights, 0.25)
+    assert on_law.physical and on_law.plausibility.count("physical range") == 2
+    effective = score_contender(pair, outside, 109.0, A, each, heights, 0.25)
+    assert not effective.physical and "rolling_friction = 0.38 lies outside" in effective.plausibility
+    # on the law with a fit 1.5 worse: the pair beats its member where that one misses the law at a = 0.5 ...
+    short = contender("sidewall_friction", 107.5, [0.3, 0.9, 1.0, 1.0, 1.0])
+    assert choose([contender("base", 300.0, [2.5] * len(A)), short, on_law]) == (pair.name, "sidewall_friction")
+    # ... unless its fit leaves one mechanism off: it is then its member at another point, not a pair
+    off = score_contender(pair, dict(inside, rolling_friction=0.001), 109.0, A, each, heights, 0.25)
+    assert off.switched_off == ["rolling_resistance"] and on_law.switched_off == []
+    assert choose([contender("base", 300.0, [2.5] * len(A)), short, off])[0] == "sidewall_friction"
+    # ... and not where the member follows the law too: its extra parameter then buys nothing
+    assert choose([contender("base", 300.0, [2.5] * len(A)), walls, on_law])[0] == "sidewall_friction"
+    with pytest.raises(MechanismError, match="each mechanism once"):
+        Model(*get_mechanisms(["cohesion", "cohesion"]))
+    with pytest.raises(MechanismError, match="holds 2 mechanisms, not one"):
+        _ = pair.mechanism

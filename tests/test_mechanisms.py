@@ -177,6 +177,6 @@ def test_a_material_states_its_own_plausible_ranges_or_is_told_it_takes_the_defa
     default = plausible_for(wall, "basalt", stated)
     assert default.plausible == wall.plausible
     assert "the default for dry grains of 0.1-1 mm, as 'basalt' states none" in default.plausibility(0.2)
-    plausible = {"parameter": "sidewall_friction", "range": [0.05, 0.15], "source": "our tilting-plane tests"}
+    plausible = [{"parameter": "sidewall_friction", "range": [0.05, 0.15], "source": "our tilting-plane tests"}]
     (line, _) = plausibility_lines({"friction": 0.4, "restitution": 0.6, "sidewall_friction": 0.2}, plausible)
     assert "outside the physical range [0.05, 0.15] (our tilting-plane tests)" in line

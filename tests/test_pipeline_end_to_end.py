@@ -40,6 +40,7 @@ pytestmark = pytest.mark.slow
 CONFIG = "config/tiny_all.yaml"
 NAME, DATASET = "tiny", "tiny_column"  # the measured entry and the dataset whose GNS calibrates it
 MODEL_DATASET = f"calibrated_{NAME}"
+PAIR = "rolling_resistance+sidewall_friction"  # config/tiny_all.yaml's contender_pairs
 CORES = int(os.environ.get("E2E_CORES", "2"))
 PNG = b"\x89PNG\r\n\x1a\n"
 # Jobs per rule of the tiny DAG: 5 dataset cases + 10 DoE runs (3 x 3 levels + 1 centre replicate)
@@ -366,16 +367,18 @@ def test_diagnosis(results):
 
 # -- the calibrated model ------------------------------------------------------------------------------
 def test_the_contenders_are_predicted_across_a_before_the_model_is_chosen(results):
-    """Under auto, every model the diagnosis scored in the DEM (base, rolling resistance) is predicted
-    at a = 1 and 3 at its own fit, by real DEM runs, and held against the quasi-2D law; model.json
-    says it was and why, and the report shows them side by side."""
+    """Under auto, every model the diagnosis scored in the DEM (base, rolling resistance) and the pair
+    of config/tiny_all.yaml (rolling resistance + side-wall friction, fitted here in the DEM from
+    rolling resistance's fit) are predicted at a = 1 and 3, by real DEM runs, and held against the
+    quasi-2D law; model.json says it was and why, and the report shows them side by side."""
     calibrated = results / "calibrated" / NAME
     contenders = load(calibrated / "contenders.json")
     diagnosis = load(results / "diagnosis" / NAME / "diagnosis.json")
-    assert [c["model"] for c in contenders["contenders"]] == ["base", "rolling_resistance"]
+    assert [c["model"] for c in contenders["contenders"]] == ["base", "rolling_resistance", PAIR]
     for c in contenders["contenders"]:
-        scored = diagnosis["base"] if c["model"] == "base" else diagnosis["candidates"][c["model"]]
-        assert c["parameters"] == pytest.approx(scored["dem"]["parameters"]) and c["bic"] == scored["dem"]["bic"]
+        if c["model"] != PAIR:
+            scored = diagnosis["base"] if c["model"] == "base" else diagnosis["candidates"][c["model"]]
+            assert c["parameters"] == pytest.approx(scored["dem"]["parameters"]) and c["bic"] == scored["dem"]["bic"]
         scaling = c["scaling"]
         assert scaling["aspect_ratios"] == [1.0, 3.0] and len(c["runout_each"]) == 1  # scaling_packings 1
         assert scaling["final_runout"] == pytest.approx(c["runout_each"][0])
@@ -384,32 +387,46 @@ def test_the_contenders_are_predicted_across_a_before_the_model_is_chosen(result
         ratios = [math.log(v / law) for v, law in zip(scaling["final_runout"], scaling["runout_law"])]
         assert c["law_chi2"] == pytest.approx(sum((r / contenders["law_log_std"]) ** 2 for r in ratios))
         assert c["combined"] == pytest.approx(c["bic"] + c["law_chi2"])
-    assert contenders["chosen"] == "rolling_resistance"  # the one candidate: the base is never chosen
-    assert contenders["deciding"] is None and contenders["L_i"] == pytest.approx(0.01)  # no second candidate
+    # the pair: from rolling resistance's fit (side-wall friction off), a star of 9 runs and one step
+    # on one packing of its own, then its BIC on the diagnosis' one packing, against the same noise
+    pair = contenders["contenders"][2]
+    fit = pair["pair_fit"]
+    assert fit["start"] == "rolling_resistance" and fit["dem_runs"] == 9 + 1 + 1 and fit["packings"] == [0]
+    assert fit["fit_mse"] <= fit["start_mse"] and pair["parameters"] == fit["parameters"]
+    n_data = diagnosis["candidates"]["rolling_resistance"]["dem"]["n_data"]
+    assert pair["bic"] == pytest.approx(fit["chi2"] + 4 * math.log(n_data))
+    # the base is never chosen; the lowest combined score of the candidates is
+    candidates = [c for c in contenders["contenders"][1:] if not c["switched_off"]]
+    assert contenders["chosen"] == min(candidates, key=lambda c: c["combined"])["model"]
+    assert contenders["L_i"] == pytest.approx(0.01)
     model = load(calibrated / "model.json")
-    assert model["scaling_check"] is True and "Judged by its predictions across a too" in model["why"]
+    assert model["model"] == contenders["chosen"] and model["scaling_check"] is True
+    assert "Judged by its predictions across a too" in model["why"] or "judged by what each contender" in model["why"]
     assert (calibrated / "contenders.png").read_bytes().startswith(PNG)
     section = (results / "report" / "calibrated.md").read_text()
     assert "**The contenders, judged by what they predict.**" in section and "contenders.png" in section
+    assert f"{PAIR} from rolling_resistance's fit, runout MSE" in section
     assert "**Plausibility.** rolling_friction = " in section and "as 'glass' states none" in section
 
 
 def test_calibrated_model_routes_and_validations(results):
     calibrated = results / "calibrated" / NAME
     model = load(calibrated / "model.json")
-    # auto with one candidate: the diagnosis' cause, else its best candidate, is rolling resistance
-    assert model["model"] == "rolling_resistance"
+    # the contenders' choice: rolling resistance, or its pair with side-wall friction (4 parameters)
+    chosen = model["model"]
+    assert chosen in ("rolling_resistance", PAIR)
     names, bounds = model["parameters"], model["bounds"]
-    assert names == ["friction", "restitution", "rolling_friction"]
+    assert names == ["friction", "restitution", "rolling_friction"] + (["sidewall_friction"] if chosen == PAIR else [])
+    p = len(names)
     for route in ("doe", "bayesopt"):
         result = load(calibrated / f"{route}.json")
         assert within(result["optimum"], names, bounds) and finite(list(result["optimum"].values())), route
-    assert load(calibrated / "doe.json")["dem_runs"] == 16  # 2^3 corners + 6 faces + centre + 1 replicate
+    assert load(calibrated / "doe.json")["dem_runs"] == 2**p + 2 * p + 1 + 1  # corners, faces, centre, replicate
     assert load(calibrated / "bayesopt.json")["dem_runs"] == 4
     gns = load(calibrated / "inverse.json")
     assert gns["names"] == names and finite(gns["best_params"], gns["best_value"])
     assert within(dict(zip(names, gns["best_params"])), names, bounds)
-    # 3 DEM runs cannot fit a plane in 3 parameters: the GNS's response is not checked, and says so
+    # 3 DEM runs cannot fit a plane in 3 or more parameters: the GNS's response is not checked, and says so
     sensitivity = gns["sensitivity"]
     assert sensitivity["parameters"] == [] and "not checked" in sensitivity["why"]
     assert len(sensitivity["dem"]["last"]) == 3 and finite(sensitivity["gns"]["last"])
@@ -420,7 +437,7 @@ def test_calibrated_model_routes_and_validations(results):
         assert v["key"] == key and len(v["curves"]) == 3 and v["failed"] == {}, key
         assert finite(v["mse"], v["mse_se"], v["mean"], v["curves"]) and v["mse"] >= 0, key
         assert within(v["parameters"], list(v["parameters"]), [bounds[names.index(n)] for n in v["parameters"]]), key
-        assert v["model"] == ("base" if key.startswith(("base-", "diagnosis-base")) else "rolling_resistance"), key
+        assert v["model"] == ("base" if key.startswith(("base-", "diagnosis-base")) else chosen), key
     # the GNS route's 2 best distinct points ran by the DEM on 1 packing each, then at most one
     # correction step along the GNS's slopes (inverse.json records every point it rolled out); the
     # lowest of all was validated
@@ -440,7 +457,8 @@ def test_calibrated_answer_transfer_and_prediction(results):
     answer = load(results / "calibrated" / NAME / "calibrated.json")
     routes = {r["key"]: r for r in answer["routes"]}
     assert set(routes) == CALIBRATED_ROUTES
-    model_routes = [r for r in routes.values() if r["model"] == "rolling_resistance"]
+    p = len(answer["parameters"])
+    model_routes = [r for r in routes.values() if r["model"] == answer["model"]]
     best = min(model_routes, key=lambda r: r["mse"])
     assert answer["validation_packings"] == 3
     # the routes within 2 SE of the best (paired) on a fourth packing; the lowest there is the answer
@@ -455,10 +473,11 @@ def test_calibrated_answer_transfer_and_prediction(results):
         assert answer["answer"] == best["route"] and answer["answer_packings"] == 3
     for r in routes.values():
         assert finite(r["versus_answer"]["mse_difference"], r["versus_answer"]["se"]), r["key"]
-    # the GNS route against each DoE: the CCD (8 + 6 + 1 + 1 runs) and the full factorial (27 + 1)
+    # the GNS route against each DoE: the CCD (2^p + 2p + 1 + 1 runs) and the full factorial (3^p + 1)
     versus = {v["doe_key"]: v for v in answer["gns_vs_doe"]}
     assert set(versus) == {"model-doe", "model-doe-ff"}
-    assert versus["model-doe"]["doe_dem_runs"] == 16 and versus["model-doe-ff"]["doe_dem_runs"] == 28
+    assert versus["model-doe"]["doe_dem_runs"] == 2**p + 2 * p + 2
+    assert versus["model-doe-ff"]["doe_dem_runs"] == 3**p + 1
     for v in versus.values():
         assert finite(v["mse_difference"], v["se"]) and v["gns_dem_runs"] == routes["model-inverse"]["dem_runs"]
         # on the runoff's packings where both ran there, else on the validation's
@@ -468,11 +487,13 @@ def test_calibrated_answer_transfer_and_prediction(results):
         assert v["mse_difference"] == pytest.approx(mse["model-inverse"] - mse[v["doe_key"]])
     # glass states no plausible range of its own (calibration.plausible_ranges): the built-in one, said so
     plausible = answer["plausible"]
-    assert (plausible["parameter"], plausible["range"]) == ("rolling_friction", [0.0, 0.3])
-    assert plausible["source"].startswith("the default for dry grains of 0.1-1 mm, as 'glass' states none")
-    # carried from size_scale 4 to the target 3.5 (the star: 7 points x 2 packings, then one step), then 3
+    assert (plausible[0]["parameter"], plausible[0]["range"]) == ("rolling_friction", [0.0, 0.3])
+    assert [s["parameter"] for s in plausible] == answer["parameters"][2:]
+    for stated in plausible:
+        assert stated["source"].startswith("the default for dry grains of 0.1-1 mm, as 'glass' states none")
+    # carried from size_scale 4 to the target 3.5 (the star: 2p + 1 points x 2 packings, then one step), then 3
     target, transfer = answer["target"], answer["transfer"]
-    assert (target["coarse_size_scale"], target["size_scale"], target["coarse_runs"]) == (4, 3.5, 14)
+    assert (target["coarse_size_scale"], target["size_scale"], target["coarse_runs"]) == (4, 3.5, (2 * p + 1) * 2)
     carried = target["validation"]
     assert carried["seeds"] == [5001, 5002, 5003] and finite(carried["mse"], carried["curves"])
     assert transfer["parameters"] == carried["parameters"] and answer["prediction_size_scale"] == 3.5
@@ -481,9 +502,11 @@ def test_calibrated_answer_transfer_and_prediction(results):
     assert prediction["aspect_ratios"] == [1.0, 3.0] and prediction["failed"] == {}
     assert finite(prediction["final_runout"], prediction["final_height"])
     assert prediction["final_runout"][0] < prediction["final_runout"][1]  # a taller column runs out further
-    for key in ("intervals", "gns_intervals"):
-        assert [p["name"] for p in answer[key]] == answer["parameters"]
-        assert finite([(p["value"], p["low"], p["high"]) for p in answer[key]]), key
+    # intervals: the GNS inverse design's, and the diagnosis' of a model it fitted (one mechanism, not a pair)
+    for key in ("intervals", "gns_intervals") if answer["model"] != PAIR else ("gns_intervals",):
+        assert [q["name"] for q in answer[key]] == answer["parameters"]
+        assert finite([(q["value"], q["low"], q["high"]) for q in answer[key]]), key
+    assert answer["model"] != PAIR or answer["intervals"] is None
 
 
 # -- export and report -------------------------------------------------------------------------------

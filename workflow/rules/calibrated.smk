@@ -9,10 +9,10 @@
 # model.json when its jobs run (dataset_cases, gns_settings, gns_init: common.smk).
 
 
-# Under auto, the diagnosis' contenders (every model it scored in the DEM, at its fit) predicted
-# across aspect ratios and held against the experimental scaling of dry column collapse, so that the
-# model is chosen by what it predicts as well as by the one measured curve (calibration/contenders.py).
-SCALING_CHECK = CALIBRATION["model"] == "auto" and config["diagnosis"]["enabled"] and CALIBRATION["scaling_check"]
+# Under auto (SCALING_CHECK, common.smk), the diagnosis' contenders (every model it scored in the DEM,
+# at its fit, and pairs of its mechanisms fitted here) predicted across aspect ratios and held against
+# the experimental scaling of dry column collapse, so that the model is chosen by what it predicts as
+# well as by the one measured curve (calibration/contenders.py).
 
 
 rule calibrated_contenders:

@@ -45,6 +45,8 @@ DOE_RUNS = list(DOE_DESIGN["run_id"])
 INVERSE = config["inverse"]
 INVERSE_NAMES = INVERSE["measured"]
 CALIBRATION = config["calibration"]
+# auto chooses among the contenders by what they predict across aspect ratios (calibrated.smk)
+SCALING_CHECK = CALIBRATION["model"] == "auto" and config["diagnosis"]["enabled"] and CALIBRATION["scaling_check"]
 CALIBRATED_NAMES = sorted(config["measured"]) if CALIBRATION["enabled"] else []
 CHANNEL_WIDTH = config["diagnosis"]["channel_width"]
 # The columns whose calibrated model has a GNS route: its dataset calibrated_<name> (the case table).
@@ -220,7 +222,9 @@ def calibrated_routes(name):
     routes = {}
     if config["diagnosis"]["enabled"]:
         routes["diagnosis-base"] = f"results/diagnosis/{name}/diagnosis.json"
-        if CALIBRATION["model"] != "base":
+        if SCALING_CHECK:  # the contenders' fits: the diagnosis' own, and those of pairs
+            routes["diagnosis-model"] = f"results/calibrated/{name}/contenders.json"
+        elif CALIBRATION["model"] != "base" and "+" not in CALIBRATION["model"]:
             routes["diagnosis-model"] = routes["diagnosis-base"]
     if name in INVERSE_NAMES:
         routes["base-inverse"] = f"results/inverse/{name}/inverse.json"
