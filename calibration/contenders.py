@@ -6,8 +6,11 @@ One curve of a few points barely tells mechanisms apart (quartz: cohesion and si
 within a BIC of 8), yet they predict other columns very differently: a cohesion that holds a tall
 column back also holds a short one still. The law is a stated expectation with a stated tolerance,
 so it enters as pseudo-data: law_chi2 = sum over a of (ln(predicted / law) / law_log_std)^2, the
-predicted final runout the mean over packings. A contender's combined score is its DEM BIC on the
-measured curve plus law_chi2; the lowest combined score among the candidate mechanisms is calibrated.
+predicted final runout the mean over packings. How far each candidate's curve moves when the grains
+get finer (calibration/grain_shift.py: its fit run at the calibration's grain size and at the
+target's, in units of the data's noise) enters the same way, as the part of the answer that will
+not transfer. A contender's combined score is its DEM BIC on the measured curve plus law_chi2 plus
+that transfer chi^2; the lowest combined score among the candidate mechanisms is calibrated.
 The base model is predicted too, for contrast (a 2D disc model runs out like discs, not like sand),
 but not chosen here: whether a mechanism is needed at all is the diagnosis' BIC test. Pairs of
 mechanisms join the candidates (`pairs`: by default the two best single candidates together), each
@@ -31,6 +34,7 @@ import numpy as np
 from calibration.calibrated import VALIDATION_SEED0, CalibrationError, diagnosis_parameters
 from calibration.design_runs import SimulationSettings
 from calibration.diagnosis_result import Diagnosis
+from calibration.grain_shift import GrainShift, grain_shift
 from calibration.measured_column import MeasuredColumn
 from calibration.mechanisms import MechanismError, get_mechanisms, plausible_for
 from calibration.model import Model, model_named
@@ -55,7 +59,8 @@ class Contender:
     physical range in words ("" for the base model); physical: every one inside; pair_fit: how a
     pair was fitted (calibration.pairs.PairFit; None for the diagnosis' own models); switched_off:
     the mechanisms of a pair its fit leaves off (Mechanism.switched_on): such a pair is its other
-    member at another point, reported but never chosen."""
+    member at another point, reported but never chosen; grain_shift: its curve's move with the
+    grain size (calibration.grain_shift; None: not measured, the base model or no finer scale)."""
 
     model: str
     parameters: dict[str, float]
@@ -68,21 +73,29 @@ class Contender:
     physical: bool
     pair_fit: PairFit | None = None
     switched_off: list[str] = field(default_factory=list)
+    grain_shift: GrainShift | None = None
+
+    @property
+    def transfer_chi2(self) -> float:
+        """The move of its curve with the grain size in chi^2 units (0 where not measured)."""
+        return 0.0 if self.grain_shift is None or self.grain_shift.chi2 is None else self.grain_shift.chi2
 
     @property
     def combined(self) -> float:
-        """The DEM BIC plus the law's chi^2: what `auto` minimises over the candidates."""
-        return self.bic + self.law_chi2
+        """The DEM BIC plus the law's chi^2 plus the transfer's: what `auto` minimises over the candidates."""
+        return self.bic + self.law_chi2 + self.transfer_chi2
 
     def to_dict(self) -> dict:
-        return dict(asdict(self), combined=self.combined)
+        return dict(asdict(self), transfer_chi2=self.transfer_chi2, combined=self.combined)
 
     @classmethod
     def from_dict(cls, data: dict) -> Contender:
-        fields = {k: v for k, v in data.items() if k != "combined"}
+        fields = {k: v for k, v in data.items() if k not in ("combined", "transfer_chi2")}
         fields["scaling"] = ScalingCheck(**fields["scaling"])
         if fields.get("pair_fit") is not None:
             fields["pair_fit"] = PairFit(**fields["pair_fit"])
+        if fields.get("grain_shift") is not None:
+            fields["grain_shift"] = GrainShift.from_dict(fields["grain_shift"])
         return cls(**fields)
 
 
@@ -137,17 +150,29 @@ class ContenderChoice:
         def misses(c: Contender) -> str:
             return f"off the law by a factor of {math.exp(c.scaling.runout_error):.2g} (RMS over a)"
 
+        def parts(c: Contender) -> str:
+            moved = f" + transfer {c.transfer_chi2:.1f}" if c.grain_shift is not None else ""
+            return f"{c.combined:.1f} (BIC {c.bic:.1f} + law {c.law_chi2:.1f}{moved})"
+
+        weighed = f"the law of {self.law} as pseudo-data (tolerance {self.law_log_std:g} in ln L*)"
+        shifts = [c.grain_shift for c in self.contenders if c.grain_shift is not None]
+        if shifts:
+            coarse, fine = shifts[0].size_scales
+            weighed += (
+                f" and each curve's move from size_scale {coarse:g} to {fine:g} at the same parameters, in units "
+                "of the data's noise (what will not transfer)"
+            )
         if self.chosen == self.by_fit:
             return (
                 f"{self.chosen} fits the measured curve best (DEM BIC {chosen.bic:.1f}) and its predictions "
-                f"across a are {misses(chosen)}; no other candidate does better on fit and law together "
-                f"(the law of {self.law} as pseudo-data, tolerance {self.law_log_std:g} in ln L*)."
+                f"across a are {misses(chosen)}; no other candidate does better on fit, law and transfer together "
+                f"({weighed}): it scores {parts(chosen)}."
             )
         return (
             f"{self.by_fit} fits the measured curve best (BIC {fit.bic:.1f}, {chosen.bic - fit.bic:.1f} below "
             f"{self.chosen}), but its predictions across a are {misses(fit)}, {self.chosen}'s {misses(chosen)}: "
-            f"with the law of {self.law} as pseudo-data (tolerance {self.law_log_std:g} in ln L*), "
-            f"{self.chosen} scores {chosen.combined:.1f} against {fit.combined:.1f}, so {self.chosen} is calibrated."
+            f"with {weighed}, {self.chosen} scores {parts(chosen)} against {parts(fit)}, so {self.chosen} is "
+            "calibrated."
         )
 
     def to_dict(self) -> dict:
@@ -315,14 +340,25 @@ def check_contenders(
     pairs: str | Sequence[Sequence[str]] = (),
     pair_packings: int = 4,
     pair_rounds: int = 3,
+    finer_size_scale: float | None = None,
 ) -> ContenderChoice:
     """Predict every DEM-scored model of `diagnosis` at its fit on `column`'s material and L_i at
     each aspect ratio, on n_packings packings (seeds VALIDATION_SEED0 + k, calibration.prediction),
     score each against the quasi-2D law and choose (module docstring). `pairs` (contender_pairs)
     join them, each fitted first (calibration.pairs.fit_pair: pair_packings confirmation packings,
-    pair_rounds Gauss-Newton steps). Each mechanism's parameter is judged against its plausible
-    range for the column's material (plausible_for over plausible_ranges, the config's
-    calibration.plausible_ranges)."""
+    pair_rounds Gauss-Newton steps). With finer_size_scale (finer than `settings`'), every candidate's
+    curve on the measured column is run there too, on the same packings (calibration.grain_shift),
+    and its move weighed. Each mechanism's parameter is judged against its plausible range for the
+    column's material (plausible_for over plausible_ranges, the config's calibration.plausible_ranges)."""
+    if finer_size_scale is not None and not finer_size_scale < settings.size_scale:
+        raise CalibrationError(
+            f"the contenders' transfer: size_scale {finer_size_scale:g} is not finer than {settings.size_scale:g}"
+        )
+    noise = [
+        float(sigma)
+        for (name, kind, _), sigma in zip(diagnosis.observables.labels, diagnosis.observables.noise_total)
+        if name == column.name and kind == "runout"
+    ]
     if not law_log_std > 0:
         raise CalibrationError(f"calibration.scaling_log_std: {law_log_std!r} must be positive")
     material = column.material_properties.name
@@ -336,7 +372,8 @@ def check_contenders(
     # progress in packings' worth of prediction runs, a pair's fit counted as two of them (auto: one
     # pair where two candidates were scored)
     n_pairs = (len(singles) > 2) if pairs == "auto" else len(pairs)
-    total = [(len(singles) + n_pairs) * len(seeds) + 2 * n_pairs]
+    n_shifts = (len(singles) - 1 + n_pairs) if finer_size_scale is not None else 0
+    total = [(len(singles) + n_pairs) * len(seeds) + 2 * n_pairs + 2 * n_shifts]
 
     def predicted(model: Model, theta: Sequence[float], bic: float, pair_fit: PairFit | None = None) -> Contender:
         runouts, heights = [], []
@@ -348,7 +385,15 @@ def check_contenders(
             seconds[0] += p.seconds
             done[0] += 1
         parameters = dict(zip(model.parameter_names, map(float, theta)))
-        return score_contender(model, parameters, bic, aspect_ratios, runouts, heights, law_log_std, pair_fit)
+        contender = score_contender(model, parameters, bic, aspect_ratios, runouts, heights, law_log_std, pair_fit)
+        if finer_size_scale is not None and model.mechanisms:  # the base model is never chosen: not run
+            within = None if progress is None else (lambda f, d=done[0]: progress(min((d + 2 * f) / total[0], 1.0)))
+            contender.grain_shift = grain_shift(
+                model, column, theta, settings, finer_size_scale, runout, dem_config, noise, len(seeds), within
+            )
+            seconds[0] += contender.grain_shift.seconds
+            done[0] += 2
+        return contender
 
     for model in singles:
         evidence = diagnosis.base if model.name == "base" else diagnosis.candidates[model.name]

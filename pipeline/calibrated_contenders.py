@@ -37,7 +37,8 @@ def run_contenders(
     """Every model the diagnosis scored in the DEM, at its fit, and the pairs of
     section["contender_pairs"] at their DEM fits (calibration.pairs), predicted at
     section["predict_aspect_ratios"] on section["scaling_packings"] packings and held against the
-    quasi-2D law with tolerance section["scaling_log_std"], each mechanism's parameter against its
+    quasi-2D law with tolerance section["scaling_log_std"], each candidate's curve run at the target
+    grain size too (transfer_size_scale: how far it moves), each mechanism's parameter against its
     range in section["plausible_ranges"] for the column's material (calibration.contenders) -> contenders.json
     and its figure. The grains and the runout reading are the diagnosis' (CalibratedColumn's); its
     finished DEM runs are kept, so a killed job loses only the run in flight."""
@@ -59,11 +60,23 @@ def run_contenders(
         pairs=section.get("contender_pairs", "auto"),
         pair_packings=section.get("pair_packings", 4),
         pair_rounds=section.get("pair_rounds", 3),
+        finer_size_scale=transfer_size_scale(section, diagnosis_section["size_scale"]),
     )
     choice.to_json(out_json)
     plot_contenders(choice, column.aspect_ratio, float(column.runout[-1]), out_figure)
     log.info("%s: %s", name, choice.why)
     return choice
+
+
+def transfer_size_scale(section: dict, size_scale: float) -> float | None:
+    """The grain size the contenders' curves are run at to weigh how far they transfer: the target's
+    (calibration.target_size_scale), else the held-out finer one (finer_size_scale), where finer
+    than the diagnosis' size_scale; None: neither is."""
+    for key in ("target_size_scale", "finer_size_scale"):
+        finer = section.get(key)
+        if finer is not None and finer < size_scale:
+            return float(finer)
+    return None
 
 
 def plot_contenders(choice: ContenderChoice, measured_a: float, measured_runout: float, path: StrPath) -> None:

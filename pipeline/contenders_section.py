@@ -47,15 +47,18 @@ def contenders_lines(choice: ContenderChoice) -> list[str]:
     """Markdown: every contender side by side (fit, the law per a, plausibility) and the choice."""
     a = choice.contenders[0].scaling.aspect_ratios
     per_a = " | ".join(f"a = {x:g}" for x in a)
-    head = f"| model | parameters | DEM BIC | {per_a} | law chi^2 | combined | plausible |"
+    shifts = [c.grain_shift for c in choice.contenders if c.grain_shift is not None]
+    moved = f"move {shifts[0].size_scales[0]:g} to {shifts[0].size_scales[1]:g}: MSE, chi^2" if shifts else "move"
+    head = f"| model | parameters | DEM BIC | {per_a} | law chi^2 | {moved} | combined | plausible |"
     lines = [
         f"**The contenders, judged by what they predict.** Each model the diagnosis scored in the DEM, at its "
         f"fit, {pairs_clause(choice)}predicted across a on {len(choice.seeds)} packings; per a its mean final L* "
         f"over the {QUASI_2D_SOURCE} law (1 = on the law). The law enters as pseudo-data with tolerance "
-        f"{choice.law_log_std:g} in ln L*; combined = BIC + law chi^2 ({choice.seconds:.0f} s of DEM).",
+        f"{choice.law_log_std:g} in ln L*. {move_sentence(shifts)}combined = BIC + law chi^2 + move chi^2 "
+        f"({choice.seconds:.0f} s of DEM).",
         "",
         head,
-        "|" + " --- |" * (6 + len(a)),
+        "|" + " --- |" * (7 + len(a)),
     ]
     for c in choice.contenders:
         fractions = " | ".join("failed" if f is None else f"{f:.2f}" for f in c.scaling.runout_fraction())
@@ -65,11 +68,28 @@ def contenders_lines(choice: ContenderChoice) -> list[str]:
             plausible += f"; fitted with {', '.join(c.switched_off)} off: not a pair"
         mark = f"**{c.model}**" if c.model == choice.chosen else c.model
         chi2 = f"{c.law_chi2:.1f}" if math.isfinite(c.law_chi2) else "-"
-        lines.append(f"| {mark} | {parameters} | {c.bic:.1f} | {fractions} | {chi2} | {c.combined:.1f} | {plausible} |")
+        shift = c.grain_shift
+        move = "-" if shift is None or shift.chi2 is None else f"{shift.shift_mse:.3g}, {shift.chi2:.1f}"
+        lines.append(
+            f"| {mark} | {parameters} | {c.bic:.1f} | {fractions} | {chi2} | {move} | {c.combined:.1f} | {plausible} |"
+        )
     lines += ["", choice.why, ""]
     if choice.deciding is not None:
         lines += [deciding_sentence(choice), ""]
     return lines
+
+
+def move_sentence(shifts: list) -> str:
+    """How each candidate's move with the grain size was measured, in words ("" where it was not)."""
+    if not shifts:
+        return ""
+    coarse, fine = shifts[0].size_scales
+    return (
+        f"Each candidate's curve on the measured column moves when the grains get finer: its fit run at "
+        f"size_scale {coarse:g} and {fine:g} on the same {len(shifts[0].seeds)} packings, the squared move of "
+        "the mean curve less the packings' own scatter, as MSE and in units of the data's noise (chi^2): "
+        "what the answer will not carry to another resolution. "
+    )
 
 
 def pairs_clause(choice: ContenderChoice) -> str:

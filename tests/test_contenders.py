@@ -6,6 +6,7 @@ choice. The DEM path (check_contenders on a real diagnosis) runs in the tiny DAG
 import json
 import math
 
+import numpy as np
 import pytest
 
 from calibration.calibrated import CalibrationError
@@ -18,6 +19,7 @@ from calibration.contenders import (
     resolve_by_prediction,
     score_contender,
 )
+from calibration.grain_shift import GrainShift, debiased_squares
 from calibration.mechanisms import MechanismError, get_mechanisms
 from calibration.model import Model, model_named
 from calibration.scaling_laws import check_scaling, quasi_2d_runout
@@ -202,3 +204,28 @@ def test_a_pair_is_physical_only_where_both_its_values_are_and_can_be_chosen():
         Model(*get_mechanisms(["cohesion", "cohesion"]))
     with pytest.raises(MechanismError, match="holds 2 mechanisms, not one"):
         _ = pair.mechanism
+
+
+def test_the_move_with_grain_size_is_debiased_by_the_packing_scatter_and_weighs_on_the_choice():
+    rng = np.random.default_rng(0)
+    # two sets of 4 packings about the same curve: the move is their scatter alone, about 0 once debiased
+    curve = np.linspace(0.2, 2.0, 7)
+    same = debiased_squares(curve + 0.1 * rng.standard_normal((4, 7)), curve + 0.1 * rng.standard_normal((4, 7)))
+    raw = 0.1**2 * (1 / 4 + 1 / 4)  # what the squared difference of two such means averages
+    assert np.mean(same) < 0.5 * raw
+    # moved by 0.3 at every time: 0.09 comes back, less at most the scatter; one run each: not debiased
+    moved = debiased_squares(np.array([curve, curve + 0.01]), np.array([curve + 0.3, curve + 0.31]))
+    assert moved == pytest.approx(np.full(7, 0.09), abs=1e-3)
+    assert debiased_squares(curve[None], curve[None] + 0.2) == pytest.approx(np.full(7, 0.04))
+    # two candidates that fit and follow the law alike: the one whose curve moves with the grains loses
+    still, moving = (contender(n, 100.0, [1.0] * len(A)) for n in ("sidewall_friction", "rolling_resistance"))
+    for c, chi2 in ((still, 0.5), (moving, 12.0)):
+        c.grain_shift = GrainShift((5.0, 3.0), [5001, 5002], [1.0] * 7, [1.1] * 7, chi2 / 100, chi2, 10.0)
+    assert moving.combined == pytest.approx(100.0 + moving.law_chi2 + 12.0)
+    base = contender("base", 300.0, [2.5] * len(A))
+    assert choose([base, moving, still])[0] == "sidewall_friction"
+    trio = [base, moving, still]
+    choice = ContenderChoice("q", trio, "sidewall_friction", "rolling_resistance", 0.25, "law", [1], 1.0)
+    again = ContenderChoice.from_dict(json.loads(json.dumps(choice.to_dict())))
+    assert again.contender("rolling_resistance").grain_shift == moving.grain_shift
+    assert "move from size_scale 5 to 3" in choice.why and "+ transfer 12.0" in choice.why

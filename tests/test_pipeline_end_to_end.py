@@ -386,7 +386,14 @@ def test_the_contenders_are_predicted_across_a_before_the_model_is_chosen(result
         assert 0 < scaling["final_runout"][0] < scaling["final_runout"][1]
         ratios = [math.log(v / law) for v, law in zip(scaling["final_runout"], scaling["runout_law"])]
         assert c["law_chi2"] == pytest.approx(sum((r / contenders["law_log_std"]) ** 2 for r in ratios))
-        assert c["combined"] == pytest.approx(c["bic"] + c["law_chi2"])
+        assert c["combined"] == pytest.approx(c["bic"] + c["law_chi2"] + c["transfer_chi2"])
+        # each candidate's curve at the diagnosis' grain size and the target's, on the same packing
+        shift = c["grain_shift"]
+        if c["model"] == "base":
+            assert shift is None and c["transfer_chi2"] == 0
+        else:
+            assert shift["size_scales"] == [4, 3.5] and shift["seeds"] == [5001] and c["transfer_chi2"] == shift["chi2"]
+            assert shift["shift_mse"] >= 0 and finite(shift["coarse_mean"], shift["fine_mean"])
     # the pair: from rolling resistance's fit (side-wall friction off), a star of 9 runs and one step
     # on one packing of its own, then its BIC on the diagnosis' one packing, against the same noise
     pair = contenders["contenders"][2]
