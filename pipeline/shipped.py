@@ -9,7 +9,8 @@ A ShippedAnswer holds what an engineer takes away (model, route, parameters, val
 jackknife SE on so many packings) and what it takes to check it: the measured file, the runout
 method, the size_scale, the engine version, and the runout curve of every packing it was scored on.
 
-The check (`rerun`) runs the answer on its first validation packings again. With the same engine
+The answer is the one carried to the target resolution (calibration.target_size_scale) where the
+DAG did so. The check (`rerun`) runs the answer on its first validation packings again. With the same engine
 version the builtin DEM repeats its bits on every x86-64 processor, so the curves must come back as
 stored; under other kernels a collapse is another draw of its chaos, and the score must lie within
 what the packing scatter of the stored curves allows (`scatter_bound`).
@@ -80,27 +81,35 @@ class ShippedAnswer:
 
 
 def freeze(calibrated: CalibratedResult, channel_width: float = 0.01) -> ShippedAnswer:
-    """The ShippedAnswer of a calibrated.json (as CalibratedResult.from_json reads it): the answer's
-    route, scored on the runoff's packings where it ran one, else on the validation's
-    (pipeline.calibrated_section.answer_score)."""
+    """The ShippedAnswer of a calibrated.json (as CalibratedResult.from_json reads it): the answer at
+    the resolution it must hold at where the DAG carried it there (calibration.target_size_scale:
+    its validation at the target), else the answer's route, scored on the runoff's packings where it
+    ran one, else on the validation's (pipeline.calibrated_section.answer_score)."""
     score = answer_score(calibrated.to_dict())
     answer = score["route"]
+    route, dem_runs, size_scale = answer["route"], int(answer["dem_runs"]), float(calibrated.size_scale)
+    target = calibrated.target
+    if target:  # the coarse answer's slopes and the target's steps are the carrying's cost
+        score = target["validation"]
+        route += f", carried to size_scale {target['size_scale']:g}"
+        dem_runs += int(target["coarse_runs"]) + int(target["target_runs"])
+        size_scale = float(target["size_scale"])
     return ShippedAnswer(
         name=calibrated.name,
         measured=calibrated.measured,
         model=calibrated.model,
-        route=answer["route"],
-        parameters={k: float(v) for k, v in answer["parameters"].items()},
+        route=route,
+        parameters={k: float(v) for k, v in score["parameters"].items()} if target else dict(answer["parameters"]),
         mse=float(score["mse"]),
         mse_se=score["mse_se"],
         seeds=[int(s) for s in score["seeds"]],
         curves=score["curves"],
-        size_scale=float(calibrated.size_scale),
+        size_scale=size_scale,
         runout=calibrated.runout,
         channel_width=channel_width,
         engine=calibrated.engine,
         engine_version=ENGINE_VERSION,
-        dem_runs=int(answer["dem_runs"]),
+        dem_runs=dem_runs,
     )
 
 
@@ -134,14 +143,15 @@ TABLE_START, TABLE_END = "<!-- answer-table -->", "<!-- /answer-table -->"
 def answer_table(answers: list[ShippedAnswer]) -> str:
     """The README's answer table (Markdown) of the shipped answers."""
     lines = [
-        "| column | model | route | parameters | validated runout MSE +- SE | packings | DEM runs of the route |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
+        "| column | model | route | size_scale | parameters | validated runout MSE +- SE | packings | DEM runs |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for a in answers:
         parameters = ", ".join(f"{k} {v:.3g}" for k, v in a.parameters.items())
         se = "n/a" if a.mse_se is None else f"{a.mse_se:.2g}"
         score = f"{a.mse:.3g} +- {se}"
-        lines.append(f"| {a.name} | {a.model} | {a.route} | {parameters} | {score} | {len(a.seeds)} | {a.dem_runs} |")
+        row = f"| {a.name} | {a.model} | {a.route} | {a.size_scale:g} | {parameters} | {score} | {len(a.seeds)} |"
+        lines.append(f"{row} {a.dem_runs} |")
     return "\n".join(lines)
 
 

@@ -31,8 +31,11 @@ import numpy as np
 import pytest
 import yaml
 
+from calibration.calibrated_result import CalibratedResult
 from dem.trajectory import read_attrs, read_trajectory
 from gns.dataset import load_dataset_metadata
+from pipeline.calibrated_section import answer_score
+from pipeline.shipped import freeze
 from tests.conftest import OWN_MATERIAL
 from tests.test_workflow import snakemake
 
@@ -505,6 +508,13 @@ def test_calibrated_answer_transfer_and_prediction(results):
     assert carried["seeds"] == [5001, 5002, 5003] and finite(carried["mse"], carried["curves"])
     assert transfer["parameters"] == carried["parameters"] and answer["prediction_size_scale"] == 3.5
     assert transfer["size_scale"] == 3 and finite(transfer["mse"], transfer["curves"]) and transfer["failed"] == {}
+    # what the project ships of such a result (pipeline.shipped.freeze): the answer at the target
+    shipped = freeze(CalibratedResult.from_json(results / "calibrated" / NAME / "calibrated.json"))
+    assert shipped.size_scale == 3.5 and shipped.route.endswith(", carried to size_scale 3.5")
+    assert (shipped.parameters, shipped.curves) == (carried["parameters"], carried["curves"])
+    assert shipped.mse == carried["mse"] and shipped.seeds == carried["seeds"]
+    coarse_runs = answer_score(answer)["route"]["dem_runs"]
+    assert shipped.dem_runs == coarse_runs + target["coarse_runs"] + target["target_runs"]
     prediction = answer["prediction"]
     assert prediction["aspect_ratios"] == [1.0, 3.0] and prediction["failed"] == {}
     assert finite(prediction["final_runout"], prediction["final_height"])
