@@ -10,7 +10,9 @@ predicted final runout the mean over packings. How far each candidate's curve mo
 get finer (calibration/grain_shift.py: its fit run at the calibration's grain size and at the
 target's, in units of the data's noise) enters the same way, as the part of the answer that will
 not transfer. A contender's combined score is its DEM BIC on the measured curve plus law_chi2 plus
-that transfer chi^2; the lowest combined score among the candidate mechanisms is calibrated.
+that transfer chi^2; the lowest combined score among the candidate mechanisms is calibrated, or,
+where candidates lie within the decision margin of it (6, the diagnosis' between candidates), the
+first of them whose parameters are all physical.
 The base model is predicted too, for contrast (a 2D disc model runs out like discs, not like sand),
 but not chosen here: whether a mechanism is needed at all is the diagnosis' BIC test. Pairs of
 mechanisms join the candidates (`pairs`: by default the two best single candidates together), each
@@ -32,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from calibration.calibrated import VALIDATION_SEED0, CalibrationError, diagnosis_parameters
+from calibration.decision import DecisionRule
 from calibration.design_runs import SimulationSettings
 from calibration.diagnosis_result import Diagnosis
 from calibration.grain_shift import GrainShift, grain_shift
@@ -45,6 +48,8 @@ from dem.atomic import StrPath, write_json
 from dem.runout import RunoutMethod
 
 LAW_LOG_STD = 0.25  # default tolerance of the law, in ln(L*): a prediction 25% off costs one unit of chi^2
+# combined scores closer than this are not told apart (the diagnosis' BIC margin between candidates)
+DECISION_MARGIN = DecisionRule().min_delta_bic_vs_runner_up
 
 
 @dataclass
@@ -162,6 +167,14 @@ class ContenderChoice:
                 f" and each curve's move from size_scale {coarse:g} to {fine:g} at the same parameters, in units "
                 "of the data's noise (what will not transfer)"
             )
+        lowest = ranked_candidates(self.contenders)[0]
+        if lowest.model != self.chosen:  # the physical one of candidates the data do not tell apart
+            return (
+                f"{lowest.model} scores lowest on fit, law and transfer together ({weighed}): {parts(lowest)}, "
+                f"but {self.chosen} scores {parts(chosen)}, within the margin of {DECISION_MARGIN:g} the data do "
+                f"not tell apart, and its parameters are physical where {lowest.model}'s are effective: "
+                f"{self.chosen} is calibrated. Its predictions across a are {misses(chosen)}."
+            )
         if self.chosen == self.by_fit:
             return (
                 f"{self.chosen} fits the measured curve best (DEM BIC {chosen.bic:.1f}) and its predictions "
@@ -246,12 +259,16 @@ def ranked_candidates(contenders: Sequence[Contender]) -> list[Contender]:
     return sorted(candidates, key=lambda c: (c.combined, c.bic))
 
 
-def choose(contenders: Sequence[Contender]) -> tuple[str, str]:
-    """(chosen, by_fit): the candidate mechanisms of lowest combined score and of lowest BIC."""
+def choose(contenders: Sequence[Contender], margin: float = DECISION_MARGIN) -> tuple[str, str]:
+    """(chosen, by_fit): the candidate of lowest combined score, except that among the candidates
+    within `margin` of it, which the data do not tell apart, the first whose every parameter lies in
+    its physical range is chosen; and the candidate of lowest BIC."""
     ranked = ranked_candidates(contenders)
     if not ranked:
         raise CalibrationError("scaling check: the diagnosis scored no candidate mechanism in the DEM")
-    return ranked[0].model, min(ranked, key=lambda c: c.bic).model
+    tied = [c for c in ranked if c.combined - ranked[0].combined < margin]
+    chosen = next((c for c in tied if c.physical), ranked[0])
+    return chosen.model, min(ranked, key=lambda c: c.bic).model
 
 
 def deciding_column(contenders: Sequence[Contender], L_i: float) -> DecidingColumn | None:

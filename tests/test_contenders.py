@@ -161,6 +161,10 @@ def test_the_report_names_the_experiment_that_would_decide():
     even = [contender("cohesion", 100.0, [1.0] * len(A)), contender("sidewall_friction", 103.0, [1.01] * len(A))]
     tie = ContenderChoice("q", even, *choose(even), 0.25, "the law", [1, 2], 1.0, 0.02, deciding_column(even, 0.02))
     assert "within the margin of 6: the data do not decide" in "\n".join(contenders_lines(tie))
+    # ... so of the two the one with physical values is calibrated (a Bond number of 30 is effective)
+    assert (tie.chosen, tie.by_fit) == ("sidewall_friction", "cohesion")
+    assert "within the margin of 6 the data do not tell apart, and its parameters are physical" in tie.why
+    assert choose(even, margin=2.0)[0] == "cohesion"  # 3 apart: told apart by a margin of 2
 
 
 def test_auto_pairs_the_two_best_single_candidates_and_a_bad_pair_names_its_key():
