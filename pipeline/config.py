@@ -390,7 +390,8 @@ def check_calibration(config: dict, inverse_datasets: dict[str, str] | None = No
     fields = {m.name: m.engine_field for m in get_mechanisms(names, config["diagnosis"]["channel_width"])}
     missing = [name for name, field in fields.items() if field not in engine.mechanisms]
     if missing:
-        what = "the diagnosis candidates" if model == "auto" else "the model"
+        given_pairs = model == "auto" and pairs != "auto" and len(pairs) > 0
+        what = "the model" if model != "auto" else f"the diagnosis candidates{' and contender pairs' * given_pairs}"
         raise ConfigError(
             f"config key calibration.model: {model} calibrates {what} {missing}, which dem.engine {engine.name} "
             f"cannot run (it runs {list(engine.mechanisms) or 'none of the candidate mechanisms'}); use the "

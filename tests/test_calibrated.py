@@ -232,6 +232,23 @@ def test_a_model_the_engine_cannot_run_is_refused_before_any_job():
         check_calibration(config_with("auto", "liggghts"))
     with pytest.raises(ConfigError, match="auto takes the diagnosis' answer, but diagnosis.enabled is false"):
         check_calibration(config_with("auto", diagnosis_enabled=False))
+    # a pair: each of its mechanisms must run on the engine, and a mechanism pairs with another
+    check_calibration(config_with("rolling_resistance+sidewall_friction"))
+    with pytest.raises(ConfigError, match=r"rolling_resistance\+cohesion .*\['cohesion'\].*liggghts cannot run"):
+        check_calibration(config_with("rolling_resistance+cohesion", "liggghts"))
+    with pytest.raises(ConfigError, match="calibration.model: cohesion.cohesion pairs cohesion with itself"):
+        check_calibration(config_with("cohesion+cohesion"))
+    paired = config_with("auto")
+    paired["calibration"]["contender_pairs"] = [["rolling_resistance", "rolling_resistance"]]
+    with pytest.raises(ConfigError, match=r"calibration.contender_pairs\[0\]: .* pairs rolling_resistance with itself"):
+        check_calibration(paired)
+    paired["calibration"]["contender_pairs"] = [["rolling_resistance", "cohesion"]]  # cohesion: not in LIGGGHTS
+    paired["diagnosis"]["candidates"], paired["dem"]["engine"] = ["rolling_resistance"], "liggghts"
+    paired["calibration"]["contender_pairs"] = []
+    check_calibration(paired)  # the candidate alone runs there ...
+    paired["calibration"]["contender_pairs"] = [["rolling_resistance", "cohesion"]]
+    with pytest.raises(ConfigError, match=r"candidates and contender pairs \[.cohesion.\]"):
+        check_calibration(paired)  # ... its pair with cohesion does not
     short = config_with("cohesion")
     short["calibration"]["gns_budget"] = 10
     with pytest.raises(ConfigError, match=r"calibration.gns_budget: 10 GNS points cannot hold the 12 of the initial"):
