@@ -96,7 +96,8 @@ def plot_contenders(choice: ContenderChoice, measured_a: float, measured_runout:
         colour = f"C{k}"
         mean = [np.nan if v is None else v for v in c.scaling.final_runout]
         chosen = " <- chosen" if c.model == choice.chosen else ""
-        label = f"{c.model} (BIC {c.bic:.0f}, law chi^2 {c.law_chi2:.0f}){chosen}"
+        moved = f", move chi^2 {c.transfer_chi2:.0f}" if c.grain_shift is not None else ""
+        label = f"{c.model} (BIC {c.bic:.0f}, law chi^2 {c.law_chi2:.0f}{moved}){chosen}"
         ax.plot(a, mean, "o-" if c.model != "base" else "s--", color=colour, label=label)
         for each in c.runout_each:
             ax.plot(a, [np.nan if v is None else v for v in each], ".", color=colour, alpha=0.5)
