@@ -390,12 +390,12 @@ def check_contenders(
     # pair where two candidates were scored)
     n_pairs = (len(singles) > 2) if pairs == "auto" else len(pairs)
     n_shifts = (len(singles) - 1 + n_pairs) if finer_size_scale is not None else 0
-    total = [(len(singles) + n_pairs) * len(seeds) + 2 * n_pairs + 2 * n_shifts]
+    total = (len(singles) + n_pairs) * len(seeds) + 2 * n_pairs + 2 * n_shifts
 
     def predicted(model: Model, theta: Sequence[float], bic: float, pair_fit: PairFit | None = None) -> Contender:
         runouts, heights = [], []
         for seed in seeds:
-            within = None if progress is None else (lambda f, d=done[0]: progress(min((d + f) / total[0], 1.0)))
+            within = None if progress is None else (lambda f, d=done[0]: progress(min((d + f) / total, 1.0)))
             p = predict(model, column, theta, settings, aspect_ratios, runout, dem_config, seed=seed, progress=within)
             runouts.append(p.final_runout)
             heights.append(p.height_over_L_i)
@@ -404,7 +404,7 @@ def check_contenders(
         parameters = dict(zip(model.parameter_names, map(float, theta)))
         contender = score_contender(model, parameters, bic, aspect_ratios, runouts, heights, law_log_std, pair_fit)
         if finer_size_scale is not None and model.mechanisms:  # the base model is never chosen: not run
-            within = None if progress is None else (lambda f, d=done[0]: progress(min((d + 2 * f) / total[0], 1.0)))
+            within = None if progress is None else (lambda f, d=done[0]: progress(min((d + 2 * f) / total, 1.0)))
             contender.grain_shift = grain_shift(
                 model, column, theta, settings, finer_size_scale, runout, dem_config, noise, len(seeds), within
             )
@@ -417,14 +417,14 @@ def check_contenders(
         contenders.append(predicted(model, diagnosis_parameters(diagnosis, model), evidence.dem.bic))
     to_fit = contender_pairs(pairs, contenders)
     for pair_names in to_fit:
-        pair = judged(model_named("+".join(pair_names), channel_width))
+        pair = judged(Model(*get_mechanisms(pair_names, channel_width)))
         members = [c for c in ranked_candidates(contenders) if c.model in pair_names and c.pair_fit is None]
         if not members:
             raise CalibrationError(
                 f"calibration.contender_pairs: the diagnosis scored neither of {pair_names} in the DEM, so no start"
             )
         start = judged(model_named(members[0].model, channel_width))
-        within = None if progress is None else (lambda f, d=done[0]: progress(min((d + 2 * f) / total[0], 1.0)))
+        within = None if progress is None else (lambda f, d=done[0]: progress(min((d + 2 * f) / total, 1.0)))
         fit = fit_pair(
             pair,
             start,
@@ -453,7 +453,7 @@ def check_contenders(
         seconds=seconds[0],
         L_i=float(column.L_i),
         deciding=deciding_column(contenders, column.L_i),
-        diagnosis_runs=sum(diagnosis.simulator.design_runs.values()) + diagnosis.simulator.refinement_runs,
+        diagnosis_runs=diagnosis.simulator.dem_runs,
         diagnosis_seconds=float(diagnosis.seconds),
     )
 

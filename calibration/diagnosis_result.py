@@ -41,6 +41,11 @@ class SimulatorSummary:
     packings_per_dem_score: int  # packings R of every DEM scoring run
     rounds: int  # DEM scoring rounds
 
+    @property
+    def dem_runs(self) -> int:
+        """Every DEM run of the diagnosis: design runs and the scoring runs that joined the emulators."""
+        return sum(self.design_runs.values()) + self.refinement_runs
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready, keys in field order."""
         return _fields(self)

@@ -110,8 +110,8 @@ class Model:
     def embed_base(self, base_theta: ArrayLike) -> np.ndarray:
         """Base-model points [n, 2] as points [n, p] of this model (every mechanism at its off value)."""
         base_theta = np.atleast_2d(np.asarray(base_theta, float))
-        off = [[np.clip(m.off_value(mu, e), *m.bounds) for m in self.mechanisms] for mu, e in base_theta]
-        return np.column_stack([base_theta, np.reshape(off, (len(base_theta), len(self.mechanisms)))])
+        points = [self.embed(Model(), theta) for theta in base_theta]
+        return np.array(points, float).reshape(len(base_theta), self.n_parameters)
 
     def embed(self, other: Model, theta: ArrayLike) -> np.ndarray:
         """A point theta [q] of `other`, a model whose mechanisms this one holds, as a point [p] of

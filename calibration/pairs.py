@@ -26,15 +26,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calibration.calibrated import CalibrationError, validate
-from calibration.confirmation import CONFIRM_SEED0, Confirmation, refine
+from calibration.calibrated import CalibrationError
 from calibration.design_runs import DEMRunner, SimulationSettings
 from calibration.diagnosis_result import Diagnosis
 from calibration.measured_column import MeasuredColumn
 from calibration.model import Model
 from calibration.observables import Observables
 from calibration.scoring import bic
-from calibration.target_scale import star_points
+from calibration.target_scale import run_star, secant_steps, star_points
 from dem.engines import FAILURES
 from dem.runout import RunoutMethod
 
@@ -96,17 +95,10 @@ def fit_pair(
     def part(offset: float, width: float) -> Callable[[float], None] | None:
         return None if progress is None else (lambda f: progress(min((offset + f * width) / total, 1.0)))
 
-    slopes = []
-    for k, point in enumerate(points):
-        label = f"{pair.name} star point {k}"
-        own = {"progress": part(k * n_packings, n_packings), "seed0": CONFIRM_SEED0}
-        slopes.append(validate(label, pair, column, point, settings, runout, dem_config, n_packings, **own))
-    correction = Confirmation([slopes[0]], [slopes[0].mse], 0)
-    ran = [i for i, v in enumerate(slopes) if math.isfinite(v.mse)]
-    if len(ran) > pair.n_parameters and n_rounds > 0:  # a slope in p parameters needs p + 1 points
-        means = np.array([slopes[i].mean for i in ran], float)
-        own = {"progress": part(len(points) * n_packings, n_rounds * n_packings), "secant": True}
-        correction = refine(pair, column, correction, points[ran], means, settings, runout, dem_config, n_rounds, **own)
+    label = f"{pair.name} star point {{k}}"
+    slopes = run_star(pair, column, points, settings, runout, dem_config, n_packings, label, part)
+    within = part(len(points) * n_packings, n_rounds * n_packings)
+    correction = secant_steps(pair, column, slopes[0], points, slopes, settings, runout, dem_config, n_rounds, within)
     chosen = correction.checked[correction.chosen]
     theta = [chosen.parameters[name] for name in pair.parameter_names]
     within = part(total - len(evidence.dem.packings), len(evidence.dem.packings))

@@ -105,6 +105,65 @@ def star_points(model: Model, theta: Sequence[float], step: float = STAR_STEP) -
     return model.box.from_unit(np.array(arms))
 
 
+def run_star(
+    model: Model,
+    column: MeasuredColumn,
+    points: np.ndarray,
+    settings: SimulationSettings,
+    runout: RunoutMethod,
+    dem_config: dict | None,
+    n_packings: int,
+    label: str,
+    part: Callable[[float, float], Callable[[float], None] | None],
+) -> list[Validation]:
+    """Each star point [n, p] (star_points) run at `settings` on n_packings confirmation packings
+    (CONFIRM_SEED0 + k); label: each run's name, "{k}" the point's index; part(offset, width): the
+    progress callable of the runs from offset to offset + width, in packings' worth of runs."""
+    own = {"seed0": CONFIRM_SEED0}
+    return [
+        validate(
+            label.format(k=k),
+            model,
+            column,
+            point,
+            settings,
+            runout,
+            dem_config,
+            n_packings,
+            **own,
+            progress=part(k * n_packings, n_packings),
+        )
+        for k, point in enumerate(points)
+    ]
+
+
+def secant_steps(
+    model: Model,
+    column: MeasuredColumn,
+    start: Validation,
+    points: np.ndarray,
+    star: Sequence[Validation],
+    settings: SimulationSettings,
+    runout: RunoutMethod,
+    dem_config: dict | None,
+    n_rounds: int,
+    progress: Callable[[float], None] | None = None,
+) -> Confirmation:
+    """`start` (a Validation at `settings`) corrected by n_rounds Gauss-Newton steps of the DEM at
+    `settings` along the slopes of the star's mean curves (star: run_star of points [n, p]),
+    updated by the secant rule (calibration.confirmation.refine); the star's centre, star[0], is
+    the start's surrogate value. No step where fewer than p + 1 star points ran."""
+    correction = Confirmation([start], [star[0].mse], 0)
+    ran = [i for i, v in enumerate(star) if math.isfinite(v.mse)]
+    if len(ran) > model.n_parameters and n_rounds > 0:  # a slope in p parameters needs p + 1 points
+        means = np.array([star[i].mean for i in ran], float)
+        own = {"progress": progress, "secant": True}
+        correction = refine(
+            model, column, correction, points[ran], means, settings, runout, dem_config, n_rounds, **own
+        )
+    return correction
+
+
 def resolution_shift(
     coarse_mean: Sequence[float | None], fine_mean: Sequence[float | None], fit_mse: float
 ) -> tuple[float | None, float | None]:
@@ -147,25 +206,16 @@ def calibrate_at_target(
     def part(offset: float, width: float) -> Callable[[float], None] | None:
         return None if progress is None else (lambda f: progress(min((offset + f * width) / total, 1.0)))
 
-    slopes = []
-    for k, point in enumerate(points):
-        label = f"slope point {k} at size_scale {coarse.size_scale:g}"
-        within = part(k * n_packings, n_packings)
-        own = {"progress": within, "seed0": CONFIRM_SEED0}
-        slopes.append(validate(label, model, column, point, coarse, runout, dem_config, n_packings, **own))
+    label = f"slope point {{k}} at size_scale {coarse.size_scale:g}"
+    slopes = run_star(model, column, points, coarse, runout, dem_config, n_packings, label, part)
     done = len(points) * n_packings
     label = f"the coarse answer at size_scale {target.size_scale:g}"
     within = part(done, n_packings)
     own = {"progress": within, "seed0": CONFIRM_SEED0}
     start = validate(label, model, column, theta, target, runout, dem_config, n_packings, **own)
     # the coarse DEM is the surrogate here: its value at the start, the star's centre on the same packings
-    correction = Confirmation([start], [slopes[0].mse], 0)
-    ran = [i for i, v in enumerate(slopes) if math.isfinite(v.mse)]
-    if len(ran) > len(theta) and n_rounds > 0:  # a slope in p parameters needs p + 1 points
-        means = np.array([slopes[i].mean for i in ran], float)
-        within = part(done + n_packings, n_rounds * n_packings)
-        own = {"progress": within, "secant": True}
-        correction = refine(model, column, correction, points[ran], means, target, runout, dem_config, n_rounds, **own)
+    within = part(done + n_packings, n_rounds * n_packings)
+    correction = secant_steps(model, column, start, points, slopes, target, runout, dem_config, n_rounds, within)
     chosen = correction.checked[correction.chosen]
     label = f"the answer at size_scale {target.size_scale:g}"
     within = part(total - n_validation, n_validation)

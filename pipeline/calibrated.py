@@ -179,7 +179,7 @@ def route_optimum(key: str, source: StrPath, model: Model) -> tuple[str, Model, 
     if key.startswith("diagnosis-"):
         diagnosis = read_diagnosis(source)
         route_model = Model() if key == "diagnosis-base" else model
-        runs = sum(diagnosis.simulator.design_runs.values()) + diagnosis.simulator.refinement_runs
+        runs = diagnosis.simulator.dem_runs
         theta = diagnosis_parameters(diagnosis, route_model).tolist()
         return f"{route_model.name}, diagnosis fit", route_model, theta, runs, diagnosis.seconds, {}
     data = read_result(source) if key.endswith("-inverse") else json.loads(Path(source).read_text())
