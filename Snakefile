@@ -21,6 +21,7 @@ include: "workflow/rules/inverse.smk"
 include: "workflow/rules/diagnosis.smk"
 include: "workflow/rules/runout.smk"
 include: "workflow/rules/calibrated.smk"
+include: "workflow/rules/campaign.smk"
 include: "workflow/rules/scale_ladder.smk"
 # later stages go here, before report.smk (the report collects what they registered)
 include: "workflow/rules/export.smk"

@@ -85,6 +85,22 @@ def read_measured(path: str | os.PathLike) -> dict[str, MeasuredColumn]:
     return {name: _build_column(path, name, rows) for name, rows in columns.items()}
 
 
+def check_one_material(path: str | os.PathLike) -> None:
+    """Every column of the file `path` is of one material (a campaign calibrates one parameter set);
+    MeasuredDataError naming the first row of the first column of another."""
+    path = Path(path)
+    first: tuple[int, dict] | None = None
+    for line, row in _read_rows(path):
+        if first is None:
+            first = (line, row)
+        elif row["material"] != first[1]["material"]:
+            raise MeasuredDataError(
+                f"{path}, line {line}, column 'material': column {row['column']!r} is of {row['material']!r}, "
+                f"column {first[1]['column']!r} (line {first[0]}) of {first[1]['material']!r}: a campaign's "
+                "columns are of one material (give each material an entry of its own)"
+            )
+
+
 def load_column(path: str | os.PathLike, name: str | None = None) -> MeasuredColumn:
     """The measured column `name` from `path`; name may be omitted when the file holds one column."""
     columns = read_measured(path)
@@ -208,13 +224,15 @@ def _build_column(path: Path, name: str, rows: list) -> MeasuredColumn:
             if row[field] != expected:
                 raise MeasuredDataError(
                     f"{path}, line {line}, column {field!r}: {row[field]!r} differs from "
-                    f"{expected!r} on line {first_line} for the same measured column {name!r}"
+                    f"{expected!r} on line {first_line} for the same measured column {name!r} (two columns of one "
+                    "name? give each its own)"
                 )
         for field, expected in (("aspect_ratio", aspect_ratio), ("L_i", L_i)):
             if _number(path, line, field, row[field]) != expected:
                 raise MeasuredDataError(
                     f"{path}, line {line}, column {field!r}: {row[field]} differs from "
-                    f"{expected} on line {first_line} for the same measured column {name!r}"
+                    f"{expected} on line {first_line} for the same measured column {name!r} (two columns of one "
+                    "name? give each its own)"
                 )
         kind = row["kind"]
         if kind not in KINDS:

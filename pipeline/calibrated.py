@@ -40,7 +40,7 @@ from calibration.confirmation import confirm, refine
 from calibration.contenders import ContenderChoice, resolve_by_prediction
 from calibration.diagnosis_result import Diagnosis
 from calibration.inverse_result import read_result
-from calibration.measured import load_column
+from calibration.measured import read_measured
 from calibration.measured_column import MeasuredColumn
 from calibration.mechanisms import plausible_for
 from calibration.model import Model
@@ -129,7 +129,8 @@ def choose_model(
                 f"[{whole.bounds[0]:g}, {whole.bounds[1]:g}])."
             )
     if boxed.mechanisms and measured_path is not None:
-        material = load_column(measured_path).material_properties.name
+        # a campaign's columns are of one material (pipeline.config.campaign_names)
+        material = next(iter(read_measured(measured_path).values())).material_properties.name
         boxed = Model(*(plausible_for(m, material, plausible_ranges or {}) for m in boxed.mechanisms))
     record = dict(model_record(boxed, why, name), scaling_check=by_prediction)
     write_json(out_json, record)

@@ -19,7 +19,13 @@ import warnings
 from collections.abc import Iterable
 
 from calibration.geometry import InverseDesignError, check_geometry_of_dataset, nearest_dataset
-from calibration.measured import MeasuredDataError, MeasuredDataWarning, load_column, read_measured
+from calibration.measured import (
+    MeasuredDataError,
+    MeasuredDataWarning,
+    check_one_material,
+    load_column,
+    read_measured,
+)
 from calibration.measured_column import MeasuredColumn
 from calibration.mechanisms import MechanismError, candidate_mechanisms, check_plausible_range, get_mechanisms
 from calibration.model import Model
@@ -48,6 +54,7 @@ __all__ = [
     "check_inverse",
     "check_diagnosis",
     "check_scale_ladder",
+    "campaign_names",
     "gns_datasets",
     "inverse_datasets",
 ]
@@ -74,19 +81,52 @@ def derive_columns(config: dict, added: Iterable[str] = ()) -> dict:
     key and, for a CSV, the file and line.
     """
     config = copy.deepcopy(config)
-    columns = {name: _measured_column(config, name) for name in config["measured"]}
-    for spec in config["datasets"].values():
+    campaigns = campaign_names(config)
+    columns = {name: _measured_column(config, name) for name in config["measured"] if name not in campaigns}
+    for dataset, spec in config["datasets"].items():
         if "measured" in spec:
+            if spec["measured"] in campaigns:
+                raise ConfigError(
+                    _one_column_only(config, spec["measured"], f"datasets.{dataset}.measured", "a dataset")
+                )
             column = columns[spec["measured"]]
             material = column.material_properties.to_config()
             spec.update(material=material, aspect_ratio=column.aspect_ratio, L_i=column.L_i)
-    _check_materials(config, columns)
+    campaign_columns = {
+        f"{name}/{column.name}": column for name in campaigns for column in _measured_columns(config, name).values()
+    }
+    _check_materials(config, {**columns, **campaign_columns})
     routed = set(config["doe"]["measured"]) | set(config["inverse"]["measured"])
     config["inverse"]["measured"] += [name for name in sorted(set(added)) if name in columns and name not in routed]
     for name in config["inverse"]["measured"]:
         if name in columns and not config["inverse"]["dataset"].get(name):
             _dataset_of_column(config, name, columns)
     return config
+
+
+def campaign_names(config: dict) -> list[str]:
+    """The `measured` entries that hold a campaign (several columns of one material), in name order;
+    ConfigError naming the file, line and CSV column where an entry's columns are of several
+    materials."""
+    names = []
+    for name in sorted(config["measured"]):
+        if len(_measured_columns(config, name)) > 1:
+            try:
+                check_one_material(config["measured"][name])
+            except MeasuredDataError as exc:
+                raise ConfigError(f"config key measured.{name}: {exc}") from exc
+            names.append(name)
+    return names
+
+
+def _one_column_only(config: dict, name: str, key: str, what: str) -> str:
+    """The message for `key` naming campaign entry `name` where `what` takes one column."""
+    columns = list(_measured_columns(config, name))
+    return (
+        f"config key {key}: {name!r} ({config['measured'][name]}) is a campaign of columns {columns}; {what} "
+        "takes one column: give it an entry of one column (the campaign is calibrated as a whole by the "
+        "calibrated stage, results/campaign/<name>)"
+    )
 
 
 def _measured_column(config: dict, name: str) -> MeasuredColumn:
@@ -257,6 +297,8 @@ def check_doe(config: dict) -> None:
         if f"doe_{name}" in config["datasets"]:
             raise ConfigError(f"config key datasets.doe_{name}: the name is taken by the DoE of measured {name!r}")
     for name in config["doe"]["measured"]:  # the DoE runs on the file's one column (load_column, doe.smk)
+        if name in campaign_names(config):
+            raise ConfigError(_one_column_only(config, name, "doe.measured", "the DoE of the paper's routes"))
         try:
             column = load_column(config["measured"][name])
         except MeasuredDataError as exc:
@@ -417,8 +459,9 @@ def check_target_scale(config: dict) -> None:
             f"config key calibration.finer_size_scale: {finer:g} is not finer than {what} {reference:g}; the "
             "transfer is checked on finer grains than the answer was carried to"
         )
+    campaigns = campaign_names(config)  # a campaign is calibrated at the diagnosis' scale alone
     for key, size_scale in (("target_size_scale", target), ("finer_size_scale", finer)):
-        for name in sorted(config["measured"]) if size_scale is not None else ():
+        for name in sorted(set(config["measured"]) - set(campaigns)) if size_scale is not None else ():
             for column in _measured_columns(config, name).values():
                 where = f"calibration.{key} (measured {name!r}, column {column.name!r})"
                 _guard(column.L_i, column.material_properties, size_scale, config, where)
@@ -454,6 +497,8 @@ def inverse_datasets(config: dict, cases: dict[str, dict]) -> dict[str, str]:
                 f"config key inverse.measured: {name!r} is not an entry of `measured` "
                 f"(entries: {sorted(config['measured'])})"
             )
+        if name in campaign_names(config):
+            raise ConfigError(_one_column_only(config, name, "inverse.measured", "the GNS inverse design of the paper"))
         column = load_column(config["measured"][name])
         dataset = inverse["dataset"].get(name)
         if not dataset:

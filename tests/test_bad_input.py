@@ -350,8 +350,8 @@ SCHEMA = ROOT / "workflow" / "schemas" / "config.schema.yaml"
 
 
 def readme_example() -> list[str]:
-    """The lines of the user's CSV that README.md "Calibrate your own column" shows, header first."""
-    section = (ROOT / "README.md").read_text().split("## Calibrate your own column")[1].split("\n## ")[0]
+    """The lines of the user's CSV that README.md "Calibrate your own column or campaign" shows, header first."""
+    section = (ROOT / "README.md").read_text().split("## Calibrate your own column or campaign")[1].split("\n## ")[0]
     return next(block for block in section.split("```")[1::2] if block.lstrip().startswith("column,")).split()
 
 

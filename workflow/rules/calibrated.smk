@@ -53,7 +53,10 @@ rule calibrated_model:
     input:
         measured=lambda w: config["measured"][w.name],
         diagnosis=lambda w: (f"results/diagnosis/{w.name}/diagnosis.json" if config["diagnosis"]["enabled"] else []),
-        contenders=lambda w: (f"results/calibrated/{w.name}/contenders.json" if SCALING_CHECK else []),
+        # a campaign measures several aspect ratios itself: no contenders across a
+        contenders=lambda w: (
+            f"results/calibrated/{w.name}/contenders.json" if SCALING_CHECK and w.name in CALIBRATED_NAMES else []
+        ),
     output:
         "results/calibrated/{name}/model.json",
     log:

@@ -47,7 +47,10 @@ INVERSE_NAMES = INVERSE["measured"]
 CALIBRATION = config["calibration"]
 # auto chooses among the contenders by what they predict across aspect ratios (calibrated.smk)
 SCALING_CHECK = CALIBRATION["model"] == "auto" and config["diagnosis"]["enabled"] and CALIBRATION["scaling_check"]
-CALIBRATED_NAMES = sorted(config["measured"]) if CALIBRATION["enabled"] else []
+# A `measured` entry of several columns is a campaign, calibrated as one parameter set (campaign.smk);
+# every other entry is one column, calibrated by calibrated.smk.
+CAMPAIGN_NAMES = pipeline.config.campaign_names(config) if CALIBRATION["enabled"] else []
+CALIBRATED_NAMES = sorted(set(config["measured"]) - set(CAMPAIGN_NAMES)) if CALIBRATION["enabled"] else []
 CHANNEL_WIDTH = config["diagnosis"]["channel_width"]
 # The columns whose calibrated model has a GNS route: its dataset calibrated_<name> (the case table).
 MODEL_GNS_NAMES = pipeline.calibrated_gns.model_gns_columns(config)

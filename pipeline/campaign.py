@@ -1,0 +1,188 @@
+"""A campaign as a DAG stage (workflow/rules/campaign.smk): a `measured` entry of several columns of
+one material calibrated as one parameter set by each route (calibration/campaign.py,
+doe/campaign_study.py), each column predicted from the others, and the answer with its figure.
+
+Jobs: `run_campaign_route` (rule campaign_route: one route, results/campaign/<name>/<route>.json and
+its figure) and `run_campaign` (rule campaign: campaign.json, the answer, and campaign.png, every
+column's measured points against the answer's packing band and its held-out prediction's).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from calibration.calibrated import read_model
+from calibration.campaign import Campaign, CampaignRoute, CampaignRunner, bo_optimum, campaign_bayesopt, route_answer
+from calibration.compare import plot_bayesopt
+from calibration.design_runs import SimulationSettings
+from calibration.measured import read_measured
+from calibration.measured_column import MeasuredColumn
+from dem.atomic import StrPath, write_json
+from dem.progress import progress_logger
+from dem.run_store import keeps_runs
+from dem.runout import RunoutMethod
+from doe.campaign_study import campaign_doe, campaign_surface, column_costs
+from doe.plots import plot_surface_pairs
+
+log = logging.getLogger(__name__)
+
+ROUTES = {"doe": "DoE (face-centred CCD, quadratic)", "bayesopt": "BO on DEM"}  # route key: in words
+MIN_PACKINGS = 4  # a held-out column's prediction runs on at least this many packings
+
+
+def read_campaign(measured_path: StrPath, name: str) -> Campaign:
+    """The campaign of `measured` entry `name`: the columns of its CSV, in file order."""
+    return Campaign(name, tuple(read_measured(measured_path).values()))
+
+
+def campaign_runner(
+    measured_path: StrPath,
+    model_path: StrPath,
+    diagnosis_section: dict,
+    *,
+    runout: dict | None,
+    dem: dict | None,
+    name: str,
+) -> CampaignRunner:
+    """The campaign of `name` and how its model (model.json) runs: at the diagnosis' size_scale (a
+    fitted mechanism is an effective value of that grain size), each column read as its file says,
+    else by the config's `runout`."""
+    campaign = read_campaign(measured_path, name)
+    model, why = read_model(model_path, diagnosis_section["channel_width"])
+    log.info("%s: %s model (%s); %s", name, model.name, why, campaign.weighting)
+    return CampaignRunner(
+        campaign,
+        model,
+        SimulationSettings(size_scale=diagnosis_section["size_scale"]),
+        RunoutMethod.from_config(runout),
+        dem,
+    )
+
+
+@keeps_runs("out_json")
+def run_campaign_route(
+    runner: CampaignRunner, route: str, out_json: StrPath, out_figure: StrPath, section: dict
+) -> CampaignRoute:
+    """One route's answer for the campaign (workflow rule campaign_route): calibrated on every column,
+    validated on each, each column predicted from the others, on max(MIN_PACKINGS,
+    calibration.validation_packings) packings -> <route>.json (CampaignRoute) and the route's figure.
+
+    section: the config's `calibration` (doe_centre_replicates; budget, n_initial; seed)."""
+    if route not in ROUTES:
+        raise ValueError(f"campaign route {route!r}: one of {list(ROUTES)}")
+    campaign, model = runner.campaign, runner.model
+    label = ROUTES[route]
+    progress = progress_logger(f"{campaign.name}: {model.name} model, {label}, {len(campaign.columns)} columns", log)
+    started = time.perf_counter()
+    if route == "doe":
+        responses = campaign_doe(runner, section.get("doe_centre_replicates", 3), section.get("seed", 0), progress)
+        dem_runs, seconds = column_costs(responses, campaign)
+
+        def optimum_on(columns):
+            return campaign_surface(responses, runner, columns)[0]
+
+        _, fit, runs = campaign_surface(responses, runner, campaign.column_names)
+        plot_surface_pairs(fit, runs, out_figure, title=f"{campaign.name}: {label}, campaign objective")
+    else:
+        bo = campaign_bayesopt(runner, section["budget"], section["n_initial"], section.get("seed", 0), progress)
+        dem_runs, seconds = bo.history.n_calls * len(campaign.columns), float(np.sum(bo.seconds))
+        names = list(model.parameter_names)
+
+        def optimum_on(columns):
+            return bo_optimum(bo, campaign, names, columns)
+
+        plot_bayesopt(bo.history.to_dict(), out_figure, title=f"{campaign.name}: {label}, campaign objective")
+    log.info("%s: %s calibrated in %d DEM runs, %.0f s", campaign.name, label, dem_runs, time.perf_counter() - started)
+    packings = max(MIN_PACKINGS, section["validation_packings"])
+    result = route_answer(
+        runner, label, optimum_on, packings, dem_runs, seconds, progress_logger(f"{label}: validations", log)
+    )
+    write_json(out_json, result.to_dict())
+    return result
+
+
+@dataclass(frozen=True)
+class CampaignResult:
+    """A campaign's answer: its routes side by side, the answer the route of the lowest validated
+    campaign objective."""
+
+    name: str
+    measured: str
+    columns: list[str]
+    aspect_ratios: list[float]
+    L_i: list[float]  # m
+    weighting: str
+    answer: str  # the answer's route
+    routes: list[CampaignRoute]
+
+    @property
+    def answer_route(self) -> CampaignRoute:
+        return next(r for r in self.routes if r.route == self.answer)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def read(cls, path: StrPath) -> CampaignResult:
+        data = json.loads(Path(path).read_text())
+        return cls(**{**data, "routes": [CampaignRoute.from_dict(r) for r in data["routes"]]})
+
+
+def run_campaign(
+    route_paths: Sequence[StrPath], measured_path: StrPath, name: str, out_json: StrPath, out_figure: StrPath
+) -> CampaignResult:
+    """The campaign's answer from its routes' results (workflow rule campaign) -> campaign.json and
+    campaign.png."""
+    campaign = read_campaign(measured_path, name)
+    routes = [CampaignRoute.from_dict(json.loads(Path(path).read_text())) for path in route_paths]
+    best = min(routes, key=lambda r: (not np.isfinite(r.mse), r.mse))
+    result = CampaignResult(
+        name=name,
+        measured=str(measured_path),
+        columns=campaign.column_names,
+        aspect_ratios=[c.aspect_ratio for c in campaign.columns],
+        L_i=[c.L_i for c in campaign.columns],
+        weighting=campaign.weighting,
+        answer=best.route,
+        routes=routes,
+    )
+    write_json(out_json, result.to_dict())
+    plot_campaign(result, campaign.columns, out_figure)
+    return result
+
+
+def plot_campaign(result: CampaignResult, columns: Sequence[MeasuredColumn], path: StrPath) -> None:
+    """One panel per column: its measured L* (with the stated std), the answer's validated mean
+    curve and packing band (+- one std over the packings), and the column predicted from the others
+    (the answer's route calibrated without it), its band dashed."""
+    from dem.plots import plt, save_figure
+
+    answer = result.answer_route
+    fig, axes = plt.subplots(1, len(columns), figsize=(4.2 * len(columns), 3.8), squeeze=False)
+    for ax, column, validation, held in zip(axes[0], columns, answer.validations, answer.held_out, strict=True):
+        t = np.asarray(column.t_over_tstar)
+        for run, style, label in (
+            (validation, "-", f"all columns: MSE {validation.mse:.3g}"),
+            (held.validation, "--", f"from the others: MSE {held.validation.mse:.3g}"),
+        ):
+            mean, std = np.asarray(run.mean), np.asarray(run.std)
+            (line,) = ax.plot(t, mean, style, label=label)
+            ax.fill_between(t, mean - std, mean + std, color=line.get_color(), alpha=0.2)
+        yerr = None if column.runout_std is None else column.runout_std
+        ax.errorbar(t, column.runout, yerr=yerr, fmt="ko", ms=4, label="measured")
+        ax.set_title(f"{column.name}: a = {column.aspect_ratio:g}, L_i = {column.L_i * 1e3:g} mm", fontsize=9)
+        ax.set_xlabel("t / t*")
+        ax.legend(fontsize=7)
+    axes[0][0].set_ylabel("L* = (L - L_i) / L_i")
+    n_packings = len(answer.validations[0].seeds)
+    fig.suptitle(
+        f"{result.name}: the {answer.model} model by {answer.route}, {n_packings} packings per band", fontsize=10
+    )
+    save_figure(fig, path)
