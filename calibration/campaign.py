@@ -5,7 +5,8 @@ A campaign's objective is the weighted mean of its columns' runout MSEs (`Campai
 weights 1 / (mean stated variance of the column's L*) where every column states its std, else equal
 (a column without a stated noise cannot be weighed against one with). The routes that calibrate a
 campaign run every parameter point on every column: the DoE (doe/campaign_study.py) every design
-point, the Bayesian optimisation (`campaign_bayesopt`) one run per column per point, on one packing.
+point, the Bayesian optimisation (`campaign_search`) one DEM run (`campaign_bayesopt`, on one
+packing) or one GNS rollout (pipeline.campaign.gns_search) per column per point.
 
 Leave one column out (`held_out_optimum`): calibrate on the rest, then predict the held-out column
 with DEM on several packings (`calibration.calibrated.validate`) and compare its MSE with the
@@ -13,7 +14,7 @@ column's packing scatter (`scatter_bound`): a prediction that misses a column by
 packing differs from another, plus the data's own noise, is as good as the DEM can say. The routes
 reuse their own runs for the rest's calibration (the DoE refits its surface to the rest's columns;
 the BO takes its best point on the rest's objective), so holding a column out costs only its
-validation runs.
+validation runs. The answer is the route whose held-out predictions are best (`held_out_mse`).
 """
 
 from __future__ import annotations
@@ -150,10 +151,11 @@ class CampaignRoute:
     mse: float  # the campaign objective of the validated mean curves
     mse_se: float | None  # its standard error from the columns' jackknife errors (None: some lack one)
     held_out: list[HeldOut]  # [C] leave-one-column-out
-    dem_runs: int  # calibration runs, all columns
-    seconds: float  # calibration wall time
-    runs_per_column: float  # calibration runs an added column costs this route
-    seconds_per_column: float  # their wall time
+    held_out_mse: float  # the campaign objective of the held-out predictions: how well the route predicts
+    dem_runs: int  # calibration runs, all columns (the GNS route: its dataset's)
+    seconds: float  # calibration wall time (the GNS route: its search on the GNS)
+    runs_per_column: float  # DEM runs an added column costs this route's calibration
+    seconds_per_column: float  # the wall time it adds
     validation_seconds: float  # all validations, the held-out ones included
 
     def to_dict(self) -> dict:
@@ -239,11 +241,47 @@ class CampaignRunner:
 
 @dataclass(frozen=True)
 class CampaignBO:
-    """The BO route's runs: the history of the campaign objective and each point's per-column MSE."""
+    """A Bayesian optimisation's points: the history of the campaign objective and each point's
+    per-column MSE."""
 
     history: OptimisationHistory
     mse: list[list[float]]  # [n][C] per-column MSE of each evaluated point (history.params order)
-    seconds: list[list[float]]  # [n][C] wall time of each run (s)
+    seconds: list[list[float]]  # [n][C] wall time of each column's evaluation (s)
+
+
+# One point on every column: (mse [C], wall time [C] (s), failure reason [C], "" where it ran).
+ColumnEvaluation = Callable[[np.ndarray], tuple[list[float], list[float], list[str]]]
+
+
+def campaign_search(
+    campaign: Campaign,
+    evaluate: ColumnEvaluation,
+    bounds: np.ndarray,
+    names: Sequence[str],
+    settings: BOSettings,
+    progress: Callable[[float], None] | None = None,
+) -> CampaignBO:
+    """GP expected-improvement BO of the campaign objective over `bounds` [p, 2], every point
+    evaluated on every column by `evaluate` (DEM runs, or GNS rollouts); a point where one column
+    fails is recorded as failed (the GP never sees it)."""
+    mse, seconds = [], []
+
+    def objective(theta: np.ndarray) -> float:
+        values, times, failures = evaluate(theta)
+        if any(failures):
+            raise PointFailed("; ".join(f"{c}: {f}" for c, f in zip(campaign.column_names, failures) if f))
+        mse.append(values)
+        seconds.append(times)
+        return campaign.objective(values)
+
+    result = bayesian_optimisation(
+        one_at_a_time(objective),
+        bounds.tolist(),
+        list(names),
+        settings,
+        progress=None if progress is None else (lambda batch, s, v: progress(batch / settings.budget)),
+    )
+    return CampaignBO(result.history, mse, seconds)
 
 
 def campaign_bayesopt(
@@ -253,27 +291,15 @@ def campaign_bayesopt(
     seed: int = 0,
     progress: Callable[[float], None] | None = None,
 ) -> CampaignBO:
-    """GP expected-improvement BO of the campaign objective over the model's box: each point runs
-    every column on packing CALIBRATION_SEED + seed; a point where a column's run fails is recorded
-    as failed (the GP never sees it)."""
-    mse, seconds = [], []
-
-    def objective(theta: np.ndarray) -> float:
-        values, times, failures = runner.run_all(theta, CALIBRATION_SEED + seed)
-        if any(failures):
-            raise PointFailed("; ".join(f"{c}: {f}" for c, f in zip(runner.campaign.column_names, failures) if f))
-        mse.append(values)
-        seconds.append(times)
-        return runner.campaign.objective(values)
-
-    result = bayesian_optimisation(
-        one_at_a_time(objective),
-        runner.model.bounds.tolist(),
-        list(runner.model.parameter_names),
+    """The BO on DEM: each point runs every column on packing CALIBRATION_SEED + seed."""
+    return campaign_search(
+        runner.campaign,
+        lambda theta: runner.run_all(theta, CALIBRATION_SEED + seed),
+        runner.model.bounds,
+        runner.model.parameter_names,
         BOSettings(budget=budget, n_initial=n_initial, seed=seed),
-        progress=None if progress is None else (lambda batch, s, v: progress(batch / budget)),
+        progress,
     )
-    return CampaignBO(result.history, mse, seconds)
 
 
 def bo_optimum(bo: CampaignBO, campaign: Campaign, names: Sequence[str], columns: Sequence[str]) -> CampaignOptimum:
@@ -291,10 +317,13 @@ def route_answer(
     dem_runs: int,
     seconds: float,
     progress: Callable[[float], None] | None = None,
+    added_column: tuple[float, float] | None = None,
 ) -> CampaignRoute:
     """A route's answer from its optimum on any set of columns (optimum_on(columns)): the optimum on
     all validated on every column, then each column predicted from the others' optimum, every
-    validation on n_packings packings. dem_runs, seconds: what the route's calibration spent."""
+    validation on n_packings packings. dem_runs, seconds: what the route's calibration spent;
+    added_column: (DEM runs, seconds) one more column would add to it (None: an equal share, as for
+    a route that runs every point on every column)."""
     campaign = runner.campaign
     started = time.perf_counter()
     steps = 2 * len(campaign.columns)
@@ -320,6 +349,7 @@ def route_answer(
         if progress is not None:
             progress((len(campaign.columns) + k + 1) / steps)
     n_columns = len(campaign.columns)
+    added_runs, added_seconds = added_column or (dem_runs / n_columns, seconds / n_columns)
     return CampaignRoute(
         name=campaign.name,
         route=route,
@@ -329,11 +359,12 @@ def route_answer(
         optimum=optimum,
         validations=validations,
         mse=campaign.objective([v.mse for v in validations]),
+        held_out_mse=campaign.objective([h.validation.mse for h in held_out]),
         mse_se=combined_se(campaign, validations),
         held_out=held_out,
         dem_runs=dem_runs,
         seconds=seconds,
-        runs_per_column=dem_runs / n_columns,
-        seconds_per_column=seconds / n_columns,
+        runs_per_column=added_runs,
+        seconds_per_column=added_seconds,
         validation_seconds=time.perf_counter() - started,
     )

@@ -7,7 +7,9 @@ split), keyed "<dataset>/<case_id>". Four kinds of run fill it, each under a dat
   - the DoE's design runs of each column of doe.measured (dataset "doe_<name>", case_id = run_id,
     split "doe"; doe.study.case_rows);
   - the scale ladder (dataset "scale_ladder", split "scale_ladder"; dem.scale_ladder.case_rows);
-  - the GNS dataset of each column's calibrated model (dataset "calibrated_<name>", `model_rows`).
+  - the GNS dataset of each column's calibrated model (dataset "calibrated_<name>", `model_rows`),
+    and of each campaign's model (dataset "campaign_<name>", its cases cycling through the
+    campaign's columns: `campaign_templates`).
     Its parameters are the model's, which the diagnosis chooses when its jobs run
     (calibrated_model's model.json), so the table the DAG is planned from holds what gives them
     then: the case id and split, "calibrated" (the column's name), the template row (the first case
@@ -20,11 +22,14 @@ its model.json too.
 
 from __future__ import annotations
 
-from calibration.measured import load_column
+import math
+
+from calibration.measured import load_column, read_measured
 from dem import grid, scale_ladder
 from doe.design import design_from_config
 from doe.study import case_rows as doe_case_rows
 from pipeline.calibrated_gns import case_splits, model_gns_columns
+from pipeline.config import campaign_gns_names, gns_datasets
 
 
 def doe_dataset(name: str) -> str:
@@ -37,19 +42,47 @@ def model_dataset(name: str) -> str:
     return f"calibrated_{name}"
 
 
-def model_rows(config: dict, name: str, template: dict) -> list[dict]:
-    """The rows of the GNS dataset of measured column `name`'s calibrated model; template: the
-    case-table row its cases take their column from (the base GNS's dataset's first)."""
+def campaign_dataset(name: str) -> str:
+    """The case-table dataset of the GNS dataset of campaign `name`'s model."""
+    return f"campaign_{name}"
+
+
+def model_rows(config: dict, name: str, templates: list[dict], dataset: str) -> list[dict]:
+    """The rows of `dataset`, the GNS dataset of measured entry `name`'s calibrated model; templates:
+    the case-table rows its cases take their column from, case k the (k mod len)-th (one column:
+    the base GNS's dataset's first; a campaign: one per column, campaign_templates)."""
     section = config["calibration"]
     fixed = {
-        "dataset": model_dataset(name),
+        "dataset": dataset,
         "calibrated": name,
-        "template": template,
         "gns_cases": section["gns_cases"],
         "design_seed": section["seed"],
         "channel_width": config["diagnosis"]["channel_width"],
     }
-    return [dict(row, **fixed) for row in case_splits(section)]
+    rows = case_splits(section)
+    return [dict(row, **fixed, template=templates[k % len(templates)]) for k, row in enumerate(rows)]
+
+
+def campaign_templates(config: dict, table: dict[str, dict], name: str) -> list[dict]:
+    """One template row per column of campaign `name`: the first case of the config's first GNS
+    dataset (its frame interval in seconds, one GNS step, and its other settings) on the column's
+    material, a and L_i, at the diagnosis' size_scale (the campaign's calibration scale), simulated
+    at least to the column's last measured t/t*."""
+    base = dataset_rows(table, gns_datasets(config)[0])[0]
+    templates = []
+    for column in read_measured(config["measured"][name]).values():
+        duration = max(float(base.get("duration_over_tstar", 0.0)), math.ceil(2 * column.t_over_tstar[-1]) / 2)
+        templates.append(
+            dict(
+                base,
+                material=column.material_properties.to_config(),
+                aspect_ratio=column.aspect_ratio,
+                L_i=column.L_i,
+                size_scale=config["diagnosis"]["size_scale"],
+                duration_over_tstar=duration,
+            )
+        )
+    return templates
 
 
 def case_table(config: dict, inverse_datasets: dict[str, str]) -> dict[str, dict]:
@@ -68,7 +101,9 @@ def case_table(config: dict, inverse_datasets: dict[str, str]) -> dict[str, dict
             rows += doe_case_rows(design, load_column(config["measured"][name]), doe_dataset(name), **fields)
     rows += scale_ladder.case_rows(config["scale_ladder"])
     for name in model_gns_columns(config):
-        rows += model_rows(config, name, dataset_rows(table, inverse_datasets[name])[0])
+        rows += model_rows(config, name, [dataset_rows(table, inverse_datasets[name])[0]], model_dataset(name))
+    for name in campaign_gns_names(config):
+        rows += model_rows(config, name, campaign_templates(config, table, name), campaign_dataset(name))
     for row in rows:
         key = f"{row['dataset']}/{row['case_id']}"
         if key in table:  # check_cross_keys keeps the derived datasets' names free

@@ -55,6 +55,7 @@ __all__ = [
     "check_diagnosis",
     "check_scale_ladder",
     "campaign_names",
+    "campaign_gns_names",
     "gns_datasets",
     "inverse_datasets",
 ]
@@ -117,6 +118,16 @@ def campaign_names(config: dict) -> list[str]:
                 raise ConfigError(f"config key measured.{name}: {exc}") from exc
             names.append(name)
     return names
+
+
+def campaign_gns_names(config: dict) -> list[str]:
+    """The campaigns whose model gets a GNS route (a dataset over the campaign's columns, a GNS, a
+    search on it): with the calibrated stage and calibration.gns on and a GNS dataset in the config
+    whose frame interval and settings the campaign's dataset takes (pipeline.cases.campaign_templates)."""
+    section = config["calibration"]
+    if not (section["enabled"] and section["gns"] and gns_datasets(config)):
+        return []
+    return campaign_names(config)
 
 
 def _one_column_only(config: dict, name: str, key: str, what: str) -> str:
@@ -379,6 +390,10 @@ def check_calibration(config: dict, inverse_datasets: dict[str, str] | None = No
     if not section["enabled"] or not config["measured"]:
         return
     for name in config["measured"]:
+        if f"campaign_{name}" in config.get("datasets", {}):
+            raise ConfigError(
+                f"config key datasets.campaign_{name}: the name is taken by the GNS dataset of measured {name!r}"
+            )
         if f"calibrated_{name}" in config.get("datasets", {}):
             raise ConfigError(
                 f"config key datasets.calibrated_{name}: the name is taken by the GNS dataset of the calibrated "

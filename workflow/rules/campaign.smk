@@ -2,14 +2,16 @@
 # several columns of one material (CAMPAIGN_NAMES, common.smk) calibrated as one parameter set of its
 # model (model.json of the calibrated stage's rule calibrated_model: the diagnosis' answer under
 # auto) by each route, every column validated at the answer and predicted from the others (leave one
-# column out). Outputs under results/campaign/<name>/.
-CAMPAIGN_ROUTES = ["doe", "bayesopt"]
+# column out). Outputs under results/campaign/<name>/. Routes: CAMPAIGN_ROUTES, campaign_routes
+# and campaign_gns_inputs (common.smk).
 
 
-# One route: the face-centred CCD (every design point on every column) or the Bayesian optimisation
-# (one run per column per point), then its validations and held-out predictions.
+# One route: the face-centred CCD (every design point on every column), the Bayesian optimisation
+# (one run per column per point), or the Bayesian optimisation on the GNS of the campaign's dataset
+# (one rollout per column per point), then its validations and held-out predictions in DEM.
 rule campaign_route:
     input:
+        unpack(campaign_gns_inputs),
         measured=lambda w: config["measured"][w.name],
         model="results/calibrated/{name}/model.json",
     output:
@@ -29,9 +31,10 @@ rule campaign_route:
         route="|".join(CAMPAIGN_ROUTES),
     conda:
         "../envs/pipeline.yaml"
+    threads: lambda w: INVERSE["threads"] if w.route == "gns" else 1
     resources:
         runtime=240,
-        mem_mb=2000,
+        mem_mb=4000,
     params:
         settings=CALIBRATION,
         diagnosis=config["diagnosis"],
@@ -45,7 +48,7 @@ rule campaign_route:
 rule campaign:
     input:
         measured=lambda w: config["measured"][w.name],
-        routes=expand("results/campaign/{{name}}/{route}.json", route=CAMPAIGN_ROUTES),
+        routes=lambda w: expand("results/campaign/{name}/{route}.json", name=w.name, route=campaign_routes(w.name)),
     output:
         result="results/campaign/{name}/campaign.json",
         figure=report(

@@ -51,6 +51,10 @@ SCALING_CHECK = CALIBRATION["model"] == "auto" and config["diagnosis"]["enabled"
 # every other entry is one column, calibrated by calibrated.smk.
 CAMPAIGN_NAMES = pipeline.config.campaign_names(config) if CALIBRATION["enabled"] else []
 CALIBRATED_NAMES = sorted(set(config["measured"]) - set(CAMPAIGN_NAMES)) if CALIBRATION["enabled"] else []
+# The campaigns whose model has a GNS route: a dataset campaign_<name> over their columns, whose
+# frames and settings are those of the config's first GNS dataset (GNS_TEMPLATE_DATASET).
+CAMPAIGN_GNS_NAMES = pipeline.config.campaign_gns_names(config)
+GNS_TEMPLATE_DATASET = (pipeline.config.gns_datasets(config) or [None])[0]
 CHANNEL_WIDTH = config["diagnosis"]["channel_width"]
 # The columns whose calibrated model has a GNS route: its dataset calibrated_<name> (the case table).
 MODEL_GNS_NAMES = pipeline.calibrated_gns.model_gns_columns(config)
@@ -120,7 +124,11 @@ def gns_settings(dataset):
     (gns.smk); a calibrated model's GNS dataset takes the settings of the base GNS of its column
     for calibration.gns_steps, from scratch or warm-started from that GNS (gns_init)."""
     if model_column(dataset):
-        base = gns_settings(INVERSE_DATASET[model_column(dataset)])
+        name = model_column(dataset)
+        # a campaign has no base GNS: its dataset's settings are those of the config's first GNS
+        # dataset (pipeline.cases.campaign_templates), its GNS trained from scratch
+        template = INVERSE_DATASET.get(name, GNS_TEMPLATE_DATASET)
+        base = gns_settings(template)
         init = gns_init(dataset)
         return pipeline.calibrated_gns.model_gns_settings(
             base,
@@ -136,9 +144,31 @@ def gns_settings(dataset):
 def gns_init(dataset):
     """[the GNS a dataset's training starts from]: the base GNS of the column of a calibrated
     model's GNS dataset with calibration.gns_warm_start; [] otherwise: from scratch (gns.smk)."""
-    if not model_column(dataset) or not CALIBRATION["gns_warm_start"]:
+    if not model_column(dataset) or not CALIBRATION["gns_warm_start"] or model_column(dataset) not in INVERSE_DATASET:
         return []
     return [inverse_gns(model_column(dataset), "model")]
+
+
+# The routes of a campaign (campaign.smk).
+CAMPAIGN_ROUTES = ["doe", "bayesopt", "gns"]
+
+
+def campaign_routes(name):
+    """The routes of campaign `name`: the DoE and the BO on DEM, and the GNS where its model has one."""
+    return [r for r in CAMPAIGN_ROUTES if r != "gns" or name in CAMPAIGN_GNS_NAMES]
+
+
+def campaign_gns_inputs(wildcards):
+    """The GNS route's inputs: the GNS of the campaign's dataset, its metadata and the dataset's DEM
+    runs (their first frames start the rollouts of each column); none for the other routes."""
+    if wildcards.route != "gns":
+        return {}
+    dataset = f"campaign_{wildcards.name}"
+    return {
+        "gns": f"results/gns/{dataset}/train/model_best.pt",
+        "metadata": f"results/datasets/{dataset}/metadata.json",
+        "dataset": [p for paths in dataset_trajectories(dataset).values() for p in paths],
+    }
 
 
 def dem_resources(wildcards, stage, threads, attempt):

@@ -13,7 +13,22 @@ runner = campaign_runner(
     dem=snakemake.params.dem,
     name=snakemake.wildcards.name,
 )
+gns = (
+    {
+        "model_path": snakemake.input.gns,
+        "metadata_path": snakemake.input.metadata,
+        "dataset_paths": snakemake.input.dataset,
+        "threads": snakemake.threads,
+    }
+    if snakemake.wildcards.route == "gns"
+    else None
+)
 result = run_campaign_route(
-    runner, snakemake.wildcards.route, snakemake.output.result, snakemake.output.figure, snakemake.params.settings
+    runner,
+    snakemake.wildcards.route,
+    snakemake.output.result,
+    snakemake.output.figure,
+    snakemake.params.settings,
+    gns=gns,
 )
 logging.info("%s: %s at %s, campaign MSE %.4g", result.name, result.route, result.optimum.parameters, result.mse)
