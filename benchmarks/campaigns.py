@@ -5,14 +5,15 @@ prints JSON.
         [--aspect-ratios 1,2,4] [--L-i 0.01] [--noise 0.05] [--budget 12] [--out FOLDER]
 
 Each campaign is a hidden truth (calibration.synthetic.draw_truth: mu, e in [0.4, 0.8] and a hidden
-mechanism, rolling resistance or side-wall friction in turn, on a packing of its own) "measured" on
-columns of quartz of the given a and L_i, by the builtin DEM (the model that fits it) or by LIGGGHTS
-(another contact law, its own packing and runout reading; skipped where LIGGGHTS is absent), with
-Gaussian noise of the given std in L*. The campaign is then calibrated by the stage's own route
-functions (pipeline.campaign.run_campaign_route) as the hidden mechanism's model over its whole box,
-at the same size_scale: the DoE (face-centred CCD, 1 centre replicate) and the BO on DEM (--budget
-points). Per campaign and route: the optimum and the truth, the validated MSE per column, each held-out
-column's MSE against its scatter bound, and the DEM runs and seconds an added column costs.
+mechanism, in turn rolling resistance then side-wall friction (LIGGGHTS: cohesion), on a packing of
+its own) "measured" on columns of quartz of the given a and L_i, by the builtin DEM (the model that
+fits it) or by LIGGGHTS (another contact law, its own packing and runout reading; skipped where
+LIGGGHTS is absent), with Gaussian noise of the given std in L*. The campaign is then calibrated by
+the stage's own route functions (pipeline.campaign.run_campaign_route) as the hidden mechanism's
+model over its whole box, at the same size_scale: the DoE (face-centred CCD, 1 centre replicate) and
+the BO on DEM (--budget points); the GNS route needs a trained GNS and runs in the DAG only. Per
+campaign and route: the optimum and the truth, the validated MSE per column, each held-out column's
+MSE against its scatter bound, and the DEM runs and seconds an added column costs.
 """
 
 from __future__ import annotations
@@ -34,7 +35,8 @@ from calibration.synthetic import draw_truth, liggghts_measurement, synthetic_co
 from dem.runout import RunoutMethod
 from pipeline.campaign import run_campaign_route
 
-MECHANISMS = ("rolling_resistance", "sidewall_friction")
+# hidden mechanisms, in turn, of each solver's campaigns (LIGGGHTS models no side-wall friction)
+MECHANISMS = {"builtin": ("rolling_resistance", "sidewall_friction"), "liggghts": ("rolling_resistance", "cohesion")}
 
 
 def main() -> None:
@@ -61,7 +63,7 @@ def main() -> None:
     out = {"settings": vars(args) | {"out": str(args.out)}, "solvers": solvers, "campaigns": []}
     for solver in solvers:
         for k in range(args.campaigns):
-            mechanism = get_mechanisms([MECHANISMS[k % len(MECHANISMS)]])[0]
+            mechanism = get_mechanisms([MECHANISMS[solver][k % len(MECHANISMS[solver])]])[0]
             truth = draw_truth(rng, mechanism)
             columns = synthetic_columns("quartz", args.L_i, ratios, profile_step_diameters=None)
             measure = synthetic_measurement if solver == "builtin" else liggghts_measurement
