@@ -343,7 +343,7 @@ def check_diagnosis(config: dict) -> None:
         columns = list(_measured_columns(config, name).values())
         _check_diagnosable(name, columns, largest)
         for column in columns:
-            where = f"diagnosis.size_scale (measured {name!r}, column {column.name!r})"
+            where = f"diagnosis.size_scale (measured {name!r}, column {column.name!r} of {column.source})"
             _guard(column.L_i, column.material_properties, section["size_scale"], config, where)
 
 

@@ -109,6 +109,7 @@ LONGEST_FIRST = (
     "tests/test_pipeline_end_to_end.py",
     "tests/test_same_answer.py",  # the tiny_all DAG a second time, ~110 s
     "tests/test_diagnosis.py",  # ~230 s
+    "tests/test_campaign.py",  # a campaign through the tiny DAG, ~80 s
     "tests/test_workflow.py",  # ~100 s
     "tests/test_slurm.py",  # ~55 s
     "tests/test_liggghts.py",  # ~50 s

@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import math
 import re
+import shutil
 import warnings
 from pathlib import Path
 
@@ -20,11 +21,16 @@ import numpy as np
 import pytest
 
 from calibration.calibrated import Validation
-from calibration.campaign import SCATTER_LEVEL, Campaign, CampaignError, scatter_bound
+from calibration.campaign import SCATTER_LEVEL, Campaign, CampaignError, CampaignRunner, scatter_bound
+from calibration.design_runs import SimulationSettings
 from calibration.measured import MeasuredDataError, read_measured
 from calibration.measured_column import MeasuredColumn
+from calibration.mechanisms import get_mechanisms
+from calibration.model import Model
+from calibration.synthetic import LAB_RUNOUT, HiddenTruth, liggghts_measurement, synthetic_columns
+from dem.runout import RunoutMethod
 from dem.trajectory import read_attrs
-from pipeline.campaign import CampaignResult
+from pipeline.campaign import CampaignResult, run_campaign_route
 from pipeline.config import ConfigError
 from tests.conftest import TINY_ALL
 from tests.test_bad_input import as_run_sh_main
@@ -98,7 +104,7 @@ def test_bad_campaigns_are_refused_before_any_job_naming_file_line_and_column(tm
         read_measured(twice)
     # 2 mm long: 4.7 grains across at the diagnosis' size_scale 1 (dem.min_grains_across 8)
     small = campaign_csv(tmp_path / "small.csv", curve_rows("q1", "quartz", 1) + curve_rows("q2", "quartz", 2, 0.002))
-    with pytest.raises(ConfigError, match=r"diagnosis.size_scale \(measured 'mine', column 'q2'\)"):
+    with pytest.raises(ConfigError, match=rf"diagnosis.size_scale \(measured 'mine', column 'q2' of {small}\)"):
         as_run_sh_main(small, "diagnosis={size_scale: 1}")
     good = campaign_csv(tmp_path / "good.csv", curve_rows("q1", "quartz", 1) + curve_rows("q2", "quartz", 2))
     with warnings.catch_warnings():
@@ -198,3 +204,32 @@ def test_the_report_shows_every_column_each_route_and_the_cost_per_column(campai
     assert figure.stat().st_size > 10_000 and "(../campaign/lab/campaign.png)" in section
     for route in ("doe", "bayesopt"):
         assert (workdir / f"results/campaign/lab/{route}.png").stat().st_size > 10_000
+
+
+# -- a campaign made by another solver ----------------------------------------------------------------
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(shutil.which("liggghts") is None, reason="LIGGGHTS is not installed (run.sh installs it)")
+def test_a_cohesive_campaign_made_by_liggghts_shows_which_column_does_not_transfer(tmp_path):
+    """A campaign made by another solver (LIGGGHTS: Hertz with SJKR cohesion, its own packing, the
+    lab's connected-front reading, noise 0.05 in L*) of a cohesive material, Bond number 29.6: the BO
+    on DEM calibrates the cohesion model on all three columns, reading each the lab's way. Predicted
+    from the others, the short columns lie within their packing scatter; the tall one, whose runout
+    hangs on a cohesion the short columns barely feel, misses by far more than its own: the
+    leave-one-out table says which column a campaign cannot do without."""
+    cohesion = get_mechanisms(["cohesion"])[0]
+    truth = HiddenTruth(0.61, 0.52, "cohesion", 29.6, 10165)
+    columns = synthetic_columns(
+        "quartz", 0.01, (1.0, 2.0, 4.0), times=(0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0), profile_step_diameters=None
+    )
+    settings = SimulationSettings(size_scale=4)
+    measured, _ = liggghts_measurement(truth, columns, [cohesion], settings, 0.05, 0.001, np.random.default_rng(3))
+    assert {c.runout_method for c in measured} == {LAB_RUNOUT.method}  # read as the lab's images are
+    runner = CampaignRunner(Campaign("lab", tuple(measured)), Model(cohesion), settings, RunoutMethod(), None)
+    section = {"budget": 12, "n_initial": 6, "seed": 0, "validation_packings": 4}
+    result = run_campaign_route(runner, "bayesopt", tmp_path / "bo.json", tmp_path / "bo.png", section)
+    short, tall = result.held_out[:2], result.held_out[2]
+    assert all(h.within_scatter for h in short), [(h.validation.mse, h.scatter_bound) for h in short]
+    assert tall.validation.mse > 10 * tall.scatter_bound, (tall.validation.mse, tall.scatter_bound)
+    assert result.held_out_mse > 10 * result.mse  # the fit on all three hides it; the held-out check does not
