@@ -85,6 +85,14 @@ def read_measured(path: str | os.PathLike) -> dict[str, MeasuredColumn]:
     return {name: _build_column(path, name, rows) for name, rows in columns.items()}
 
 
+def first_lines(path: str | os.PathLike) -> dict[str, int]:
+    """{column name: the line of its first row} of the file `path`, for messages that name a column's line."""
+    lines: dict[str, int] = {}
+    for line, row in _read_rows(Path(path)):
+        lines.setdefault(row["column"], line)
+    return lines
+
+
 def check_one_material(path: str | os.PathLike) -> None:
     """Every column of the file `path` is of one material (a campaign calibrates one parameter set);
     MeasuredDataError naming the first row of the first column of another."""

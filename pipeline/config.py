@@ -23,6 +23,7 @@ from calibration.measured import (
     MeasuredDataError,
     MeasuredDataWarning,
     check_one_material,
+    first_lines,
     load_column,
     read_measured,
 )
@@ -342,8 +343,12 @@ def check_diagnosis(config: dict) -> None:
     for name in sorted(config["measured"]):
         columns = list(_measured_columns(config, name).values())
         _check_diagnosable(name, columns, largest)
+        lines = first_lines(config["measured"][name])
         for column in columns:
-            where = f"diagnosis.size_scale (measured {name!r}, column {column.name!r} of {column.source})"
+            where = (
+                f"diagnosis.size_scale (measured {name!r}: {column.source}, line {lines[column.name]}, column 'L_i' "
+                f"of measured column {column.name!r})"
+            )
             _guard(column.L_i, column.material_properties, section["size_scale"], config, where)
 
 

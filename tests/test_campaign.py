@@ -104,7 +104,10 @@ def test_bad_campaigns_are_refused_before_any_job_naming_file_line_and_column(tm
         read_measured(twice)
     # 2 mm long: 4.7 grains across at the diagnosis' size_scale 1 (dem.min_grains_across 8)
     small = campaign_csv(tmp_path / "small.csv", curve_rows("q1", "quartz", 1) + curve_rows("q2", "quartz", 2, 0.002))
-    with pytest.raises(ConfigError, match=rf"diagnosis.size_scale \(measured 'mine', column 'q2' of {small}\)"):
+    with pytest.raises(
+        ConfigError,
+        match=rf"diagnosis.size_scale \(measured 'mine': {small}, line 9, column 'L_i' of measured column 'q2'\)",
+    ):
         as_run_sh_main(small, "diagnosis={size_scale: 1}")
     good = campaign_csv(tmp_path / "good.csv", curve_rows("q1", "quartz", 1) + curve_rows("q2", "quartz", 2))
     with warnings.catch_warnings():

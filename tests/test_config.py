@@ -261,8 +261,8 @@ def test_diagnosis_of_a_column_too_few_grains_across_at_its_size_scale(tmp_path)
     config = validated(edit=lambda c: c["measured"].update(short=short))
     message = cross_key_error(config)
     assert message.startswith(
-        f"config key diagnosis.size_scale (measured 'short', column 'short_a6' of {short}): L_i = 0.01 m at "
-        "size_scale 5 "
+        f"config key diagnosis.size_scale (measured 'short': {short}, line 8, column 'L_i' of measured column "
+        "'short_a6'): L_i = 0.01 m at size_scale 5 "
         "is 4.71 quartz grains across"
     )
     assert GUARD in message and "Largest size_scale that passes: 2.94;" in message
