@@ -248,6 +248,12 @@ class CampaignBO:
     mse: list[list[float]]  # [n][C] per-column MSE of each evaluated point (history.params order)
     seconds: list[list[float]]  # [n][C] wall time of each column's evaluation (s)
 
+    def optimum(self, campaign: Campaign, columns: Sequence[str]) -> CampaignOptimum:
+        """The best evaluated point on the objective of `columns` (its own points, re-weighed)."""
+        values = [campaign.objective(row, columns) for row in self.mse]
+        best = int(np.nanargmin(values))
+        return CampaignOptimum(list(columns), dict(zip(self.history.names, self.history.params[best])), values[best])
+
 
 # One point on every column: (mse [C], wall time [C] (s), failure reason [C], "" where it ran).
 ColumnEvaluation = Callable[[np.ndarray], tuple[list[float], list[float], list[str]]]
@@ -300,13 +306,6 @@ def campaign_bayesopt(
         BOSettings(budget=budget, n_initial=n_initial, seed=seed),
         progress,
     )
-
-
-def bo_optimum(bo: CampaignBO, campaign: Campaign, names: Sequence[str], columns: Sequence[str]) -> CampaignOptimum:
-    """The BO's best evaluated point on the objective of `columns` (its own runs, re-weighed)."""
-    values = [campaign.objective(row, columns) for row in bo.mse]
-    best = int(np.nanargmin(values))
-    return CampaignOptimum(list(columns), dict(zip(names, bo.history.params[best])), float(values[best]))
 
 
 def route_answer(

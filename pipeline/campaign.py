@@ -27,7 +27,6 @@ from calibration.campaign import (
     CampaignBO,
     CampaignRoute,
     CampaignRunner,
-    bo_optimum,
     campaign_bayesopt,
     campaign_search,
     route_answer,
@@ -102,17 +101,8 @@ def run_campaign_route(
     progress = progress_logger(f"{campaign.name}: {model.name} model, {label}, {len(campaign.columns)} columns", log)
     started = time.perf_counter()
     added_column = None
-    if route == "gns":
-        bo, dem_runs = gns_search(runner, section, progress=progress, **(gns or {}))
-        seconds = float(np.sum(bo.seconds))
-        added_column = (0.0, seconds / len(campaign.columns))  # the dataset is shared, its size fixed
-        names = list(model.parameter_names)
-
-        def optimum_on(columns):
-            return bo_optimum(bo, campaign, names, columns)
-
-        plot_bayesopt(bo.history.to_dict(), out_figure, title=f"{campaign.name}: {label}, campaign objective")
-    elif route == "doe":
+    title = f"{campaign.name}: {label}, campaign objective"
+    if route == "doe":
         responses = campaign_doe(runner, section.get("doe_centre_replicates", 3), section.get("seed", 0), progress)
         dem_runs, seconds = column_costs(responses, campaign)
 
@@ -120,16 +110,21 @@ def run_campaign_route(
             return campaign_surface(responses, runner, columns)[0]
 
         _, fit, runs = campaign_surface(responses, runner, campaign.column_names)
-        plot_surface_pairs(fit, runs, out_figure, title=f"{campaign.name}: {label}, campaign objective")
+        plot_surface_pairs(fit, runs, out_figure, title=title)
     else:
-        bo = campaign_bayesopt(runner, section["budget"], section["n_initial"], section.get("seed", 0), progress)
-        dem_runs, seconds = bo.history.n_calls * len(campaign.columns), float(np.sum(bo.seconds))
-        names = list(model.parameter_names)
+        if route == "gns":
+            bo, dem_runs = gns_search(runner, section, progress=progress, **(gns or {}))
+        else:
+            bo = campaign_bayesopt(runner, section["budget"], section["n_initial"], section.get("seed", 0), progress)
+            dem_runs = bo.history.n_calls * len(campaign.columns)
+        seconds = float(np.sum(bo.seconds))
+        if route == "gns":  # its dataset is shared by the columns, its size fixed
+            added_column = (0.0, seconds / len(campaign.columns))
 
         def optimum_on(columns):
-            return bo_optimum(bo, campaign, names, columns)
+            return bo.optimum(campaign, columns)
 
-        plot_bayesopt(bo.history.to_dict(), out_figure, title=f"{campaign.name}: {label}, campaign objective")
+        plot_bayesopt(bo.history.to_dict(), out_figure, title=title)
     log.info("%s: %s calibrated in %d DEM runs, %.0f s", campaign.name, label, dem_runs, time.perf_counter() - started)
     packings = max(MIN_PACKINGS, section["validation_packings"])
     result = route_answer(

@@ -136,8 +136,8 @@ def _one_column_only(config: dict, name: str, key: str, what: str) -> str:
     columns = list(_measured_columns(config, name))
     return (
         f"config key {key}: {name!r} ({config['measured'][name]}) is a campaign of columns {columns}; {what} "
-        "takes one column: give it an entry of one column (the campaign is calibrated as a whole by the "
-        "calibrated stage, results/campaign/<name>)"
+        "takes one column: give it an entry of one column (the campaign stage calibrates the campaign as a "
+        "whole, results/campaign/<name>)"
     )
 
 
@@ -308,8 +308,9 @@ def check_doe(config: dict) -> None:
             )
         if f"doe_{name}" in config["datasets"]:
             raise ConfigError(f"config key datasets.doe_{name}: the name is taken by the DoE of measured {name!r}")
+    campaigns = campaign_names(config)
     for name in config["doe"]["measured"]:  # the DoE runs on the file's one column (load_column, doe.smk)
-        if name in campaign_names(config):
+        if name in campaigns:
             raise ConfigError(_one_column_only(config, name, "doe.measured", "the DoE of the paper's routes"))
         try:
             column = load_column(config["measured"][name])
@@ -510,6 +511,7 @@ def inverse_datasets(config: dict, cases: dict[str, dict]) -> dict[str, str]:
     far from every training column). Reads each named measured CSV (paths relative to the cwd).
     """
     inverse, with_gns, rows = config["inverse"], gns_datasets(config), list(cases.values())
+    campaigns = campaign_names(config)
     resolved = {}
     for name in inverse["measured"]:
         if name not in config["measured"]:
@@ -517,7 +519,7 @@ def inverse_datasets(config: dict, cases: dict[str, dict]) -> dict[str, str]:
                 f"config key inverse.measured: {name!r} is not an entry of `measured` "
                 f"(entries: {sorted(config['measured'])})"
             )
-        if name in campaign_names(config):
+        if name in campaigns:
             raise ConfigError(_one_column_only(config, name, "inverse.measured", "the GNS inverse design of the paper"))
         column = load_column(config["measured"][name])
         dataset = inverse["dataset"].get(name)
