@@ -153,10 +153,12 @@ class CampaignRoute:
     held_out: list[HeldOut]  # [C] leave-one-column-out
     held_out_mse: float  # the campaign objective of the held-out predictions: how well the route predicts
     dem_runs: int  # calibration runs, all columns (the GNS route: its dataset's)
-    seconds: float  # calibration wall time (the GNS route: its search on the GNS)
+    seconds: float  # calibration wall time (the GNS route: its dataset's runs, its training and its search)
     runs_per_column: float  # DEM runs an added column costs this route's calibration
     seconds_per_column: float  # the wall time it adds
     validation_seconds: float  # all validations, the held-out ones included
+    added_column_why: str = ""  # how the cost of an added column is counted, where not an equal share
+    surrogate_seconds: float = 0.0  # within seconds: the GNS route's dataset runs and training
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -317,12 +319,15 @@ def route_answer(
     seconds: float,
     progress: Callable[[float], None] | None = None,
     added_column: tuple[float, float] | None = None,
+    added_column_why: str = "",
+    surrogate_seconds: float = 0.0,
 ) -> CampaignRoute:
     """A route's answer from its optimum on any set of columns (optimum_on(columns)): the optimum on
     all validated on every column, then each column predicted from the others' optimum, every
     validation on n_packings packings. dem_runs, seconds: what the route's calibration spent;
-    added_column: (DEM runs, seconds) one more column would add to it (None: an equal share, as for
-    a route that runs every point on every column)."""
+    added_column: (DEM runs, seconds) one more column would add to it, added_column_why how that is
+    counted (None: an equal share, as for a route that runs every point on every column);
+    surrogate_seconds: the part of `seconds` spent on a surrogate (the GNS route's dataset and training)."""
     campaign = runner.campaign
     started = time.perf_counter()
     steps = 2 * len(campaign.columns)
@@ -366,4 +371,6 @@ def route_answer(
         runs_per_column=added_runs,
         seconds_per_column=added_seconds,
         validation_seconds=time.perf_counter() - started,
+        added_column_why=added_column_why,
+        surrogate_seconds=surrogate_seconds,
     )

@@ -19,6 +19,7 @@ from __future__ import annotations
 import logging
 
 from calibration.calibrated import model_dataset_cases, read_model
+from calibration.model import Model, model_named
 from dem.atomic import StrPath
 from dem.case import CollapseCase
 from dem.grid import assign_splits, case_from_row, case_id_of
@@ -98,11 +99,12 @@ def start_packing_cases(section: dict) -> list[str]:
     return [train[round(k * (len(train) - 1) / max(wanted - 1, 1))] for k in range(wanted)]
 
 
-def model_case(model_json: StrPath, row: dict) -> tuple[CollapseCase, dict[str, float]]:
+def model_case(model_json: StrPath | None, row: dict) -> tuple[CollapseCase, dict[str, float]]:
     """The case of one case-table row of a calibrated model's GNS dataset (pipeline.cases.model_rows:
-    its template row, gns_cases, design_seed and channel_width) under the model of model_json, and
-    the model's parameters there, {name: value} (the trajectory records them: the GNS's inputs)."""
-    model, _ = read_model(model_json, row["channel_width"])
+    its template row, gns_cases, design_seed and channel_width) under the model of model_json (or of
+    the row's model_by_config, pipeline.campaign_geometry.fixed_by_config), and the model's
+    parameters there, {name: value} (the trajectory records them: the GNS's inputs)."""
+    model = row_model(model_json, row)
     design = model_dataset_cases(model, case_from_row(row["template"]), row["gns_cases"], row["design_seed"])
     cases = {c.case_id: c for c in design}
     if row["case_id"] not in cases:
@@ -110,6 +112,22 @@ def model_case(model_json: StrPath, row: dict) -> tuple[CollapseCase, dict[str, 
     case = cases[row["case_id"]]
     log.info("%s: %s", row["case_id"], case.parameters)
     return case.case, case.parameters
+
+
+def row_model(model_json: StrPath | None, row: dict) -> Model:
+    """The model of a row of a calibrated model's GNS dataset: that of its model_by_config record,
+    else model_json's."""
+    if row.get("model_by_config"):
+        return config_model(row["model_by_config"])
+    if model_json is None:
+        raise ValueError(f"{row['dataset']}/{row['case_id']}: a calibrated model's case needs its model.json")
+    return read_model(model_json, row["channel_width"])[0]
+
+
+def config_model(record: dict) -> Model:
+    """The model of a model_by_config record (pipeline.campaign_geometry.fixed_by_config): the model
+    the config names, over its whole range."""
+    return model_named(record["model"], record["channel_width"])
 
 
 def model_parameter_names(model_json: StrPath) -> tuple[str, ...]:

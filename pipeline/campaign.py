@@ -41,6 +41,7 @@ from dem.run_store import keeps_runs
 from dem.runout import RunoutMethod
 from doe.campaign_study import campaign_doe, campaign_surface, column_costs
 from doe.plots import plot_surface_pairs
+from gns.train_metrics import training_seconds
 
 log = logging.getLogger(__name__)
 
@@ -92,15 +93,15 @@ def run_campaign_route(
     calibration.validation_packings) packings -> <route>.json (CampaignRoute) and the route's figure.
 
     section: the config's `calibration` (doe_centre_replicates; budget, n_initial; gns_budget,
-    gns_n_initial; seed). gns (route "gns"): gns_search's model_path, metadata_path, dataset_paths
-    and threads."""
+    gns_n_initial; seed; campaign_geometry). gns (route "gns"): gns_search's model_path,
+    metadata_path, dataset_paths, metrics_path and threads."""
     if route not in ROUTES:
         raise ValueError(f"campaign route {route!r}: one of {list(ROUTES)}")
     campaign, model = runner.campaign, runner.model
     label = ROUTES[route]
     progress = progress_logger(f"{campaign.name}: {model.name} model, {label}, {len(campaign.columns)} columns", log)
     started = time.perf_counter()
-    added_column = None
+    added_column, added_why, surrogate = None, "", None
     title = f"{campaign.name}: {label}, campaign objective"
     if route == "doe":
         responses = campaign_doe(runner, section.get("doe_centre_replicates", 3), section.get("seed", 0), progress)
@@ -113,13 +114,15 @@ def run_campaign_route(
         plot_surface_pairs(fit, runs, out_figure, title=title)
     else:
         if route == "gns":
-            bo, dem_runs = gns_search(runner, section, progress=progress, **(gns or {}))
+            bo, surrogate = gns_search(runner, section, progress=progress, **(gns or {}))
+            dem_runs, search = surrogate.dataset_runs, float(np.sum(bo.seconds))
+            seconds = search + surrogate.seconds
+            given = campaign.name in section.get("campaign_geometry", {})
+            added_column, added_why = surrogate.added_column(len(campaign.columns), search, given)
         else:
             bo = campaign_bayesopt(runner, section["budget"], section["n_initial"], section.get("seed", 0), progress)
             dem_runs = bo.history.n_calls * len(campaign.columns)
-        seconds = float(np.sum(bo.seconds))
-        if route == "gns":  # its dataset is shared by the columns, its size fixed
-            added_column = (0.0, seconds / len(campaign.columns))
+            seconds = float(np.sum(bo.seconds))
 
         def optimum_on(columns):
             return bo.optimum(campaign, columns)
@@ -136,9 +139,50 @@ def run_campaign_route(
         seconds,
         progress_logger(f"{label}: validations", log),
         added_column,
+        added_why,
+        surrogate.seconds if surrogate else 0.0,
     )
     write_json(out_json, result.to_dict())
     return result
+
+
+@dataclass(frozen=True)
+class SurrogateCost:
+    """What the GNS route spends before its search: its dataset's DEM runs and the training of its GNS."""
+
+    dataset_runs: int
+    dataset_seconds: float  # the runs' collapse wall time (s; their packings' settles not counted)
+    training_seconds: float  # the GNS's training wall time (s; gns.train_metrics.training_seconds)
+
+    @property
+    def seconds(self) -> float:
+        return self.dataset_seconds + self.training_seconds
+
+    def added_column(
+        self, n_columns: int, search_seconds: float, geometry_given: bool
+    ) -> tuple[tuple[float, float], str]:
+        """((DEM runs, seconds) one more column adds, why): the search's share per column, and where
+        the dataset cycles through the campaign's columns (geometry not given by hand) the cases
+        that move to another column when one is appended (case k on column k mod C), run anew, and
+        a new training."""
+        share = search_seconds / n_columns
+        if geometry_given:
+            why = "on the dataset's given geometries (calibration.campaign_geometry) it adds no run and no training"
+            return (0.0, share), why
+        if self.dataset_runs <= n_columns:
+            why = (
+                f"the dataset's {self.dataset_runs} cases leave none for another column: raise calibration.gns_cases "
+                "(its dataset is run anew and its GNS trained again)"
+            )
+            return (0.0, share), why
+        moved = sum(k % n_columns != k % (n_columns + 1) for k in range(self.dataset_runs))
+        seconds = moved / self.dataset_runs * self.dataset_seconds + self.training_seconds + share
+        why = (
+            f"the dataset cycles through the campaign's columns: an added column moves {moved} of its "
+            f"{self.dataset_runs} cases, run anew, and the GNS is trained again (calibration.campaign_geometry "
+            "fixes the dataset's geometries)"
+        )
+        return (float(moved), seconds), why
 
 
 def gns_search(
@@ -148,15 +192,17 @@ def gns_search(
     model_path: StrPath,
     metadata_path: StrPath,
     dataset_paths: Sequence[StrPath],
+    metrics_path: StrPath | None = None,
     threads: int | None = None,
     progress: Callable[[float], None] | None = None,
-) -> tuple[CampaignBO, int]:
+) -> tuple[CampaignBO, SurrogateCost]:
     """The GNS route's search: the GNS trained on the campaign's dataset (its cases cycle through the
     columns, pipeline.cases.campaign_templates), one GNS objective per column rolled out from the
     first frames of that column's dataset runs (their mean L*: calibration.gns_objective), and the
     Bayesian optimisation of the campaign objective over the model's box within the range the GNS
     was trained on (calibration.gns_budget,
-    gns_n_initial points, one rollout per column each). Returns (its points, the dataset's DEM runs)."""
+    gns_n_initial points, one rollout per column each). Returns (its points, what the dataset's DEM
+    runs and the training of the GNS (its metrics.csv, metrics_path) cost)."""
     import torch
 
     from calibration.gns_objective import GNSObjective
@@ -209,7 +255,12 @@ def gns_search(
 
     settings = BOSettings(budget=section["gns_budget"], n_initial=section["gns_n_initial"], seed=section.get("seed", 0))
     bo = campaign_search(runner.campaign, evaluate, bounds, runner.model.parameter_names, settings, progress)
-    return bo, len(runs)
+    cost = SurrogateCost(
+        dataset_runs=len(runs),
+        dataset_seconds=float(sum(float(run.attrs.get("wall_time_s", math.nan)) for run in runs)),
+        training_seconds=training_seconds(metrics_path) if metrics_path else math.nan,
+    )
+    return bo, cost
 
 
 @dataclass(frozen=True)

@@ -60,9 +60,26 @@ def campaign_lines(result: CampaignResult, figure: str) -> list[str]:
             f"| {route.route} | {per_column} | {format_mse(route.mse, route.mse_se)} | {route.held_out_mse:.3g} | "
             f"{route.dem_runs} | {cost} |"
         )
+    lines += cost_lines(result)
     lines += ["", "Each column predicted from the others (its MSE against the bound of the packing scatter):", ""]
     lines += held_out_table(result)
     lines += ["", f"![{result.name}: every column, and each from the others]({figure})", ""]
+    return lines
+
+
+def cost_lines(result: CampaignResult) -> list[str]:
+    """What each route's calibration spent, and how an added column's cost is counted where it is not
+    an equal share of it (the GNS route: its dataset and training beside its search)."""
+    lines = [""]
+    for route in result.routes:
+        spent = f"{route.dem_runs} DEM runs, {route.seconds:.0f} s"
+        if route.surrogate_seconds:
+            spent += (
+                f" ({route.surrogate_seconds:.0f} s of them its dataset's runs and its training, "
+                f"{route.seconds - route.surrogate_seconds:.0f} s its search)"
+            )
+        why = route.added_column_why or "an equal share of its calibration (every point runs on every column)"
+        lines.append(f"- {route.route}: calibration {spent}; an added column: {why}.")
     return lines
 
 

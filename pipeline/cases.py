@@ -9,7 +9,7 @@ split), keyed "<dataset>/<case_id>". Four kinds of run fill it, each under a dat
   - the scale ladder (dataset "scale_ladder", split "scale_ladder"; dem.scale_ladder.case_rows);
   - the GNS dataset of each column's calibrated model (dataset "calibrated_<name>", `model_rows`),
     and of each campaign's model (dataset "campaign_<name>", its cases cycling through the
-    campaign's columns: `campaign_templates`).
+    campaign's columns or the geometries calibration.campaign_geometry gives: `campaign_templates`).
     Its parameters are the model's, which the diagnosis chooses when its jobs run
     (calibrated_model's model.json), so the table the DAG is planned from holds what gives them
     then: the case id and split, "calibrated" (the column's name), the template row (the first case
@@ -29,6 +29,7 @@ from dem import grid, scale_ladder
 from doe.design import design_from_config
 from doe.study import case_rows as doe_case_rows
 from pipeline.calibrated_gns import case_splits, model_gns_columns
+from pipeline.campaign_geometry import fixed_by_config, given_duration, given_geometries
 from pipeline.config import campaign_gns_names, gns_datasets
 
 
@@ -64,25 +65,32 @@ def model_rows(config: dict, name: str, templates: list[dict], dataset: str) -> 
 
 
 def campaign_templates(config: dict, table: dict[str, dict], name: str) -> list[dict]:
-    """One template row per column of campaign `name`: the first case of the config's first GNS
-    dataset (its frame interval in seconds, one GNS step, and its other settings) on the column's
-    material, a and L_i, at the diagnosis' size_scale (the campaign's calibration scale), simulated
-    at least to the column's last measured t/t*."""
+    """One template row per geometry of campaign `name`'s GNS dataset: the first case of the config's
+    first GNS dataset (its frame interval in seconds, one GNS step, and its other settings) on the
+    campaign's material at the diagnosis' size_scale (the campaign's calibration scale). The
+    geometries are calibration.campaign_geometry's where given (pipeline.campaign_geometry), simulated
+    for its duration; else the campaign's columns', each simulated at least to its last measured t/t*."""
     base = dataset_rows(table, gns_datasets(config)[0])[0]
-    templates = []
-    for column in read_measured(config["measured"][name]).values():
-        duration = max(float(base.get("duration_over_tstar", 0.0)), math.ceil(2 * column.t_over_tstar[-1]) / 2)
-        templates.append(
-            dict(
-                base,
-                material=column.material_properties.to_config(),
-                aspect_ratio=column.aspect_ratio,
-                L_i=column.L_i,
-                size_scale=config["diagnosis"]["size_scale"],
-                duration_over_tstar=duration,
-            )
+    columns = list(read_measured(config["measured"][name]).values())
+    material = columns[0].material_properties.to_config()
+    given = given_geometries(config, name)
+    if given is not None:
+        duration = given_duration(config, name, base)
+        geometries = [(a, L_i, duration) for a, L_i in given]
+    else:
+        least = float(base.get("duration_over_tstar", 0.0))
+        geometries = [(c.aspect_ratio, c.L_i, max(least, math.ceil(2 * c.t_over_tstar[-1]) / 2)) for c in columns]
+    return [
+        dict(
+            base,
+            material=material,
+            aspect_ratio=a,
+            L_i=L_i,
+            size_scale=config["diagnosis"]["size_scale"],
+            duration_over_tstar=duration,
         )
-    return templates
+        for a, L_i, duration in geometries
+    ]
 
 
 def case_table(config: dict, inverse_datasets: dict[str, str]) -> dict[str, dict]:
@@ -103,7 +111,9 @@ def case_table(config: dict, inverse_datasets: dict[str, str]) -> dict[str, dict
     for name in model_gns_columns(config):
         rows += model_rows(config, name, [dataset_rows(table, inverse_datasets[name])[0]], model_dataset(name))
     for name in campaign_gns_names(config):
-        rows += model_rows(config, name, campaign_templates(config, table, name), campaign_dataset(name))
+        fixed = fixed_by_config(config, name)  # the model's config, where it alone makes the cases
+        campaign_rows = model_rows(config, name, campaign_templates(config, table, name), campaign_dataset(name))
+        rows += [dict(row, model_by_config=fixed) for row in campaign_rows] if fixed else campaign_rows
     for row in rows:
         key = f"{row['dataset']}/{row['case_id']}"
         if key in table:  # check_cross_keys keeps the derived datasets' names free

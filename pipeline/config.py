@@ -42,6 +42,7 @@ from dem.case import (
 from dem.engines import ENGINES, EngineError, get_engine
 from dem.grid import ConfigError, sample_dataset
 from dem.scale_ladder import DATASET as LADDER_DATASET
+from pipeline.campaign_geometry import check_campaign_geometry
 from pipeline.config_schema import validate_config
 
 __all__ = [
@@ -55,6 +56,7 @@ __all__ = [
     "check_inverse",
     "check_diagnosis",
     "check_scale_ladder",
+    "check_campaigns",
     "campaign_names",
     "campaign_gns_names",
     "gns_datasets",
@@ -119,6 +121,17 @@ def campaign_names(config: dict) -> list[str]:
                 raise ConfigError(f"config key measured.{name}: {exc}") from exc
             names.append(name)
     return names
+
+
+def check_campaigns(config: dict, cases: dict[str, dict]) -> None:
+    """calibration.campaign_geometry (pipeline.campaign_geometry.check_campaign_geometry): each entry
+    names a campaign whose columns lie on the geometries given; cases: the case table."""
+    campaigns = campaign_names(config)
+    with_gns = campaign_gns_names(config)
+    base = gns_datasets(config)[0] if with_gns else None
+    base_row = next((row for row in cases.values() if row["dataset"] == base), None)
+    columns = {name: _measured_columns(config, name) for name in campaigns}
+    check_campaign_geometry(config, campaigns, columns, base_row)
 
 
 def campaign_gns_names(config: dict) -> list[str]:
@@ -221,7 +234,7 @@ def _dataset_of_column(config: dict, name: str, columns: dict[str, MeasuredColum
 # --- keys that name another key's entries ------------------------------------------------------
 def check_cross_keys(config: dict, cases: dict[str, dict]) -> dict[str, str]:
     """Every check across keys of the validated `config`, in stage order (datasets, GNS, DoE,
-    inverse design, diagnosis, calibrated model, scale ladder).
+    inverse design, diagnosis, calibrated model, campaigns, scale ladder).
 
     cases: the case table of `config` ({"<dataset>/<case_id>": row}, dem.grid.case_table). Returns
     what the inverse-design checks resolve on the way, {inverse.measured name: the dataset whose
@@ -233,6 +246,7 @@ def check_cross_keys(config: dict, cases: dict[str, dict]) -> dict[str, str]:
     resolved = check_inverse(config, cases)
     check_diagnosis(config)
     check_calibration(config, resolved)
+    check_campaigns(config, cases)
     check_scale_ladder(config)
     return resolved
 

@@ -18,17 +18,26 @@ log = logging.getLogger(__name__)
 TRAJECTORY = "results/dem/{dataset}/trajectories/{case_id}.h5"
 
 
-def build(splits: Mapping[str, Sequence[str]], out_path: StrPath, name: str, model_json: StrPath | None = None) -> dict:
+def build(
+    splits: Mapping[str, Sequence[str]],
+    out_path: StrPath,
+    name: str,
+    model_json: StrPath | None = None,
+    model_by_config: Mapping | None = None,
+) -> dict:
     """Build dataset `name`'s metadata JSON at `out_path` (gns.dataset.build_dataset) from its
     trajectories, {"train"|"valid"|"test": [HDF5 paths]}. The DEM parameters the GNS takes: the
-    paper's (mu, e), or for a calibrated model's GNS dataset every parameter of the model of
-    model_json. Returns the metadata dict."""
-    if model_json is None:
+    paper's (mu, e), or for a calibrated model's GNS dataset every parameter of its model: that of
+    model_json, or of its rows' model_by_config (a campaign's dataset that the config alone
+    makes: pipeline.campaign_geometry.fixed_by_config). Returns the metadata dict."""
+    if model_json is None and not model_by_config:
         parameters = DEM_PARAMETERS
     else:  # imported here: the datasets of the paper's (mu, e) load no calibration code
-        from pipeline.calibrated_gns import model_parameter_names
+        from pipeline.calibrated_gns import config_model, model_parameter_names
 
-        parameters = model_parameter_names(model_json)
+        parameters = (
+            config_model(model_by_config).parameter_names if model_json is None else model_parameter_names(model_json)
+        )
     splits = {k: list(v) for k, v in splits.items()}
     log.info("dataset %s: %s cases", name, {k: len(v) for k, v in splits.items()})
     metadata = build_dataset(splits, out_path, name, tuple(parameters))

@@ -41,12 +41,11 @@ MIN_RUNTIME_MIN = 10
 
 def write_deck(row: dict, path: StrPath, model_json: StrPath | None = None) -> CollapseCase:
     """Write one case's deck (engine-neutral JSON) from its case-table row; returns the case.
-    model_json: a calibrated model's GNS dataset's row is a case of that model (pipeline.cases);
+    model_json: a calibrated model's GNS dataset's row is a case of that model (pipeline.cases; a
+    campaign's dataset that the config alone makes holds its model in the row, model_by_config);
     its deck's row then holds the model's parameters there ("parameters": {name: value}), which
     the trajectory records."""
     if row.get("calibrated"):
-        if model_json is None:
-            raise ValueError(f"{row['dataset']}/{row['case_id']}: a calibrated model's case needs its model.json")
         # imported here: the decks of every other case load no calibration code
         from pipeline.calibrated_gns import model_case
 

@@ -28,10 +28,12 @@ from calibration.measured_column import MeasuredColumn
 from calibration.mechanisms import get_mechanisms
 from calibration.model import Model
 from calibration.synthetic import LAB_RUNOUT, HiddenTruth, liggghts_measurement, synthetic_columns
+from dem import grid
 from dem.runout import RunoutMethod
 from dem.trajectory import read_attrs
-from pipeline.campaign import CampaignResult, run_campaign_route
-from pipeline.config import ConfigError
+from pipeline.campaign import CampaignResult, SurrogateCost, run_campaign_route
+from pipeline.cases import case_table
+from pipeline.config import ConfigError, check_cross_keys
 from tests.conftest import TINY_ALL
 from tests.test_bad_input import as_run_sh_main
 from tests.test_workflow import copy_workflow, job_stats, snakemake
@@ -122,6 +124,85 @@ def test_bad_campaigns_are_refused_before_any_job_naming_file_line_and_column(tm
                 as_run_sh_main(good, *settings)
 
 
+def campaign_dataset_rows(csv: Path, *settings: str) -> list[dict]:
+    """The case-table rows of the GNS dataset of campaign `mine` (csv) under config/config.yaml."""
+    config = as_run_sh_main(csv, *settings)
+    table = case_table(config, check_cross_keys(config, grid.case_table(config)))
+    return [row for row in table.values() if row["dataset"] == "campaign_mine"]
+
+
+def test_a_campaign_dataset_given_by_hand_adds_no_case_for_a_column_on_its_geometries(tmp_path, monkeypatch):
+    """Given by hand (calibration.campaign_geometry), a campaign's GNS dataset is the same with a
+    third column on its geometries as without it: the column costs it no DEM run. Derived from the
+    columns, the dataset moves cases to the new column, as many as the GNS route reports."""
+    monkeypatch.chdir(ROOT)
+    two = campaign_csv(tmp_path / "two.csv", curve_rows("q1", "quartz", 1) + curve_rows("q2", "quartz", 2))
+    three = campaign_csv(
+        tmp_path / "three.csv",
+        curve_rows("q1", "quartz", 1) + curve_rows("q2", "quartz", 2) + curve_rows("q4", "quartz", 4),
+    )
+    given = "calibration={campaign_geometry: {mine: {aspect_ratio: [1, 2, 4, 6], L_i: [0.02]}}}"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        before, after = campaign_dataset_rows(two, given), campaign_dataset_rows(three, given)
+        assert len(before) == 30 and before == after
+        assert [row["template"]["aspect_ratio"] for row in before[:5]] == [1, 2, 4, 6, 1]
+        derived = [campaign_dataset_rows(csv) for csv in (two, three)]
+    moved = [a["case_id"] for a, b in zip(*derived, strict=True) if a["template"] != b["template"]]
+    cost = SurrogateCost(dataset_runs=30, dataset_seconds=60.0, training_seconds=100.0)
+    (runs, seconds), why = cost.added_column(2, 10.0, geometry_given=False)
+    assert runs == len(moved) == 20 and seconds == pytest.approx(20 / 30 * 60 + 100 + 10 / 2)
+    assert "moves 20 of its 30 cases" in why and "trained again" in why
+    assert cost.added_column(2, 10.0, geometry_given=True)[0] == (0.0, 5.0)
+
+
+@pytest.mark.parametrize(
+    "geometry, message",
+    [
+        (
+            "{mine: {aspect_ratio: [2, 4], L_i: [0.02]}}",
+            r"line 2, column 'aspect_ratio': column 'q1' \(aspect_ratio = 1\) lies outside the range of its "
+            r"campaign's GNS dataset, aspect_ratio in \[2, 4\]: the GNS would extrapolate; add 1 to "
+            r"calibration.campaign_geometry.mine.aspect_ratio",
+        ),
+        (
+            "{mine: {aspect_ratio: [1, 4], L_i: [0.02]}}",
+            r"line 9, column 'aspect_ratio': column 'q2' \(aspect_ratio = 2\) lies between the geometries of its "
+            r"campaign's GNS dataset \(aspect_ratio \[1, 4\]\): no run of the dataset starts its rollouts",
+        ),
+        (
+            "{mine: {aspect_ratio: [1, 2], L_i: [0.03]}}",
+            r"line 2, column 'L_i': column 'q1' \(L_i = 0.02\) lies outside",
+        ),
+        (
+            "{mine: {aspect_ratio: [1, 2], L_i: [0.02], duration_over_tstar: 3}}",
+            r"line 2, column 'x': column 'q1' is measured to t/t\* = 3.5, past the 3 t\* its campaign's GNS "
+            r"dataset simulates",
+        ),
+    ],
+    ids=["outside", "between", "L_i", "duration"],
+)
+def test_a_column_off_its_campaigns_given_geometry_is_refused_before_any_job(tmp_path, monkeypatch, geometry, message):
+    monkeypatch.chdir(ROOT)
+    good = campaign_csv(tmp_path / "good.csv", curve_rows("q1", "quartz", 1) + curve_rows("q2", "quartz", 2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(ConfigError, match=rf"config key calibration.campaign_geometry.mine: {good}, {message}"):
+            as_run_sh_main(good, f"calibration={{campaign_geometry: {geometry}}}")
+        with pytest.raises(ConfigError, match=r"campaign_geometry.other: 'other' is not a campaign .*\['mine'\]"):
+            as_run_sh_main(good, "calibration={campaign_geometry: {other: {aspect_ratio: [1], L_i: [0.02]}}}")
+        four = campaign_csv(tmp_path / "four.csv", sum((curve_rows(f"q{a}", "quartz", a) for a in (1, 2, 4, 6)), []))
+        with pytest.raises(ConfigError, match=r"calibration.gns_cases: 3 cases cannot cover the 4 columns of campaign"):
+            as_run_sh_main(four, "calibration={gns_cases: 3}")
+        with pytest.raises(ConfigError, match=r"calibration.gns_cases: 3 cases cannot cover the 4 geometries"):
+            as_run_sh_main(
+                good, "calibration={gns_cases: 3, campaign_geometry: {mine: {aspect_ratio: [1, 2], L_i: [0.02, 0.03]}}}"
+            )
+        # too few grains across at the campaign's scale (diagnosis.size_scale 5): 9.4 mm is 4.4 across
+        with pytest.raises(ConfigError, match=r"calibration.campaign_geometry.mine.L_i \(at diagnosis.size_scale"):
+            as_run_sh_main(good, "calibration={campaign_geometry: {mine: {aspect_ratio: [1, 2], L_i: [0.02, 0.0094]}}}")
+
+
 # -- the campaign through the tiny DAG ---------------------------------------------------------------
 
 
@@ -167,6 +248,9 @@ def test_the_dag_calibrates_a_campaign_as_one_parameter_set_by_each_route(campai
     # the GNS's dataset (calibration.gns_cases) cycles through the columns: an added column costs
     # it no DEM run before its validation
     assert gns.route.startswith("BO on the campaign's GNS") and gns.dem_runs == 3 and gns.runs_per_column == 0
+    assert "leave none for another column" in gns.added_column_why  # 3 cases, 3 columns
+    # its calibration's time holds its dataset's runs and its training beside its search
+    assert 0 < gns.surrogate_seconds < gns.seconds
     runs = sorted((workdir / "results/dem/campaign_lab/trajectories").glob("*.h5"))
     geometries = sorted(round(float(read_attrs(p)["H_i"]) / float(read_attrs(p)["L_i"]), 6) for p in runs)
     assert geometries == [1.0, 2.0, 4.0]
@@ -203,10 +287,43 @@ def test_the_report_shows_every_column_each_route_and_the_cost_per_column(campai
     for route in result.routes:
         assert section.count(f"| {route.route} | campaign_a") == 3  # one held-out row per column
         assert f"{route.runs_per_column:.0f} runs" in section
+        assert f"- {route.route}: calibration {route.dem_runs} DEM runs" in section  # how its cost is counted
+    assert "of them its dataset's runs and its training" in section  # the GNS route's
     figure = workdir / "results/campaign/lab/campaign.png"
     assert figure.stat().st_size > 10_000 and "(../campaign/lab/campaign.png)" in section
     for route in ("doe", "bayesopt"):
         assert (workdir / f"results/campaign/lab/{route}.png").stat().st_size > 10_000
+
+
+@pytest.mark.slow
+def test_a_column_added_on_the_given_geometries_reruns_neither_the_dataset_nor_its_gns(tmp_path):
+    """A campaign grows: its GNS dataset given by hand (calibration.campaign_geometry) and its model by
+    the config (rolling resistance in its whole range), the dataset and its GNS made for a = 1 and 2
+    stay as they are when the a = 4 column joins; the campaign's diagnosis and model record are made
+    anew. Another model in the config is another dataset."""
+    workdir = copy_workflow(tmp_path)
+    lines = CAMPAIGN_CSV.read_text().splitlines()
+    csv = workdir / "lab.csv"
+    csv.write_text("\n".join(line for line in lines if not line.startswith("campaign_a4")) + "\n")
+    settings = [
+        "--config",
+        f"measured={{tiny: data/test/tiny_quartz_a2.csv, lab: {csv}}}",
+        "calibration={model: rolling_resistance, box: full, "
+        "campaign_geometry: {lab: {aspect_ratio: [1, 2, 4], L_i: [0.01], duration_over_tstar: 3}}}",
+    ]
+    targets = ["results/gns/campaign_lab/train/model_best.pt", "results/calibrated/lab/model.json"]
+    first = job_stats(snakemake(workdir, *targets, *settings, configfile=TINY_ALL, timeout=600).stderr)
+    assert first.get("dem_run") == 3 and first.get("gns_train") == 1
+    made = {p: p.stat().st_mtime_ns for p in sorted((workdir / "results/dem/campaign_lab").rglob("*.h5"))}
+    made[workdir / targets[0]] = (workdir / targets[0]).stat().st_mtime_ns
+    csv.write_text("\n".join(lines) + "\n")  # the a = 4 column joins the campaign
+    second = job_stats(snakemake(workdir, *targets, *settings, configfile=TINY_ALL, timeout=600).stderr)
+    assert set(second) == {"calibrated_model", "diagnosis", "diagnosis_library"}
+    assert {p: p.stat().st_mtime_ns for p in made} == made
+    cohesion = [*settings[:2], settings[2].replace("model: rolling_resistance", "model: cohesion")]
+    planned = snakemake(workdir, *targets, *cohesion, "-n", configfile=TINY_ALL, timeout=600)
+    planned = job_stats(planned.stdout + planned.stderr)
+    assert planned.get("dem_run") == 3 and planned.get("gns_train") == 1
 
 
 # -- a campaign made by another solver ----------------------------------------------------------------

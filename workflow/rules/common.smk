@@ -103,8 +103,12 @@ def model_column(dataset):
 
 def model_json(dataset):
     """[the model.json whose model gives the cases of `dataset`]: a calibrated model's GNS dataset's
-    (dem.smk, dataset.smk); [] for any other."""
-    return [f"results/calibrated/{model_column(dataset)}/model.json"] if model_column(dataset) else []
+    (dem.smk, dataset.smk); [] for any other, and for a campaign's dataset that the config alone
+    makes (its rows hold its model: pipeline.campaign_geometry.fixed_by_config)."""
+    rows = dataset_cases(dataset)
+    if not model_column(dataset) or rows[0].get("model_by_config"):
+        return []
+    return [f"results/calibrated/{model_column(dataset)}/model.json"]
 
 
 # Helpers of the stages, kept here so that no stage file mixes functions with rules (snakemake
@@ -166,6 +170,7 @@ def campaign_gns_inputs(wildcards):
     dataset = f"campaign_{wildcards.name}"
     return {
         "gns": f"results/gns/{dataset}/train/model_best.pt",
+        "metrics": f"results/gns/{dataset}/train/metrics.csv",  # its training's time
         "metadata": f"results/datasets/{dataset}/metadata.json",
         "dataset": [p for paths in dataset_trajectories(dataset).values() for p in paths],
     }

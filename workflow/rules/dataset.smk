@@ -20,6 +20,7 @@ rule dataset:
         mem_mb=2000,
     params:
         splits=lambda w: dataset_trajectories(w.dataset),
+        model_by_config=lambda w: dataset_cases(w.dataset)[0].get("model_by_config"),
     script:
         "../scripts/dataset.py"
 

@@ -1,0 +1,149 @@
+"""One synthetic campaign through the DAG by every campaign route, the GNS route included, at a GNS
+size of one's choosing; prints JSON.
+
+    python benchmarks/campaign_routes.py [--csv data/test/tiny_campaign.csv] [--gns-cases 30]
+        [--gns-steps 4000] [--budget 20] [--gns-budget 40] [--geometry 1,2,4,6] [--out FOLDER]
+
+benchmarks/campaigns.py runs the DoE and the BO on DEM alone (the GNS route needs a GNS dataset and
+a training, which the DAG's rules make). This one copies the workflow into --out and runs
+config/tiny_all.yaml's diagnosis (rolling resistance its one candidate, size_scale 4) and the
+campaign stage on the CSV (default: data/test/tiny_campaign.csv, quartz a = 1, 2, 4 made by the
+builtin DEM with hidden rolling resistance 0.15, noise 0.05), with the BO budgets, the campaign's
+GNS dataset of --gns-cases runs and its GNS (32 wide for the base settings, calibration's 48 wide,
+M = 3, --gns-steps steps) given here. --geometry gives the dataset's aspect ratios by hand
+(calibration.campaign_geometry, at the CSV's one L_i, simulated to the longest column's last
+measured t/t*). Per route: the optimum, the validated MSE per column and the campaign's, each
+column predicted from the others against its scatter bound, the DEM runs and seconds of the
+calibration (the GNS route: its dataset's runs and training apart), and what an added column costs;
+and the DAG's wall time and job seconds per rule (its benchmark files).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from calibration.measured import read_measured  # noqa: E402
+from pipeline.campaign import CampaignResult  # noqa: E402
+
+
+def copy_workflow(dest: Path) -> None:
+    """The Snakefile, workflow, configs and data in `dest` (modification times kept)."""
+    dest.mkdir(parents=True, exist_ok=True)
+    shutil.copy2(ROOT / "Snakefile", dest / "Snakefile")
+    for folder in ("workflow", "config", "data"):
+        shutil.copytree(ROOT / folder, dest / folder, ignore=shutil.ignore_patterns("__pycache__"), dirs_exist_ok=True)
+
+
+def job_seconds(folder: Path) -> dict[str, float]:
+    """{rule: summed wall seconds of its jobs} from the DAG's benchmark files under `folder`."""
+    seconds: dict[str, float] = defaultdict(float)
+    for path in folder.rglob("*.tsv"):
+        rule = Path(path.relative_to(folder).parts[1]).stem
+        with open(path, newline="") as f:
+            for row in csv.DictReader(f, delimiter="\t"):
+                seconds[rule] += float(row["s"])
+    return dict(sorted(seconds.items()))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--csv", type=Path, default=ROOT / "data/test/tiny_campaign.csv")
+    parser.add_argument("--gns-cases", type=int, default=30)
+    parser.add_argument("--gns-steps", type=int, default=4000)
+    parser.add_argument("--budget", type=int, default=20, help="BO on DEM points (one run per column each)")
+    parser.add_argument("--gns-budget", type=int, default=40, help="BO on the GNS points (one rollout per column)")
+    parser.add_argument("--geometry", default="", help="aspect ratios of the GNS dataset, given by hand")
+    parser.add_argument("--cores", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=Path("/tmp/campaign_routes"))
+    args = parser.parse_args()
+    csv_path = args.csv.resolve()
+    columns = list(read_measured(csv_path).values())
+    copy_workflow(args.out)
+    calibration = (
+        f"budget: {args.budget}, n_initial: 6, gns_budget: {args.gns_budget}, gns_n_initial: 10, "
+        f"gns_cases: {args.gns_cases}, gns_splits: {{train: 0.8, valid: 0.1, test: 0.1}}, "
+        f"gns_steps: {args.gns_steps}, gns_latent_size: 48, validation_packings: 4"
+    )
+    if args.geometry:
+        duration = math.ceil(2 * max(c.t_over_tstar[-1] for c in columns)) / 2  # t*, the longest column's
+        calibration += (
+            f", campaign_geometry: {{lab: {{aspect_ratio: [{args.geometry}], L_i: [{columns[0].L_i}], "
+            f"duration_over_tstar: {duration}}}}}"
+        )
+    gns = (
+        f"latent_size: 32, n_message_passing: 3, steps: {args.gns_steps}, validate_every: 1000, "
+        "validation_windows: 8, validation_rollouts: 3, checkpoint_every: 1000, log_every: 100"
+    )
+    command = [
+        sys.executable,
+        "-m",
+        "snakemake",
+        "--configfile",
+        "config/tiny_all.yaml",
+        "--profile",
+        "workflow/profiles/default",
+        "--cores",
+        str(args.cores),
+        "--config",
+        f"measured={{tiny: data/test/tiny_quartz_a2.csv, lab: {csv_path}}}",
+        f"calibration={{{calibration}}}",
+        f"gns={{{gns}}}",
+        "--",
+        "results/campaign/lab/campaign.json",
+        "results/report/campaign.md",
+    ]
+    environment = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
+    started = time.perf_counter()
+    with open(args.out / "snakemake.log", "w") as log:
+        subprocess.run(command, cwd=args.out, check=True, stdout=log, stderr=subprocess.STDOUT, env=environment)
+    wall = time.perf_counter() - started
+    result = CampaignResult.read(args.out / "results/campaign/lab/campaign.json")
+    routes = []
+    for route in result.routes:
+        routes.append(
+            {
+                "route": route.route,
+                "optimum": route.optimum.parameters,
+                "campaign_mse": route.mse,
+                "mse": {c: v.mse for c, v in zip(result.columns, route.validations)},
+                "held_out": {
+                    h.column: {"mse": h.validation.mse, "bound": h.scatter_bound, "within": h.within_scatter}
+                    for h in route.held_out
+                },
+                "held_out_mse": route.held_out_mse,
+                "dem_runs": route.dem_runs,
+                "seconds": route.seconds,
+                "surrogate_seconds": route.surrogate_seconds,
+                "runs_per_added_column": route.runs_per_column,
+                "seconds_per_added_column": route.seconds_per_column,
+                "added_column": route.added_column_why,
+                "validation_seconds": route.validation_seconds,
+            }
+        )
+    out = {
+        "settings": {k: str(v) for k, v in vars(args).items()},
+        "columns": {c.name: {"aspect_ratio": c.aspect_ratio, "L_i": c.L_i} for c in columns},
+        "model": result.routes[0].model,
+        "answer": result.answer,
+        "routes": routes,
+        "dag_wall_seconds": wall,
+        "job_seconds": job_seconds(args.out / "results/benchmarks"),
+    }
+    print(json.dumps(out, indent=1))
+
+
+if __name__ == "__main__":
+    main()
