@@ -1,14 +1,17 @@
 """One synthetic campaign through the DAG by every campaign route, the GNS route included, at a GNS
 size of one's choosing; prints JSON.
 
-    python benchmarks/campaign_routes.py [--csv data/test/tiny_campaign.csv] [--gns-cases 30]
-        [--gns-steps 4000] [--budget 20] [--gns-budget 40] [--geometry 1,2,4,6] [--out FOLDER]
+    python benchmarks/campaign_routes.py [--csv data/test/tiny_campaign.csv | --liggghts-seed 0]
+        [--gns-cases 30] [--gns-steps 4000] [--budget 20] [--gns-budget 40] [--geometry 1,2,4,6]
+        [--out FOLDER]
 
 benchmarks/campaigns.py runs the DoE and the BO on DEM alone (the GNS route needs a GNS dataset and
 a training, which the DAG's rules make). This one copies the workflow into --out and runs
 config/tiny_all.yaml's diagnosis (rolling resistance its one candidate, size_scale 4) and the
 campaign stage on the CSV (default: data/test/tiny_campaign.csv, quartz a = 1, 2, 4 made by the
-builtin DEM with hidden rolling resistance 0.15, noise 0.05), with the BO budgets, the campaign's
+builtin DEM with hidden rolling resistance 0.15, noise 0.05; --liggghts-seed: instead a campaign of
+the same columns made by LIGGGHTS, a truth with rolling resistance drawn from that seed, its own
+packing and the lab's runout reading, noise 0.05), with the BO budgets, the campaign's
 GNS dataset of --gns-cases runs and its GNS (32 wide for the base settings, calibration's 48 wide,
 M = 3, --gns-steps steps) given here. --geometry gives the dataset's aspect ratios by hand
 (calibration.campaign_geometry, at the CSV's one L_i, simulated to the longest column's last
@@ -30,12 +33,18 @@ import subprocess
 import sys
 import time
 from collections import defaultdict
+from dataclasses import replace
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from calibration.design_runs import SimulationSettings  # noqa: E402
 from calibration.measured import read_measured  # noqa: E402
+from calibration.mechanisms import get_mechanisms  # noqa: E402
+from calibration.synthetic import draw_truth, liggghts_measurement, synthetic_columns, write_measured_csv  # noqa: E402
 from pipeline.campaign import CampaignResult  # noqa: E402
 
 
@@ -58,9 +67,28 @@ def job_seconds(folder: Path) -> dict[str, float]:
     return dict(sorted(seconds.items()))
 
 
+def liggghts_campaign(seed: int, out: Path) -> Path:
+    """The tiny campaign's columns (quartz a = 1, 2, 4, L_i 10 mm, t/t* to 3, size_scale 4) made by
+    LIGGGHTS under a truth with rolling resistance drawn from `seed`, noise 0.05 in L*, written to
+    out/liggghts_campaign.csv (the truth in its comment)."""
+    rng = np.random.default_rng(seed)
+    mechanism = get_mechanisms(["rolling_resistance"])[0]
+    truth = draw_truth(rng, mechanism)
+    template = list(read_measured(ROOT / "data/test/tiny_campaign.csv").values())
+    a = [c.aspect_ratio for c in template]
+    columns = synthetic_columns("quartz", template[0].L_i, a, template[0].t_over_tstar, profile_step_diameters=None)
+    columns = [replace(c, name=f"campaign_a{c.aspect_ratio:g}") for c in columns]
+    settings = SimulationSettings(size_scale=4.0)
+    measured, _ = liggghts_measurement(truth, columns, [mechanism], settings, 0.05, 0.001, rng)
+    path = out / "liggghts_campaign.csv"
+    write_measured_csv(measured, path, f"made by LIGGGHTS at size_scale 4, truth {truth.to_dict()}, noise 0.05")
+    return path
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--csv", type=Path, default=ROOT / "data/test/tiny_campaign.csv")
+    parser.add_argument("--liggghts-seed", type=int, default=None, help="make the campaign by LIGGGHTS instead")
     parser.add_argument("--gns-cases", type=int, default=30)
     parser.add_argument("--gns-steps", type=int, default=4000)
     parser.add_argument("--budget", type=int, default=20, help="BO on DEM points (one run per column each)")
@@ -69,9 +97,9 @@ def main() -> None:
     parser.add_argument("--cores", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("/tmp/campaign_routes"))
     args = parser.parse_args()
-    csv_path = args.csv.resolve()
-    columns = list(read_measured(csv_path).values())
     copy_workflow(args.out)
+    csv_path = args.csv.resolve() if args.liggghts_seed is None else liggghts_campaign(args.liggghts_seed, args.out)
+    columns = list(read_measured(csv_path).values())
     calibration = (
         f"budget: {args.budget}, n_initial: 6, gns_budget: {args.gns_budget}, gns_n_initial: 10, "
         f"gns_cases: {args.gns_cases}, gns_splits: {{train: 0.8, valid: 0.1, test: 0.1}}, "
