@@ -139,34 +139,12 @@ def main() -> None:
         subprocess.run(command, cwd=args.out, check=True, stdout=log, stderr=subprocess.STDOUT, env=environment)
     wall = time.perf_counter() - started
     result = CampaignResult.read(args.out / "results/campaign/lab/campaign.json")
-    routes = []
-    for route in result.routes:
-        routes.append(
-            {
-                "route": route.route,
-                "optimum": route.optimum.parameters,
-                "campaign_mse": route.mse,
-                "mse": {c: v.mse for c, v in zip(result.columns, route.validations)},
-                "held_out": {
-                    h.column: {"mse": h.validation.mse, "bound": h.scatter_bound, "within": h.within_scatter}
-                    for h in route.held_out
-                },
-                "held_out_mse": route.held_out_mse,
-                "dem_runs": route.dem_runs,
-                "seconds": route.seconds,
-                "surrogate_seconds": route.surrogate_seconds,
-                "runs_per_added_column": route.runs_per_column,
-                "seconds_per_added_column": route.seconds_per_column,
-                "added_column": route.added_column_why,
-                "validation_seconds": route.validation_seconds,
-            }
-        )
     out = {
         "settings": {k: str(v) for k, v in vars(args).items()},
         "columns": {c.name: {"aspect_ratio": c.aspect_ratio, "L_i": c.L_i} for c in columns},
         "model": result.routes[0].model,
         "answer": result.answer,
-        "routes": routes,
+        "routes": [route.summary() for route in result.routes],
         "dag_wall_seconds": wall,
         "job_seconds": job_seconds(args.out / "results/benchmarks"),
     }

@@ -76,22 +76,7 @@ def main() -> None:
             for route in ("doe", "bayesopt"):
                 folder = args.out / campaign.name
                 result = run_campaign_route(runner, route, folder / f"{route}.json", folder / f"{route}.png", section)
-                entry["routes"].append(
-                    {
-                        "route": result.route,
-                        "optimum": result.optimum.parameters,
-                        "campaign_mse": result.mse,
-                        "mse": {v: r.mse for v, r in zip(campaign.column_names, result.validations)},
-                        "held_out": {
-                            h.column: {"mse": h.validation.mse, "bound": h.scatter_bound, "within": h.within_scatter}
-                            for h in result.held_out
-                        },
-                        "dem_runs": result.dem_runs,
-                        "runs_per_added_column": result.runs_per_column,
-                        "seconds_per_added_column": result.seconds_per_column,
-                        "validation_seconds": result.validation_seconds,
-                    }
-                )
+                entry["routes"].append(result.summary())
                 print(json.dumps({"campaign": campaign.name, **entry["routes"][-1]}), flush=True)
             out["campaigns"].append(entry)
     print(json.dumps(out, indent=1))

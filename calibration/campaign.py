@@ -163,6 +163,28 @@ class CampaignRoute:
     def to_dict(self) -> dict:
         return asdict(self)
 
+    def summary(self) -> dict:
+        """The figures a benchmark prints: the optimum, the validated MSE per column and the campaign's,
+        each held-out column's MSE against its scatter bound, and the cost."""
+        return {
+            "route": self.route,
+            "optimum": self.optimum.parameters,
+            "campaign_mse": self.mse,
+            "mse": {h.column: v.mse for h, v in zip(self.held_out, self.validations, strict=True)},
+            "held_out": {
+                h.column: {"mse": h.validation.mse, "bound": h.scatter_bound, "within": h.within_scatter}
+                for h in self.held_out
+            },
+            "held_out_mse": self.held_out_mse,
+            "dem_runs": self.dem_runs,
+            "seconds": self.seconds,
+            "surrogate_seconds": self.surrogate_seconds,
+            "runs_per_added_column": self.runs_per_column,
+            "seconds_per_added_column": self.seconds_per_column,
+            "added_column": self.added_column_why,
+            "validation_seconds": self.validation_seconds,
+        }
+
     @classmethod
     def from_dict(cls, data: dict) -> CampaignRoute:
         def optimum(d):
