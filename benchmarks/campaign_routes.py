@@ -24,7 +24,6 @@ and the DAG's wall time and job seconds per rule (its benchmark files).
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import os
@@ -32,7 +31,6 @@ import shutil
 import subprocess
 import sys
 import time
-from collections import defaultdict
 from dataclasses import replace
 from pathlib import Path
 
@@ -45,6 +43,7 @@ from calibration.design_runs import SimulationSettings  # noqa: E402
 from calibration.measured import read_measured  # noqa: E402
 from calibration.mechanisms import get_mechanisms  # noqa: E402
 from calibration.synthetic import draw_truth, liggghts_measurement, synthetic_columns, write_measured_csv  # noqa: E402
+from pipeline.benchmarks import read_benchmarks  # noqa: E402
 from pipeline.campaign import CampaignResult  # noqa: E402
 
 
@@ -58,13 +57,7 @@ def copy_workflow(dest: Path) -> None:
 
 def job_seconds(folder: Path) -> dict[str, float]:
     """{rule: summed wall seconds of its jobs} from the DAG's benchmark files under `folder`."""
-    seconds: dict[str, float] = defaultdict(float)
-    for path in folder.rglob("*.tsv"):
-        rule = Path(path.relative_to(folder).parts[1]).stem
-        with open(path, newline="") as f:
-            for row in csv.DictReader(f, delimiter="\t"):
-                seconds[rule] += float(row["s"])
-    return dict(sorted(seconds.items()))
+    return {t.rule: t.total_s for t in sorted(read_benchmarks(folder), key=lambda t: t.rule)}
 
 
 def liggghts_campaign(seed: int, out: Path) -> Path:

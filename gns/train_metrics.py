@@ -77,18 +77,3 @@ def plot_loss_curve(history: list[dict], path: str | os.PathLike, best: dict | N
         ax.grid(alpha=0.3)
     fig.tight_layout()
     save_figure(fig, path)
-
-
-def training_seconds(path: str | os.PathLike) -> float:
-    """The wall seconds of the training whose metrics.csv is `path`: each logged interval's steps over
-    its steps/s, summed (an interval holds the validation run at its start; the last validation is
-    not counted). NaN where no row states a speed."""
-    with open(path, newline="") as f:
-        rows = [row for row in csv.DictReader(f) if math.isfinite(float(row["steps_per_s"] or "nan"))]
-    seconds, last_step = 0.0, 0
-    for row in rows:
-        step, speed = int(float(row["step"])), float(row["steps_per_s"])
-        if speed > 0:
-            seconds += (step - last_step) / speed
-        last_step = step
-    return seconds if rows else math.nan

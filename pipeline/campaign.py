@@ -41,7 +41,7 @@ from dem.run_store import keeps_runs
 from dem.runout import RunoutMethod
 from doe.campaign_study import campaign_doe, campaign_surface, column_costs
 from doe.plots import plot_surface_pairs
-from gns.train_metrics import training_seconds
+from pipeline.benchmarks import benchmark_seconds
 
 log = logging.getLogger(__name__)
 
@@ -94,7 +94,7 @@ def run_campaign_route(
 
     section: the config's `calibration` (doe_centre_replicates; budget, n_initial; gns_budget,
     gns_n_initial; seed; campaign_geometry). gns (route "gns"): gns_search's model_path,
-    metadata_path, dataset_paths, metrics_path and threads."""
+    metadata_path, dataset_paths, cost_files and threads."""
     if route not in ROUTES:
         raise ValueError(f"campaign route {route!r}: one of {list(ROUTES)}")
     campaign, model = runner.campaign, runner.model
@@ -151,8 +151,8 @@ class SurrogateCost:
     """What the GNS route spends before its search: its dataset's DEM runs and the training of its GNS."""
 
     dataset_runs: int
-    dataset_seconds: float  # the runs' collapse wall time (s; their packings' settles not counted)
-    training_seconds: float  # the GNS's training wall time (s; gns.train_metrics.training_seconds)
+    dataset_seconds: float  # wall time of the dataset's jobs: every run's settle and collapse, its metadata (s)
+    training_seconds: float  # wall time of its GNS's training job (s)
 
     @property
     def seconds(self) -> float:
@@ -192,7 +192,7 @@ def gns_search(
     model_path: StrPath,
     metadata_path: StrPath,
     dataset_paths: Sequence[StrPath],
-    metrics_path: StrPath | None = None,
+    cost_files: dict[str, Sequence[StrPath]] | None = None,
     threads: int | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> tuple[CampaignBO, SurrogateCost]:
@@ -202,7 +202,8 @@ def gns_search(
     Bayesian optimisation of the campaign objective over the model's box within the range the GNS
     was trained on (calibration.gns_budget,
     gns_n_initial points, one rollout per column each). Returns (its points, what the dataset's DEM
-    runs and the training of the GNS (its metrics.csv, metrics_path) cost)."""
+    runs and the training of the GNS cost, summed from the benchmark files of their jobs, cost_files
+    {"gns_dataset": [...], "gns_training": [...]}: seconds NaN without them)."""
     import torch
 
     from calibration.gns_objective import GNSObjective
@@ -255,11 +256,8 @@ def gns_search(
 
     settings = BOSettings(budget=section["gns_budget"], n_initial=section["gns_n_initial"], seed=section.get("seed", 0))
     bo = campaign_search(runner.campaign, evaluate, bounds, runner.model.parameter_names, settings, progress)
-    cost = SurrogateCost(
-        dataset_runs=len(runs),
-        dataset_seconds=float(sum(float(run.attrs.get("wall_time_s", math.nan)) for run in runs)),
-        training_seconds=training_seconds(metrics_path) if metrics_path else math.nan,
-    )
+    seconds = {k: benchmark_seconds(v)[0] for k, v in cost_files.items()} if cost_files else {}
+    cost = SurrogateCost(len(runs), seconds.get("gns_dataset", math.nan), seconds.get("gns_training", math.nan))
     return bo, cost
 
 

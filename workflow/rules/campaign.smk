@@ -40,6 +40,8 @@ rule campaign_route:
         diagnosis=config["diagnosis"],
         runout=RUNOUT,
         dem=DEM_ENGINE,
+        # the GNS route's dataset and training, timed by their own jobs
+        gns_cost=lambda w: gns_benchmarks(f"campaign_{w.name}") if w.route == "gns" else None,
     script:
         "../scripts/campaign_route.py"
 

@@ -170,7 +170,6 @@ def campaign_gns_inputs(wildcards):
     dataset = f"campaign_{wildcards.name}"
     return {
         "gns": f"results/gns/{dataset}/train/model_best.pt",
-        "metrics": f"results/gns/{dataset}/train/metrics.csv",  # its training's time
         "metadata": f"results/datasets/{dataset}/metadata.json",
         "dataset": [p for paths in dataset_trajectories(dataset).values() for p in paths],
     }
@@ -221,20 +220,31 @@ def inverse_gns(name, what):
     }[what]
 
 
+def dem_job_benchmarks(dataset, case_ids):
+    """Benchmark files of the DEM jobs (DEM_JOB_RULES) of `dataset`'s cases `case_ids`."""
+    return [f"results/benchmarks/dem/{rule}/{dataset}/{c}.tsv" for rule in DEM_JOB_RULES for c in case_ids]
+
+
+def gns_benchmarks(dataset):
+    """{"gns_dataset": benchmark files of GNS dataset `dataset`'s DEM jobs and its metadata job,
+    "gns_training": that of the training of its GNS}: what a GNS costs before any search on it."""
+    cases = [row["case_id"] for row in dataset_cases(dataset)]
+    return {
+        "gns_dataset": dem_job_benchmarks(dataset, cases) + [f"results/benchmarks/dataset/dataset/{dataset}.tsv"],
+        "gns_training": [f"results/benchmarks/gns/gns_train/{dataset}.tsv"],
+    }
+
+
 def inverse_benchmarks(name):
     """Benchmark files of every job each calibration route of `name` ran (the comparison's times; inverse.smk)."""
-    dataset = INVERSE_DATASET[name]
-    cases = [row["case_id"] for row in dataset_cases(dataset)]
-    dem_jobs = lambda ds, ids: [f"results/benchmarks/dem/{rule}/{ds}/{c}.tsv" for rule in DEM_JOB_RULES for c in ids]
     files = {
         "start": [f"results/benchmarks/inverse/inverse_start/{name}.tsv"],
-        "gns_dataset": dem_jobs(dataset, cases) + [f"results/benchmarks/dataset/dataset/{dataset}.tsv"],
-        "gns_training": [f"results/benchmarks/gns/gns_train/{dataset}.tsv"],
+        **gns_benchmarks(INVERSE_DATASET[name]),
         "gns_validation": [f"results/benchmarks/inverse/inverse_validate/{name}.tsv"],
         "bayesopt": [f"results/benchmarks/inverse/inverse_bayesopt/{name}.tsv"],
     }
     if name in DOE_NAMES:
-        files["doe"] = dem_jobs(f"doe_{name}", DOE_RUNS) + [
+        files["doe"] = dem_job_benchmarks(f"doe_{name}", DOE_RUNS) + [
             f"results/benchmarks/doe/{rule}/{name}.tsv" for rule in ("doe_design", "doe_analyse")
         ]
         files["doe_validation"] = {m: [f"results/benchmarks/doe/doe_validate/{name}/{m}.tsv"] for m in DOE["validate"]}
@@ -293,13 +303,13 @@ def calibrated_cost(name, route):
         # a model's GNS warm-started from the base GNS also costs that GNS's dataset and training; from
         # scratch (the default) it borrows only the base route's start run (its first frames)
         borrowed_files, borrowed_runs = (files, runs) if CALIBRATION["gns_warm_start"] else (base["start"], 0)
-        dataset = f"calibrated_{name}"
-        cases = [row["case_id"] for row in dataset_cases(dataset)]
-        own_files = [f"results/benchmarks/dem/{rule}/{dataset}/{c}.tsv" for rule in DEM_JOB_RULES for c in cases] + [
-            f"results/benchmarks/dataset/dataset/{dataset}.tsv",
-            f"results/benchmarks/gns/gns_train/{dataset}.tsv",
+        own = gns_benchmarks(f"calibrated_{name}")
+        own_files = [
+            *own["gns_dataset"],
+            *own["gns_training"],
             f"results/benchmarks/calibrated/calibrated_inverse/{name}.tsv",
         ]
+        cases = dataset_cases(f"calibrated_{name}")
         # the base GNS's runs are shared with the paper's route (and any column of its geometry): its own apart
         return {
             "files": borrowed_files + own_files,

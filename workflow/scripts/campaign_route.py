@@ -18,7 +18,7 @@ gns = (
         "model_path": snakemake.input.gns,
         "metadata_path": snakemake.input.metadata,
         "dataset_paths": snakemake.input.dataset,
-        "metrics_path": snakemake.input.metrics,
+        "cost_files": snakemake.params.gns_cost,
         "threads": snakemake.threads,
     }
     if snakemake.wildcards.route == "gns"
