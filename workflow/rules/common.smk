@@ -105,10 +105,10 @@ def model_json(dataset):
     """[the model.json whose model gives the cases of `dataset`]: a calibrated model's GNS dataset's
     (dem.smk, dataset.smk); [] for any other, and for a campaign's dataset that the config alone
     makes (its rows hold its model: pipeline.campaign_geometry.fixed_by_config)."""
-    rows = dataset_cases(dataset)
-    if not model_column(dataset) or rows[0].get("model_by_config"):
+    column = model_column(dataset)
+    if not column or dataset_cases(dataset)[0].get("model_by_config"):
         return []
-    return [f"results/calibrated/{model_column(dataset)}/model.json"]
+    return [f"results/calibrated/{column}/model.json"]
 
 
 # Helpers of the stages, kept here so that no stage file mixes functions with rules (snakemake
