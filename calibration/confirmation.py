@@ -59,13 +59,16 @@ class Confirmation:
     its route naming its rank; surrogate_values [n]: the surrogate's objective at each; steps [s]:
     the refinement's points (`refine`), on the same packings; predicted [s]: the MSE each step's
     linear model foresaw; chosen: the index, over candidates then steps, of the lowest DEM MSE
-    (the surrogate's best where every run failed)."""
+    (the surrogate's best where every run failed); slope [K, p]: d L* / d u (unit box) the
+    refinement ended with at the chosen point, secant-corrected where it was (None: no refinement;
+    kept for the job, not written)."""
 
     candidates: list[Validation]
     surrogate_values: list[float]
     chosen: int
     steps: list[Validation] = field(default_factory=list)
     predicted: list[float] = field(default_factory=list)
+    slope: np.ndarray | None = None
 
     @property
     def checked(self) -> list[Validation]:
@@ -207,8 +210,6 @@ def refine(
     as aggressive space mapping does), where the surrogate's slopes differ from the DEM's by more
     than its local fit shows (another scale's DEM). Returns the confirmation with the steps, the
     predicted MSEs and the lowest DEM MSE chosen."""
-    from scipy.optimize import lsq_linear
-
     box = model.box
     unit_points = box.to_unit(gns_points)
     current = confirmation.checked[confirmation.chosen]
@@ -221,15 +222,7 @@ def refine(
         centre = box.to_unit(list(current.parameters.values()))[0]
         slope = local_slope(unit_points, gns_runouts, centre) + learnt
         residual = measured - np.asarray(current.mean, float)
-        low, high = np.maximum(-centre, -radius), np.minimum(1.0 - centre, radius)
-        # damped (Levenberg-Marquardt): a move the whole radius long costs as much as the noise of
-        # the residual (the packing scatter of its mean curve), so a parameter the curve hardly
-        # feels is not pushed to the region's edge on noise
-        noise = np.nanmean(np.square(current.std)) / n_packings if n_packings > 1 else 0.0
-        damping = math.sqrt(len(measured) * noise) / radius if math.isfinite(noise) else 0.0
-        augmented = np.vstack([slope, damping * np.eye(len(centre))])
-        target = np.concatenate([residual, np.zeros(len(centre))])
-        move = lsq_linear(augmented, target, bounds=(low, high + 1e-12)).x
+        move = damped_step(slope, residual, centre, radius, current)
         if np.max(np.abs(move)) < 1e-3:  # the linear model sees no better point within the region
             break
         theta = box.from_unit(centre + move)[0]
@@ -250,7 +243,28 @@ def refine(
     checked = confirmation.checked + steps
     scores = [c.mse if math.isfinite(c.mse) else math.inf for c in checked]
     chosen = int(np.argmin(scores)) if math.isfinite(min(scores)) else confirmation.chosen
+    centre = box.to_unit(list(checked[chosen].parameters.values()))[0]
     return Confirmation(
         confirmation.candidates, confirmation.surrogate_values, chosen,
         confirmation.steps + steps, confirmation.predicted + predicted,
+        slope=local_slope(unit_points, gns_runouts, centre) + learnt,
     )  # fmt: skip
+
+
+def damped_step(
+    slope: np.ndarray, residual: np.ndarray, centre: np.ndarray, radius: float, current: Validation
+) -> np.ndarray:
+    """The move du [p] (unit box) minimising |residual [K] - slope [K, p] du|^2 within the unit box
+    about `centre` [p] and the trust region of `radius`, damped (Levenberg-Marquardt): a move the
+    whole radius long costs as much as the noise of the residual (the packing scatter of
+    `current`'s mean curve), so a parameter the curve hardly feels is not pushed to the region's
+    edge on noise."""
+    from scipy.optimize import lsq_linear
+
+    n_packings = len(current.seeds)
+    low, high = np.maximum(-centre, -radius), np.minimum(1.0 - centre, radius)
+    noise = np.nanmean(np.square(current.std)) / n_packings if n_packings > 1 else 0.0
+    damping = math.sqrt(len(residual) * noise) / radius if math.isfinite(noise) else 0.0
+    augmented = np.vstack([slope, damping * np.eye(len(centre))])
+    target = np.concatenate([residual, np.zeros(len(centre))])
+    return lsq_linear(augmented, target, bounds=(low, high + 1e-12)).x

@@ -15,6 +15,16 @@ without it the steps overshot and undershot in turn (docs/experiments/target-sca
 the target DEM scores lowest on its correction packings is then validated at the target on the
 validation packings, which neither scale calibrated on.
 
+The answer one scale finer, with no run there (`predict_finer`): the target's parameters are
+effective values of its grain size too, since this model's runout keeps growing as its grains get
+finer, down to real grains (docs/experiments/grain-size.md). The move of the mean curve from the
+coarse scale to the target at the coarse answer, on the same packings (the star's centre and the
+correction's start), is measured here anyway; taken as linear in log grain size, a fraction
+ln(target / finer) / ln(coarse / target) of it is expected from the target to the finer scale, and
+one more damped Gauss-Newton step along the target's slopes answers it. The
+engineer who runs the finer scale takes those parameters; the pipeline validates them there, held
+out (docs/experiments/target-scale.md, 2026-12-06: 8x -> 1.7x on quartz).
+
 Cost: (2p + 1) x packings coarse runs for the slopes, (1 + rounds) x packings + validation runs at
 the target, against a whole calibration at the target.
 """
@@ -29,7 +39,7 @@ from dataclasses import asdict, dataclass, replace
 import numpy as np
 
 from calibration.calibrated import Validation, validate
-from calibration.confirmation import CONFIRM_SEED0, Confirmation, refine
+from calibration.confirmation import CONFIRM_SEED0, TRUST_RADIUS, Confirmation, damped_step, local_slope, refine
 from calibration.design_runs import SimulationSettings
 from calibration.measured_column import MeasuredColumn
 from calibration.model import Model
@@ -59,6 +69,7 @@ class TargetCalibration:
     correction: Confirmation
     validation: Validation
     seconds: float
+    finer: FinerScale | None = None
 
     @property
     def theta(self) -> list[float]:
@@ -89,7 +100,75 @@ class TargetCalibration:
             "target_runs": self.target_runs,
             "target_seconds": self.correction.seconds + self.validation.seconds,
             "seconds": self.seconds,
+            "finer": None if self.finer is None else asdict(self.finer),
         }
+
+
+@dataclass
+class FinerScale:
+    """The answer predicted for a finer size_scale from the two scales the carrying ran, with no run
+    at the finer one (the module's docstring).
+
+    size_scale: the finer scale; factor: ln(target / finer) / ln(coarse / target), the share of the
+    coarse-to-target move expected from the target to the finer scale; shift [K]: the mean L*
+    curve's move from the coarse scale to the target at the coarse answer on the same packings,
+    shift_mse its mean square (L*^2); predicted [K]: the target answer's mean curve plus factor x
+    shift, moved by the step along the target's slopes; predicted_mse: its MSE against the measured
+    curve; parameters: {name: value} for the finer scale, in the model's order.
+    """
+
+    size_scale: float
+    factor: float
+    shift: list[float]
+    shift_mse: float
+    predicted: list[float]
+    predicted_mse: float
+    parameters: dict[str, float]
+
+    @property
+    def theta(self) -> list[float]:
+        return list(self.parameters.values())
+
+
+def predict_finer(
+    model: Model,
+    column: MeasuredColumn,
+    slopes: Sequence[Validation],
+    correction: Confirmation,
+    coarse_size_scale: float,
+    target_size_scale: float,
+    finer_size_scale: float,
+) -> FinerScale | None:
+    """The answer for finer_size_scale (FinerScale) from the star `slopes` at the coarse scale and
+    the `correction` at the target (calibrate_at_target's); None where the shift or the slope is
+    unknown (a failed run at the star's centre or the start, fewer than p + 1 star points)."""
+    start, chosen = correction.candidates[0], correction.checked[correction.chosen]
+    shift = np.asarray(start.mean, float) - np.asarray(slopes[0].mean, float)
+    if not (np.all(np.isfinite(shift)) and math.isfinite(chosen.mse)):
+        return None
+    centre = model.box.to_unit(list(chosen.parameters.values()))[0]
+    slope = correction.slope
+    if slope is None:  # no refinement ran: the coarse star's own slope
+        ran = [v for v in slopes if math.isfinite(v.mse)]
+        if len(ran) <= model.n_parameters:
+            return None
+        points = model.box.to_unit(np.array([list(v.parameters.values()) for v in ran]))
+        slope = local_slope(points, np.array([v.mean for v in ran], float), centre)
+    factor = math.log(target_size_scale / finer_size_scale) / math.log(coarse_size_scale / target_size_scale)
+    measured = np.asarray(column.runout, float)
+    expected = np.asarray(chosen.mean, float) + factor * shift  # the target answer's curve at the finer scale
+    move = damped_step(slope, measured - expected, centre, TRUST_RADIUS, chosen)
+    predicted = expected + slope @ move
+    theta = model.box.from_unit(centre + move)[0]
+    return FinerScale(
+        size_scale=float(finer_size_scale),
+        factor=factor,
+        shift=shift.tolist(),
+        shift_mse=float(np.mean(shift**2)),
+        predicted=predicted.tolist(),
+        predicted_mse=float(np.mean((measured - predicted) ** 2)),
+        parameters=dict(zip(model.parameter_names, map(float, theta))),
+    )
 
 
 def star_points(model: Model, theta: Sequence[float], step: float = STAR_STEP) -> np.ndarray:
@@ -192,11 +271,13 @@ def calibrate_at_target(
     n_validation: int,
     n_rounds: int,
     progress: Callable[[float], None] | None = None,
+    finer_size_scale: float | None = None,
 ) -> TargetCalibration:
     """The coarse answer theta [p] (found at `coarse` settings) corrected at target_size_scale (the
     module's docstring): the star design at the coarse scale and the correction at the target on
     n_packings packings (CONFIRM_SEED0 + k) each, n_rounds Gauss-Newton steps, then the lowest
-    validated at the target on n_validation packings."""
+    validated at the target on n_validation packings; with finer_size_scale, the answer predicted
+    for it too (predict_finer, no run)."""
     started = time.perf_counter()
     target = replace(coarse, size_scale=float(target_size_scale))
     points = star_points(model, theta)
@@ -221,8 +302,13 @@ def calibrate_at_target(
     within = part(total - n_validation, n_validation)
     theta_target = list(chosen.parameters.values())
     validation = validate(label, model, column, theta_target, target, runout, dem_config, n_validation, progress=within)
+    finer = None
+    if finer_size_scale:
+        finer = predict_finer(model, column, slopes, correction, coarse.size_scale, target.size_scale, finer_size_scale)
     seconds = time.perf_counter() - started
-    return TargetCalibration(target.size_scale, float(coarse.size_scale), slopes, correction, validation, seconds)
+    return TargetCalibration(
+        target.size_scale, float(coarse.size_scale), slopes, correction, validation, seconds, finer
+    )
 
 
 def plot_scales(
@@ -236,7 +322,8 @@ def plot_scales(
     """The answer across scales: the measured points; the answer at the calibration's scale (its
     validation: `answer`, a Validation dict), at the target before and after the correction
     (`target`, TargetCalibration.to_dict(); None: no target) and the held-out transfer (`transfer`,
-    a Validation dict with its size_scale; None: not run), each the mean of its `curves` [R][K] at
+    a Validation dict with its size_scale, at the parameters predicted for it where target["finer"]
+    holds them; None: not run), each the mean of its `curves` [R][K] at
     the column's times with its packing band (+- one std)."""
     import matplotlib
 
@@ -254,7 +341,8 @@ def plot_scales(
             (target["validation"], f"corrected at {fine}", "tab:green"),
         ]
     if transfer:
-        curves.append((transfer, f"held out at size_scale {transfer['size_scale']:g}", "tab:purple"))
+        predicted = "predicted parameters, " if target and target.get("finer") else ""
+        curves.append((transfer, f"{predicted}held out at size_scale {transfer['size_scale']:g}", "tab:purple"))
     fig, ax = plt.subplots(figsize=(7.5, 4.8))
     for record, label, colour in curves:
         ran = np.array([c for c in record["curves"] if c is not None], float).reshape(-1, len(column.runout))

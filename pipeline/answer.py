@@ -126,10 +126,17 @@ def _transfer(result: dict, score: dict) -> str:
     reference_mse, reference_scale = transfer_reference(result, score)
     holds = transfer_holds(transfer, reference_mse)
     at = f" (size_scale {transfer['size_scale']:g})" if "size_scale" in transfer else ""
+    finer = (target or {}).get("finer")
+    if finer:
+        parameters = ", ".join(f"{k} {x:.3g}" for k, x in finer["parameters"].items())
+        what = f"the parameters the two scales predict for it, <b>{parameters}</b>,"
+        verdict = ": use them there." if holds else ": recalibrate at the scale you run."
+    else:
+        what = "the same parameters"
+        verdict = ": the answer transfers." if holds else ": recalibrate at the scale you run."
     return text + (
-        f" Finer still{at}, held out, the same parameters score MSE {transfer['mse']:.3g} (at size_scale "
-        f"{reference_scale:g}: {reference_mse:.3g} on as many packings)"
-        + (": the answer transfers." if holds else ": recalibrate at the scale you run.")
+        f" Finer still{at}, held out, {what} score MSE {transfer['mse']:.3g} (at size_scale "
+        f"{reference_scale:g}: {reference_mse:.3g} on as many packings){verdict}"
     )
 
 

@@ -330,16 +330,20 @@ def run_calibrated(
         carrying = progress_logger(f"{name}: the answer at size_scale {at_target.size_scale:g}", log)
         target = calibrate_at_target(
             model, column, theta, settings, at_target.size_scale, runout, dem, section["target_packings"],
-            n_packings, section["target_rounds"], progress=carrying,
+            n_packings, section["target_rounds"], progress=carrying, finer_size_scale=section["finer_size_scale"],
         )  # fmt: skip
         theta = target.theta
         log.info("%s: at size_scale %g, %s: MSE %.4g", name, target.size_scale, theta, target.validation.mse)
     transfer = None
-    if section["finer_size_scale"]:  # how far the answer transfers: the same validation with finer grains
+    if section["finer_size_scale"]:  # how far the answer transfers, held out: a validation with finer grains
         finer = replace(settings, size_scale=section["finer_size_scale"])
-        label = f"{best['route']}, at size_scale {finer.size_scale:g}"
+        # the parameters the two scales predict for the finer one where the answer was carried (no
+        # run there chose them), else the answer's own
+        carried = target is not None and target.finer is not None
+        label = f"{best['route']}, {'predicted for' if carried else 'at'} size_scale {finer.size_scale:g}"
         finer_done = progress_logger(f"{name}: {label}", log)
-        transfer = validate(label, model, column, theta, finer, runout, dem, n_packings, progress=finer_done)
+        theta_finer = target.finer.theta if carried else theta
+        transfer = validate(label, model, column, theta_finer, finer, runout, dem, n_packings, progress=finer_done)
         log.info("%s: at size_scale %g, MSE %.4g", name, finer.size_scale, transfer.mse)
     aspect_ratios = section["predict_aspect_ratios"]
     predicting = progress_logger(f"{name}: predictions at a = {', '.join(f'{a:g}' for a in aspect_ratios)}", log)

@@ -313,18 +313,36 @@ def target_lines(result: dict, figure: str) -> list[str]:
 
 
 def transfer_lines(result: dict, score: dict) -> list[str]:
-    """The answer at finer grains against its score at the target or its own scale (none where not run)."""
+    """The answer at finer grains against its score at the target or its own scale (none where not
+    run): the parameters the two scales predict for the finer one (target_scale.predict_finer) where
+    the answer was carried to a target, else the same parameters."""
     transfer = result["transfer"]
     if transfer is None:
         return []
     reference_mse, reference_scale = transfer_reference(result, score)
-    verdict = (
-        "the answer transfers."
-        if transfer_holds(transfer, reference_mse)
-        else "the parameters are effective values of their scale: recalibrate at the scale you run."
-    )
-    shift, least, target = None, None, result.get("target")
-    if target and target["validation"]["seeds"] == transfer["seeds"]:
+    target = result.get("target")
+    finer = (target or {}).get("finer")
+    fine = f"size_scale {transfer['size_scale']:g}"
+    if finer:
+        parameters = ", ".join(f"{k} {v:.3g}" for k, v in finer["parameters"].items())
+        what = (
+            f"The parameters for {fine}, predicted from the two scales with no run there: at the coarse answer "
+            f"the model's own mean curve moved by MSE {finer['shift_mse']:.3g} from size_scale "
+            f"{target['coarse_size_scale']:g} to {reference_scale:g} on the same packings (its runout grows as "
+            f"its grains get finer); {finer['factor']:.2f} of that move per log grain size is expected from "
+            f"{reference_scale:g} to {transfer['size_scale']:g}, and one Gauss-Newton step along the target's "
+            f"slopes answers it: **{parameters}** (predicted MSE {finer['predicted_mse']:.3g}). Held out at {fine}"
+        )
+        holds, fails = "the prediction holds: use these parameters there.", "recalibrate at the scale you run."
+    else:
+        what = f"The same parameters at finer grains ({fine}), held out"
+        holds, fails = (
+            "the answer transfers.",
+            "the parameters are effective values of their scale: recalibrate at the scale you run.",
+        )
+    verdict = holds if transfer_holds(transfer, reference_mse) else fails
+    shift, least = None, None
+    if not finer and target and target["validation"]["seeds"] == transfer["seeds"]:
         shift, least = resolution_shift(target["validation"]["mean"], transfer["mean"], reference_mse)
     moved = (
         ""
@@ -335,7 +353,7 @@ def transfer_lines(result: dict, score: dict) -> list[str]:
         f"at {transfer['size_scale']:g} (the RMS's triangle inequality)."
     )
     return [
-        f"**Scale transfer.** The same parameters at finer grains, held out ({transfer['route']}): validated "
+        f"**Scale transfer.** {what} ({transfer['route']}): validated "
         f"MSE **{transfer['mse']:.3g}** (each packing {format_span(transfer['mse_each'])}) against "
         f"{reference_mse:.3g} at size_scale {reference_scale:g} on as many packings: {verdict}{moved}",
         "",

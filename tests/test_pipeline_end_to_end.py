@@ -506,7 +506,13 @@ def test_calibrated_answer_transfer_and_prediction(results):
     assert (target["coarse_size_scale"], target["size_scale"], target["coarse_runs"]) == (4, 3.5, (2 * p + 1) * 2)
     carried = target["validation"]
     assert carried["seeds"] == [5001, 5002, 5003] and finite(carried["mse"], carried["curves"])
-    assert transfer["parameters"] == carried["parameters"] and answer["prediction_size_scale"] == 3.5
+    # the finer scale's parameters predicted from the two scales (target_scale.predict_finer), run there held out
+    finer = target["finer"]
+    assert finer["size_scale"] == 3 and finer["factor"] == pytest.approx(math.log(3.5 / 3) / math.log(4 / 3.5))
+    start, star_centre = target["correction"]["candidates"][0], target["slopes"][0]
+    assert finer["shift"] == pytest.approx(np.subtract(start["mean"], star_centre["mean"]).tolist())
+    assert list(finer["parameters"]) == answer["parameters"] and finite(finer["predicted_mse"])
+    assert transfer["parameters"] == finer["parameters"] and answer["prediction_size_scale"] == 3.5
     assert transfer["size_scale"] == 3 and finite(transfer["mse"], transfer["curves"]) and transfer["failed"] == {}
     # what the project ships of such a result (pipeline.shipped.freeze): the answer at the target
     shipped = freeze(CalibratedResult.from_json(results / "calibrated" / NAME / "calibrated.json"))

@@ -1,16 +1,17 @@
 """The answer carried to the target size_scale (calibration/target_scale.py): the coarse star
 design, the correction's steps at the target, its validation there, and the record."""
 
+import math
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from calibration.calibrated import model_runout
-from calibration.confirmation import CONFIRM_SEED0
+from calibration.calibrated import Validation, model_runout
+from calibration.confirmation import CONFIRM_SEED0, Confirmation
 from calibration.mechanisms import get_mechanisms
 from calibration.model import Model
-from calibration.target_scale import STAR_STEP, calibrate_at_target, resolution_shift, star_points
+from calibration.target_scale import STAR_STEP, calibrate_at_target, predict_finer, resolution_shift, star_points
 from tests.test_calibrated import COLUMN, RUNOUT, SETTINGS
 
 COARSE = SETTINGS  # the tiny quartz column (a = 2, L_i = 0.01 m) at size_scale 4: 77 grains
@@ -69,3 +70,56 @@ def test_the_resolution_shift_is_the_curves_own_move_and_bounds_the_transfer_fro
     assert np.mean((np.array(fine[:3]) - measured) ** 2) >= least
     assert resolution_shift(coarse, coarse, fit_mse=0.04) == (0.0, pytest.approx(0.04))
     assert resolution_shift([None, 1.0], [2.0, None], fit_mse=0.1) == (None, None)
+
+
+def linear_validation(model, unit, mean, label="point"):
+    """A Validation of 4 packings at the unit-box point `unit` with mean curve `mean` and a scatter far
+    below the steps (so the damped step is the plain Gauss-Newton one)."""
+    mean = [float(m) for m in mean]
+    return Validation(
+        route=label,
+        parameters=dict(zip(model.parameter_names, model.box.from_unit(np.asarray(unit, float))[0])),
+        seeds=[CONFIRM_SEED0 + k for k in range(4)],
+        t_over_tstar=[0.5, 1.0, 2.0, 3.0],
+        curves=[mean] * 4,
+        failed={},
+        mean=mean,
+        std=[1e-9] * len(mean),
+        mse=0.0,
+        mse_each=[0.0] * 4,
+        seconds=0.0,
+    )
+
+
+def test_the_finer_answer_undoes_a_runout_that_grows_linearly_in_log_grain_size():
+    """A model whose L* curve is linear in the unit-box parameters and in log size_scale (L = a + J u
+    - b ln s: finer grains run farther), measured at the finer scale 2 with parameters u*: from the
+    coarse star at 5 and the target's answer at 3 (anywhere near u*), predict_finer's parameters are
+    u*, its predicted curve the measured one. A wrong sign or share of the shift, or a step along the
+    wrong slope, lands elsewhere."""
+    model = Model()
+    a, b = np.array([0.2, 0.8, 1.9, 2.6]), np.array([0.3, 0.6, 0.9, 1.1])
+    J = np.array([[-0.5, 0.1], [-1.2, 0.2], [-2.0, 0.4], [-2.4, 0.3]])
+
+    def curve(u, size_scale):
+        return a + J @ np.asarray(u, float) - b * np.log(size_scale)
+
+    truth, coarse_answer, target_answer = np.array([0.45, 0.55]), np.array([0.6, 0.5]), np.array([0.55, 0.4])
+    column = replace(COLUMN, t_over_tstar=np.array([0.5, 1.0, 2.0, 3.0]), runout=curve(truth, 2.0))
+    star = [
+        linear_validation(model, u, curve(u, 5.0))
+        for u in model.box.to_unit(star_points(model, model.box.from_unit(coarse_answer)[0]))
+    ]
+    start = linear_validation(model, coarse_answer, curve(coarse_answer, 3.0), "start")
+    chosen = linear_validation(model, target_answer, curve(target_answer, 3.0), "step")
+    correction = Confirmation([start], [0.0], 1, steps=[chosen])  # no slope kept: the star's own
+    finer = predict_finer(model, column, star, correction, 5.0, 3.0, 2.0)
+    assert finer.factor == pytest.approx(math.log(1.5) / math.log(5 / 3))
+    assert finer.shift == pytest.approx((-b * math.log(3 / 5)).tolist())  # finer grains: farther at every time
+    assert finer.theta == pytest.approx(model.box.from_unit(truth)[0].tolist(), abs=1e-6)
+    assert finer.predicted == pytest.approx(column.runout.tolist(), abs=1e-6) and finer.predicted_mse < 1e-10
+    # the answer at the target itself, run at the finer scale, misses by the whole move
+    assert np.mean((curve(target_answer, 2.0) - column.runout) ** 2) > 0.01
+    # no slope to step along (a failed start): no prediction
+    failed = replace(start, mean=[math.nan] * 4)
+    assert predict_finer(model, column, star, Confirmation([failed], [0.0], 1, steps=[chosen]), 5.0, 3.0, 2.0) is None
