@@ -32,6 +32,9 @@ from calibration.design_runs import SimulationSettings  # noqa: E402
 from calibration.measured import load_column  # noqa: E402
 from calibration.target_scale import resolution_shift  # noqa: E402
 from dem.runout import RunoutMethod  # noqa: E402
+from pipeline.config_schema import validate_config  # noqa: E402
+
+SCHEMA = Path(__file__).resolve().parents[1] / "workflow/schemas/config.schema.yaml"
 
 
 def column_record(dag: Path, name: str, packings: int) -> dict:
@@ -43,7 +46,7 @@ def column_record(dag: Path, name: str, packings: int) -> dict:
     column = load_column(measured if measured.is_absolute() else dag / measured)
     runout = column.runout_reading(RunoutMethod.from_config(result.runout))
     validation = target["validation"]
-    config = yaml.safe_load((dag / "config" / "config.yaml").read_text())
+    config = validate_config(yaml.safe_load((dag / "config/config.yaml").read_text()), SCHEMA)
     model, _ = read_model(dag / "results" / "calibrated" / name / "model.json", config["diagnosis"]["channel_width"])
     finer = SimulationSettings(size_scale=float(transfer["size_scale"]))
     kept = validate(
