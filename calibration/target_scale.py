@@ -23,7 +23,7 @@ correction's start), is measured here anyway; taken as linear in log grain size,
 ln(target / finer) / ln(coarse / target) of it is expected from the target to the finer scale, and
 one more damped Gauss-Newton step along the target's slopes answers it. The
 engineer who runs the finer scale takes those parameters; the pipeline validates them there, held
-out (docs/experiments/target-scale.md, 2026-12-06: 8x -> 1.7x on quartz).
+out (docs/experiments/target-scale.md).
 
 Cost: (2p + 1) x packings coarse runs for the slopes, (1 + rounds) x packings + validation runs at
 the target, against a whole calibration at the target.
