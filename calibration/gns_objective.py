@@ -48,6 +48,11 @@ DESIGN_NAMES = ("friction", "restitution")
 # Rollout steps per checkpointed segment of a differentiated rollout (GNSObjective._rollout): the
 # backward pass holds one segment's activations, ~40 MB per step per 589-grain graph at latent 64.
 SEGMENT_STEPS = 10
+# Graphs of one no-gradient batch (runout_values): a batch's activations outgrow the cache, so its
+# cost per graph rises with its size (the calibrated quartz GNS, 4 packings of 589 grains: 19 points
+# as one batch of 76 graphs cost 1.5-2.2x a graph what batches of 4-8 do); each graph's rows are
+# computed apart from the others', so a point's L* is the same bits in any batch.
+BATCH_GRAPHS = 8
 
 
 class GNSObjective:
@@ -59,7 +64,8 @@ class GNSObjective:
     validation on S packings scores (a rollout is chaotic in its packing, as the DEM is: the mean
     over packings is smoother in theta than any one). The design parameters replace the starts'
     own; parameters the model takes but that are not designed keep the first start's values.
-    Call with theta [G, P] (P = len(design_names)): G S rollouts run as one batch of graphs.
+    Call with theta [G, P] (P = len(design_names)): G S rollouts run as one batch of graphs;
+    runout_values splits its points into batches of at most batch_graphs graphs (one point at least).
     """
 
     def __init__(
@@ -72,6 +78,7 @@ class GNSObjective:
         temperature: float | None = None,
         checkpoint: bool = True,
         segment_steps: int = SEGMENT_STEPS,
+        batch_graphs: int = BATCH_GRAPHS,
     ):
         config = simulator.config
         self.simulator = simulator
@@ -81,6 +88,7 @@ class GNSObjective:
         self.temperature = temperature
         self.checkpoint = checkpoint
         self.segment_steps = int(segment_steps)
+        self.batch_graphs = int(batch_graphs)
         unknown = [n for n in self.design_names if n not in config.parameter_names]
         if unknown:
             raise InverseDesignError(
@@ -255,17 +263,20 @@ class GNSObjective:
         return np.reshape(points, (-1, width)), np.reshape(list(self._runouts.values()), (len(points), -1))
 
     def runout_values(self, points: ArrayLike, allow_failed: bool = False) -> np.ndarray:
-        """L* [G, K] (numpy, no gradient) at points [G, P]; points rolled out before are not rolled
-        out again (a rollout is deterministic). allow_failed: a NaN row (logged with the reason) at a
-        point whose rollout fails, instead of an InverseDesignError."""
+        """L* [G, K] (numpy, no gradient) at points [G, P], in batches of at most batch_graphs graphs;
+        points rolled out before are not rolled out again (a rollout is deterministic). allow_failed:
+        a NaN row (logged with the reason) at a point whose rollout fails, instead of an
+        InverseDesignError."""
         points = np.atleast_2d(np.asarray(points, np.float64))
         if allow_failed:
             return self._or_nan(points, lambda p: (self.runout_values(p),), [(len(self.measured.runout),)])[0]
         missing = [j for j, p in enumerate(points) if self._key(p) not in self._runouts]
-        if missing:
+        per_batch = max(1, self.batch_graphs // self.n_packings)
+        for first in range(0, len(missing), per_batch):
+            batch = missing[first : first + per_batch]
             with torch.no_grad():
-                fresh = self.runout(self._theta(points[missing])).double().cpu().numpy()
-            self._runouts.update((self._key(points[j]), r) for j, r in zip(missing, fresh))
+                fresh = self.runout(self._theta(points[batch])).double().cpu().numpy()
+            self._runouts.update((self._key(points[j]), r) for j, r in zip(batch, fresh))
         return np.array([self._runouts[self._key(p)] for p in points])
 
     def _or_nan(self, points: np.ndarray, evaluate, shapes: Sequence[tuple[int, ...]]) -> tuple:

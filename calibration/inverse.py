@@ -149,9 +149,10 @@ def posterior_at(
     """Laplace posterior (calibration.uncertainty) at `optimum` from a central-difference Jacobian of
     the GNS's L*, and a roughness probe: the objective ROUGHNESS_RADIUS away in ROUGHNESS_PROBES
     directions. untrusted: {name: why} of parameters whose GNS slope is no evidence (laplace_posterior's:
-    their intervals are their bounds). All rollouts run as one batch (none at a point rolled out
-    before). Returns (LaplacePosterior, L* [K] at the optimum, roughness dict: radius, values,
-    optimum value and their spread, to set against the posterior's step)."""
+    their intervals are their bounds). All points are asked for in one call (the objective batches
+    their rollouts; none at a point rolled out before). Returns (LaplacePosterior, L* [K] at the
+    optimum, roughness dict: radius, values, optimum value and their spread, to set against the
+    posterior's step)."""
     optimum = np.asarray(optimum, float)
     points = []
     finite_difference_jacobian(lambda theta: points.append(np.array(theta)) or np.zeros(1), optimum, bounds, step)
@@ -193,11 +194,12 @@ def posterior_at(
     return posterior, runouts[0], roughness
 
 
-def landscape(objective: GNSObjective, bounds: Sequence[Sequence[float]], levels: int, batch_size: int = 8) -> dict:
-    """The GNS objective on a levels x levels grid over two design parameters (batched, no grad)."""
+def landscape(objective: GNSObjective, bounds: Sequence[Sequence[float]], levels: int) -> dict:
+    """The GNS objective on a levels x levels grid over two design parameters (in the objective's
+    batches, no grad)."""
     axes = [np.linspace(low, high, levels) for low, high in bounds]
     grid = np.array([(a, b) for b in axes[1] for a in axes[0]])
-    values = np.concatenate([objective.values(grid[k : k + batch_size]) for k in range(0, len(grid), batch_size)])
+    values = objective.values(grid)
     return {"axes": [a.tolist() for a in axes], "values": values.reshape(levels, levels).tolist()}
 
 

@@ -7,7 +7,7 @@ default 1e-8 vanishes in float32 (0.31 + 1e-8 == 0.31), so the differences are e
 L-BFGS-B stops at its start.
 
 Several starts run in lockstep: each is its own L-BFGS-B (its path is the one a lone run would
-take), and the points they ask for at the same moment are rolled out as one batch of graphs; with
+take), and the points they ask for at the same moment are rolled out together (GNSObjective batches); with
 finite differences each start asks for its whole stencil (x and x + h e_j) at once.
 
 A GNS objective is rough (calibration.gns_objective), so line searches may fail; each start keeps
@@ -201,7 +201,7 @@ def multistart_lbfgsb(
     evaluate_batch(points [G, P]) -> (values [G], gradients [G, P]) for gradient="autograd", or
     values [G] for gradient="finite-difference": forward differences with step fd_step (the paper's
     eq. (8), as scipy's with eps = fd_step: a step that would leave the bounds goes backwards), the
-    P + 1 points of each stencil evaluated in one batch instead of one after another.
+    P + 1 points of each stencil evaluated in one call instead of one after another.
     max_evaluations bounds the time a start can spend retrying line searches on a rough objective.
     progress: callable(batch number, seconds, values [G]) or None.
     Returns the best of the starts, the history of every start's evaluations (start k's labelled k,

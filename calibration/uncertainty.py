@@ -267,7 +267,7 @@ def likelihood_checked(
 ) -> LaplacePosterior:
     """The Laplace posterior held to the model's own likelihood (runout_of: points [G, P] -> L* [G, K],
     NaN where a rollout failed; measured: L* [K]). Along each identifiable parameter's interval
-    directions (interval_ends) the model's chi^2 under the posterior's noise is probed, in one batch,
+    directions (interval_ends) the model's chi^2 under the posterior's noise is probed, in one call,
     near the end and on to the bound; where it stays below the optimum's + Z95^2 farther out than
     the linearisation says (a slope steeper than the trend, or a valley beyond a bump), that
     parameter's std is scaled by the farther of its two crossings (`crossing`), so no interval is

@@ -227,6 +227,28 @@ def test_an_objective_of_several_packings_scores_their_mean_curve_and_differenti
         GNSObjective(simulator, [packings[0], other], measured)
 
 
+def test_rollouts_split_into_small_batches_give_the_bits_of_one_batch(tiny_dataset):
+    """runout_values batches at most batch_graphs graphs (here 2 packings a point: 1 and 2 points a
+    batch against all 5 at once); each graph's rows are computed apart, so every point's L* is the
+    same float32 bits, and every point is rolled out once."""
+    metadata_path, trajectories = tiny_dataset
+    packings = trajectories[:2]
+    measured = column_of(packings[0], T_POINTS, [0.1, 0.2, 0.3])
+    simulator = louder_parameters(untrained_simulator(read_metadata(metadata_path)))
+    points = np.array([[0.55, 0.73], [0.4, 0.35], [0.8, 0.5], [0.33, 0.9], [0.6, 0.61]])
+    whole = GNSObjective(simulator, packings, measured, batch_graphs=len(points) * len(packings))
+    curves = whole.runout_values(points)
+    assert not np.allclose(curves[0], curves[1])  # the points' curves differ: a mix-up would show
+    for batch_graphs, batches in ((2, 5), (4, 3), (5, 3)):
+        split = GNSObjective(simulator, packings, measured, batch_graphs=batch_graphs)
+        sizes = []
+        runout = split.runout
+        split.runout = lambda theta, sizes=sizes, runout=runout: sizes.append(len(theta)) or runout(theta)
+        assert split.runout_values(points).tobytes() == curves.tobytes()
+        assert len(sizes) == batches and max(sizes) * len(packings) <= max(batch_graphs, len(packings))
+        assert split.timing["rollouts"] == whole.timing["rollouts"] == len(points) * len(packings)
+
+
 def test_float32_model_resolves_the_sound_step_but_not_small_ones_while_autograd_stays_exact(tiny_dataset):
     """The same model in float32 and float64: forward differences with FD_STEP agree between the two
     (the float32 objective resolves the step), with 1e-4 they do not (rounding noise), and
