@@ -5,8 +5,8 @@
 
 DAG: the folder of a finished `bash run.sh main` (its results/ and .snakemake/metadata, its .venv).
 Each variant is a hard-linked copy of it, DAG.spread/<variant>, in which Snakemake reruns only the
-route that variant perturbs, at autogroup nice 19 (outputs are replaced, never written through, so
-DAG itself is left as it was):
+route that variant perturbs, at autogroup nice 19 (outputs are replaced, never written through, and
+the job times are copies, so DAG itself is left as it was):
   - gns<S>[-<aten>]: the model's GNS of `--column` trained afresh with seed S (gns.per_dataset
     .<first dataset>.seed, which the model's GNS inherits), optionally under ATEN_CPU_CAPABILITY
     `--aten`, then its inverse design, DEM confirmation and correction, and validation;
@@ -43,7 +43,8 @@ ROUTES_OF = {
 
 def copy_dag(dag: Path, to: Path) -> None:
     """A hard-linked copy of the DAG folder (not its .venv, .git or Snakemake state but its job
-    records), with a link to its .venv; a GNS training's checkpoints are dropped, so none resumes."""
+    records; its job times copied), with a link to its .venv; a GNS training's checkpoints are
+    dropped, so none resumes."""
     if to.exists():
         shutil.rmtree(to)
     to.mkdir(parents=True)
@@ -54,6 +55,11 @@ def copy_dag(dag: Path, to: Path) -> None:
             shutil.copytree(item, to / item.name, copy_function=os.link, symlinks=True)
         else:
             os.link(item, to / item.name)
+    # Snakemake writes a job's benchmark file in place, through a link: the job times are copied
+    benchmarks = to / "results" / "benchmarks"
+    if benchmarks.exists():
+        shutil.rmtree(benchmarks)
+        shutil.copytree(dag / "results" / "benchmarks", benchmarks)
     shutil.copytree(dag / ".snakemake" / "metadata", to / ".snakemake" / "metadata")
     (to / ".venv").symlink_to(dag / ".venv")
     for checkpoint in (to / "results" / "gns").glob("calibrated_*/train/checkpoint_last*.pt"):

@@ -43,3 +43,25 @@ def test_the_spread_counts_each_variants_own_routes_and_its_verdict(tmp_path):
     gns_minus_doe = {name: v["quartz"]["gns_minus_doe"]["model-doe"] for name, v in verdicts.items() if name != "cal1"}
     assert gns_minus_doe["gns1"] < 0 < gns_minus_doe["dag"]
     assert verdicts["cal1"]["quartz"]["lowest"] == "model-bayesopt"
+
+
+def test_a_variants_copy_leaves_the_dags_job_times_as_they_were(tmp_path):
+    """Snakemake writes a job's benchmark file in place: through a hard link, a variant's rerun would
+    overwrite the DAG's own job time (dag_bounds and the routes' costs read them)."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from route_spread import copy_dag
+
+    dag = tmp_path / "dag"
+    times = dag / "results" / "benchmarks" / "calibrated" / "calibrated_inverse" / "quartz.tsv"
+    times.parent.mkdir(parents=True)
+    times.write_text("s\n405.07\n")
+    write_validation(dag, "quartz", "model-inverse", 0.2)
+    (dag / ".snakemake" / "metadata").mkdir(parents=True)
+    (dag / ".venv").mkdir()
+    variant = tmp_path / "variant"
+    copy_dag(dag, variant)
+    with open(variant / times.relative_to(dag), "w") as out:  # in place, as Snakemake's benchmark
+        out.write("s\n211.45\n")
+    assert times.read_text() == "s\n405.07\n"
+    validation = Path("results/calibrated/quartz/validation/model-inverse.json")
+    assert (variant / validation).stat().st_ino == (dag / validation).stat().st_ino  # outputs still linked
