@@ -48,18 +48,18 @@ def copy_dag(dag: Path, to: Path) -> None:
     if to.exists():
         shutil.rmtree(to)
     to.mkdir(parents=True)
+    job_times = dag / "results" / "benchmarks"
+
+    def link(source, target):  # Snakemake writes a job's benchmark file in place, through a link
+        (shutil.copy2 if Path(source).is_relative_to(job_times) else os.link)(source, target)
+
     for item in dag.iterdir():
         if item.name in (".venv", ".git", ".snakemake"):
             continue
         if item.is_dir():
-            shutil.copytree(item, to / item.name, copy_function=os.link, symlinks=True)
+            shutil.copytree(item, to / item.name, copy_function=link, symlinks=True)
         else:
             os.link(item, to / item.name)
-    # Snakemake writes a job's benchmark file in place, through a link: the job times are copied
-    benchmarks = to / "results" / "benchmarks"
-    if benchmarks.exists():
-        shutil.rmtree(benchmarks)
-        shutil.copytree(dag / "results" / "benchmarks", benchmarks)
     shutil.copytree(dag / ".snakemake" / "metadata", to / ".snakemake" / "metadata")
     (to / ".venv").symlink_to(dag / ".venv")
     for checkpoint in (to / "results" / "gns").glob("calibrated_*/train/checkpoint_last*.pt"):
