@@ -24,7 +24,6 @@ checkpoints and the rollouts already in OUT are kept.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
 import time
@@ -70,18 +69,19 @@ def test_paths(dag: Path, metadata: dict) -> list[Path]:
 
 def shared_metadata(dag: Path, base: dict, model: dict, out_path: Path) -> dict:
     """The union of both datasets' splits (absolute paths), over the extended model's parameters."""
-    from gns.dataset import build_dataset
+    from gns.dataset import SPLITS, build_dataset
 
-    splits = {s: [str(dag / p) for p in base["splits"][s] + model["splits"][s]] for s in ("train", "valid", "test")}
     if out_path.exists():
         return json.loads(out_path.read_text())
+    splits = {s: [str(dag / p) for p in base["splits"][s] + model["splits"][s]] for s in SPLITS}
     return build_dataset(splits, out_path, name=f"{base['name']}+{model['name']}", parameters=dem_parameters(model))
 
 
 def dem_parameters(metadata: dict) -> list[str]:
-    from gns.dataset import LAYOUT
+    """The DEM parameters a GNS of this dataset takes (as SimulatorConfig.parameter_names)."""
+    from gns.simulator import NOT_PARAMETERS
 
-    return [k for k in metadata["parameter_ranges"] if k not in LAYOUT]
+    return [k for k in metadata["parameter_ranges"] if k not in NOT_PARAMETERS]
 
 
 def score(model_path: Path, runs: list[Path], out_dir: Path, runout) -> list[float]:
@@ -118,11 +118,11 @@ def training_settings(model_path: Path, steps: int | None, seed: int) -> dict:
 
 
 def job_seconds(dag: Path, dataset: str) -> float | None:
-    path = dag / "results/benchmarks/gns/gns_train" / f"{dataset}.tsv"
-    if not path.exists():
-        return None
-    rows = list(csv.DictReader(path.open(), delimiter="\t"))
-    return float(rows[-1]["s"])
+    """The DAG's training job of `dataset`: its benchmark file's wall seconds (None: no such file)."""
+    from pipeline.benchmarks import benchmark_seconds
+
+    seconds, jobs = benchmark_seconds([dag / "results/benchmarks/gns/gns_train" / f"{dataset}.tsv"])
+    return seconds if jobs else None
 
 
 def summarise(mses: list[float]) -> dict:
@@ -150,6 +150,8 @@ def plot(results: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from dem.atomic import atomic_path
+
     fig, axes = plt.subplots(1, len(results), figsize=(5 * len(results), 3.8), squeeze=False)
     for ax, (runs, by_gns) in zip(axes[0], results.items()):
         for k, s in enumerate(by_gns.values()):
@@ -161,7 +163,8 @@ def plot(results: dict, path: Path) -> None:
         ax.set_ylabel("rollout runout MSE (L*^2)")
         ax.set_title(f"held-out runs of the {runs} model")
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=120, format="png")
     plt.close(fig)
 
 
@@ -180,6 +183,7 @@ def main():
     import torch
     import yaml
 
+    from dem.atomic import write_json
     from dem.runout import RunoutMethod
     from gns.dataset import read_metadata
     from gns.train import train
@@ -242,7 +246,7 @@ def main():
         "held_out": {k: [str(p) for p in v] for k, v in runs.items()},
         "results": results,
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    write_json(out / "summary.json", summary)
     plot({k: {g: s for g, s in v.items() if "cases" in s} for k, v in results.items()}, out / "shared_gns.png")
     print(json.dumps(summary, indent=1))
 
