@@ -24,7 +24,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -63,7 +63,9 @@ class GNSObjective:
     column): then every point rolls out from each, and L* is their mean curve, the quantity a DEM
     validation on S packings scores (a rollout is chaotic in its packing, as the DEM is: the mean
     over packings is smoother in theta than any one). The design parameters replace the starts'
-    own; parameters the model takes but that are not designed keep the first start's values.
+    own; parameters the model takes but that are not designed keep the first start's values, but
+    for those of `tied` ({parameter: the designed parameter whose value it takes}: an extended
+    model's GNS run as the base model, whose floor friction is its grains' friction).
     Call with theta [G, P] (P = len(design_names)): G S rollouts run as one batch of graphs;
     runout_values splits its points into batches of at most batch_graphs graphs (one point at least).
     """
@@ -79,6 +81,7 @@ class GNSObjective:
         checkpoint: bool = True,
         segment_steps: int = SEGMENT_STEPS,
         batch_graphs: int = BATCH_GRAPHS,
+        tied: Mapping[str, str] | None = None,
     ):
         config = simulator.config
         self.simulator = simulator
@@ -93,6 +96,13 @@ class GNSObjective:
         if unknown:
             raise InverseDesignError(
                 f"design parameter(s) {unknown} are not inputs of the GNS (it takes {config.parameter_names})"
+            )
+        tied = dict(tied or {})
+        wrong = {k: v for k, v in tied.items() if k not in config.parameter_names or v not in self.design_names}
+        if wrong:
+            raise InverseDesignError(
+                f"tied parameter(s) {wrong}: each must be a GNS input ({config.parameter_names}) tied to a "
+                f"designed one ({self.design_names})"
             )
         starts = [start] if isinstance(start, Trajectory) else list(start)
         if not starts:
@@ -137,6 +147,8 @@ class GNSObjective:
             [[float(p.attrs["L_i"]), float(p.attrs["H_i"])] for p in starts], dtype=dtype, device=device
         )
         self.design_index = [config.parameter_names.index(n) for n in self.design_names]
+        self.tied_index = [config.parameter_names.index(n) for n in tied if n not in self.design_names]
+        self.tied_source = [config.parameter_names.index(tied[n]) for n in tied if n not in self.design_names]
         self.target = torch.as_tensor(measured.runout, dtype=dtype, device=device)
         self.n_particles = sum(self.packing_sizes)  # grains of one point's rollouts (all packings)
         # where the online time goes: rollouts (graphs rolled out), forward and backward seconds
@@ -151,6 +163,9 @@ class GNSObjective:
         parameters = self.fixed.repeat(g * s, 1)
         index = torch.tensor(self.design_index, device=theta.device)
         parameters = parameters.index_copy(1, index, theta.repeat_interleave(s, dim=0))
+        if self.tied_index:
+            tied = torch.tensor(self.tied_index, device=theta.device)
+            parameters = parameters.index_copy(1, tied, parameters[:, self.tied_source])
         sizes = torch.tensor(self.packing_sizes, device=theta.device).repeat(g)
         return Context(
             self.particle_type.repeat(g),

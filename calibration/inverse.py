@@ -29,7 +29,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from functools import partial
 
 import numpy as np
@@ -228,6 +228,7 @@ def inverse_design(
     budget: int = 40,
     n_initial: int = 12,
     reference: tuple[ArrayLike, ArrayLike] | None = None,
+    tied: Mapping[str, str] | None = None,
 ) -> InverseResult:
     """Calibrate design_names against `measured` through the GNS `simulator`.
 
@@ -248,6 +249,7 @@ def inverse_design(
     L* [n, K] at the measured t/t*): the GNS's response to each parameter is checked against theirs
     (calibration.sensitivity); a parameter the GNS does not resolve, or resolves where the DEM is
     flat, is flagged not identifiable and its interval is its bounds (laplace_posterior's untrusted).
+    tied: GNS inputs that are not designed but take a designed parameter's value (GNSObjective).
     Returns an InverseResult; seconds["online"] is the wall time of the
     optimisation and the posterior (the landscape, a figure, is timed apart).
     """
@@ -255,7 +257,7 @@ def inverse_design(
     bounds = design_bounds(bounds, names, metadata["parameter_ranges"])
     geometry = check_geometry(measured, metadata, training_attrs)
     runout = RunoutMethod.from_config(runout)
-    objective = GNSObjective(simulator, start, measured, names, runout=runout)
+    objective = GNSObjective(simulator, start, measured, names, runout=runout, tied=tied)
     starts = starting_points(n_starts, bounds, first_start, seed)
     log.info(
         "inverse design of %s: %d starts, %s gradients, %d rollout steps of %d grains (%d packings)",

@@ -71,6 +71,12 @@ class Mechanism:
 
     def off_value(self, friction: float, restitution: float) -> float:
         """The parameter value at which the extended model is the base model at (mu, e)."""
+        setting = self.off_setting()
+        return {"friction": friction, "restitution": restitution}[setting] if isinstance(setting, str) else setting
+
+    def off_setting(self) -> float | str:
+        """off_value as data: a number, or the base parameter ("friction" or "restitution") whose
+        value it takes (a GNS dataset's metadata records it: gns.dataset.build_dataset)."""
         return 0.0
 
     def switched_on(self, parameters: Mapping[str, float]) -> bool:
@@ -125,8 +131,8 @@ class BasalFriction(Mechanism):
     def case_fields(self, value: float, case: CollapseCase) -> dict:
         return {"friction_base": self.check(value)}
 
-    def off_value(self, friction: float, restitution: float) -> float:
-        return friction  # the base model's floor has the grains' friction
+    def off_setting(self) -> str:
+        return "friction"  # the base model's floor has the grains' friction
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from dem.trajectory import check_finite, open_trajectory, read_attrs
-from gns.dataset import LAYOUT_KEYS, DatasetError
+from gns.dataset import LAYOUT_KEYS, DatasetError, with_off_values
 from gns.simulator import Context
 
 
@@ -41,6 +41,7 @@ class TrajectoryWindows:
         n_input_frames: int,
         parameter_names: Iterable[str],
         dt_frame: float | None = None,
+        off: dict | None = None,
     ):
         self.n_input_frames = n_input_frames
         self.parameter_names = list(parameter_names)
@@ -48,7 +49,8 @@ class TrajectoryWindows:
         for path in map(Path, paths):
             if not path.exists():
                 raise DatasetError(f"{path}: trajectory file listed in the dataset does not exist")
-            attrs = read_attrs(path)  # a truncated or damaged file: TrajectoryError naming it
+            # a truncated or damaged file: TrajectoryError naming it; a parameter it leaves out: off's
+            attrs = with_off_values(read_attrs(path), off)
             missing = [k for k in self.parameter_names + list(LAYOUT_KEYS) + ["dt_frame"] if k not in attrs]
             if missing:
                 raise DatasetError(f"{path}: trajectory attributes lack {missing}")

@@ -15,6 +15,9 @@ Metadata JSON (written by `build_dataset`, read by `load_dataset_metadata`):
   material_diameter     mean simulated grain diameter 2r over all grains of all trajectories (m)
   sequence_length       frames of the shortest trajectory (sequence_length_max: the longest)
   n_cases               {"train", "valid", "test"}; materials, engines: sorted lists
+  parameter_off         (only where given) {parameter: its off value, a number or the name of the
+                        parameter whose value it takes}: what a trajectory that does not record a
+                        parameter had (a base model's run in an extended model's dataset)
 Trajectories are read one at a time, so the dataset never has to fit in memory.
 """
 
@@ -61,6 +64,18 @@ class DatasetError(ValueError):
     """A dataset or its metadata breaks the contract; the message names the file and key."""
 
 
+def with_off_values(attrs: dict, off: dict | None) -> dict:
+    """Trajectory attributes `attrs` with each parameter of `off` (metadata's parameter_off) that
+    they do not record set to its off value: a number, or the value of the parameter it names."""
+    if not off:
+        return attrs
+    filled = dict(attrs)
+    for name, value in off.items():
+        if name not in filled:
+            filled[name] = float(filled[value]) if isinstance(value, str) else float(value)
+    return filled
+
+
 class _RunningMoments:
     """Per-component mean and variance of [*, 2] samples, merged batch by batch (Chan et al.)."""
 
@@ -92,10 +107,13 @@ def build_dataset(
     out_path: str | os.PathLike,
     name: str,
     parameters: tuple[str, ...] | list[str] = DEM_PARAMETERS,
+    off: dict | None = None,
 ) -> dict:
     """Scan the trajectories of `splits` ({"train"|"valid"|"test": [HDF5 paths]}) one at a time and
     write the metadata JSON atomically at `out_path`. parameters: the DEM parameters the GNS takes
-    (trajectory attributes; the paper's (mu, e), or an extended model's). Returns the metadata dict."""
+    (trajectory attributes; the paper's (mu, e), or an extended model's). off: {parameter: off
+    value} of the parameters a trajectory may leave out (with_off_values; a base model's runs in
+    an extended model's dataset), recorded as parameter_off. Returns the metadata dict."""
     unknown = set(splits) - set(SPLITS)
     if unknown:
         raise DatasetError(f"dataset {name}: unknown split(s) {sorted(unknown)}; allowed: {list(SPLITS)}")
@@ -112,7 +130,7 @@ def build_dataset(
     for split in SPLITS:
         for path in splits[split]:
             traj = read_trajectory(path)
-            a = traj.attrs
+            a = with_off_values(traj.attrs, off)
             if traj.n_frames < 3:
                 raise DatasetError(f"{path}: {traj.n_frames} frame(s); a dataset needs >= 3 for accelerations")
             if dt_frame is None:
@@ -162,6 +180,8 @@ def build_dataset(
         "materials": sorted(materials),
         "engines": sorted(engines),
     }
+    if off:
+        metadata["parameter_off"] = dict(off)
     write_json(out_path, metadata)
     return metadata
 

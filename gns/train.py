@@ -40,7 +40,7 @@ from dem.progress import progress_logger
 from dem.runout import RunoutError, RunoutMethod
 from dem.trajectory import read_trajectory
 from gns.data import Batch, TrajectoryWindows
-from gns.dataset import read_metadata, split_paths
+from gns.dataset import read_metadata, split_paths, with_off_values
 from gns.graph import graph_summary, radius_graph
 from gns.settings import TrainSettings, simulator_config
 from gns.simulator import CheckpointError, LearnedSimulator, SimulatorConfig, model_payload, warm_start
@@ -116,8 +116,9 @@ class Trainer:
         self.device = resolve_device(settings.device)
         self.config = simulator_config(self.metadata, settings)
         names = self.config.parameter_names
+        self.off = self.metadata.get("parameter_off")  # what a base model's run leaves out
         self.train_windows = TrajectoryWindows(
-            split_paths(self.metadata, "train"), settings.n_input_frames, names, self.config.dt_frame
+            split_paths(self.metadata, "train"), settings.n_input_frames, names, self.config.dt_frame, self.off
         )
         # pushforward steps need p more frames before the target
         self.pushforward_windows = (
@@ -126,6 +127,7 @@ class Trainer:
                 settings.n_input_frames + settings.pushforward_steps,
                 names,
                 self.config.dt_frame,
+                self.off,
             )
             if settings.pushforward_steps
             else None
@@ -133,7 +135,9 @@ class Trainer:
         valid_paths = split_paths(self.metadata, "valid")
         picked = np.linspace(0, len(valid_paths) - 1, min(settings.validation_rollouts, len(valid_paths)))
         self.valid_paths = [valid_paths[k] for k in sorted(set(picked.round().astype(int)))]
-        self.valid_windows = TrajectoryWindows(valid_paths, settings.n_input_frames, names, self.config.dt_frame)
+        self.valid_windows = TrajectoryWindows(
+            valid_paths, settings.n_input_frames, names, self.config.dt_frame, self.off
+        )
         n_valid = min(settings.validation_windows, len(self.valid_windows))
         self.valid_indices = np.linspace(0, len(self.valid_windows) - 1, n_valid).round().astype(int)
         torch.manual_seed(settings.seed)
@@ -296,6 +300,7 @@ class Trainer:
         runout_errors, failed = [], 0
         for path in self.valid_paths:
             dem = read_trajectory(path)
+            dem.attrs = with_off_values(dem.attrs, self.off)
             gns = rollout_trajectory(model, dem, on_invalid="flag")
             if not gns.attrs["rollout_valid"]:
                 failed += 1

@@ -136,3 +136,10 @@ def model_parameter_names(model_json: StrPath) -> tuple[str, ...]:
     model, why = read_model(model_json)
     log.info("the %s model (%s): parameters %s", model.name, why, list(model.parameter_names))
     return tuple(model.parameter_names)
+
+
+def model_off_settings(model_json: StrPath) -> dict[str, float | str]:
+    """{parameter: off setting} of each mechanism of the model of model_json (Mechanism.off_setting):
+    what the base model's runs hold, for a GNS trained on both models' runs."""
+    model, _ = read_model(model_json)
+    return {m.parameter: m.off_setting() for m in model.mechanisms}

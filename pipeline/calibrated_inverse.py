@@ -11,6 +11,7 @@ from calibration.calibrated import read_model
 from calibration.inverse_plots import plot_sensitivity
 from calibration.inverse_result import InverseResult
 from dem.atomic import StrPath
+from gns.dataset import read_metadata
 from pipeline.inverse_design import run_inverse_design
 
 
@@ -45,6 +46,16 @@ def run_model_inverse(
     checked against theirs (calibration.sensitivity), drawn to out_sensitivity."""
     model, _ = read_model(model_json, channel_width)
     start_values = {m.parameter: m.off_value(*settings["start"]) for m in model.mechanisms}
+    # the mechanism's box is the model's within the range trained on (as calibration.inverse.design_bounds
+    # narrows mu and e): a GNS trained on the base model's runs too has seen the off value outside it
+    trained = read_metadata(metadata_path)["parameter_ranges"]
+    settings = {
+        **settings,
+        **{
+            m.parameter: [max(m.bounds[0], trained[m.parameter][0]), min(m.bounds[1], trained[m.parameter][1])]
+            for m in model.mechanisms
+        },
+    }
     result = run_inverse_design(
         gns_model_path,
         metadata_path,

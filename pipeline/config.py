@@ -425,6 +425,11 @@ def check_calibration(config: dict, inverse_datasets: dict[str, str] | None = No
             f"{section['gns_n_initial']} of the initial design (calibration.gns_n_initial)"
         )
     width, gns = section["gns_latent_size"], config["gns"]
+    if section["gns_warm_start"] and section.get("gns_shared"):
+        raise ConfigError(
+            "config key calibration.gns_shared: one GNS for both models replaces the base model's GNS, but "
+            "calibration.gns_warm_start starts the model's GNS from it; turn one of them off"
+        )
     warm_started = (inverse_datasets or {None: None}).values() if section["gns_warm_start"] and width else ()
     for dataset in warm_started:
         base_width = gns.get("per_dataset", {}).get(dataset, {}).get("latent_size", gns.get("latent_size"))

@@ -24,23 +24,35 @@ def build(
     name: str,
     model_json: StrPath | None = None,
     model_by_config: Mapping | None = None,
+    base_splits: Mapping[str, Sequence[str]] | None = None,
 ) -> dict:
     """Build dataset `name`'s metadata JSON at `out_path` (gns.dataset.build_dataset) from its
     trajectories, {"train"|"valid"|"test": [HDF5 paths]}. The DEM parameters the GNS takes: the
     paper's (mu, e), or for a calibrated model's GNS dataset every parameter of its model: that of
     model_json, or of its rows' model_by_config (a campaign's dataset that the config alone
-    makes: pipeline.campaign_geometry.fixed_by_config). Returns the metadata dict."""
+    makes: pipeline.campaign_geometry.fixed_by_config). base_splits: the base model's runs of the
+    same column (calibration.gns_shared), joined to each split with the model's mechanisms off
+    (their off values recorded as parameter_off), so that one GNS serves both models. Returns the
+    metadata dict."""
+    off = None
     if model_json is None and not model_by_config:
         parameters = DEM_PARAMETERS
     else:  # imported here: the datasets of the paper's (mu, e) load no calibration code
-        from pipeline.calibrated_gns import config_model, model_parameter_names
+        from pipeline.calibrated_gns import config_model, model_off_settings, model_parameter_names
 
         parameters = (
             config_model(model_by_config).parameter_names if model_json is None else model_parameter_names(model_json)
         )
+        if base_splits and model_json is not None:
+            off = model_off_settings(model_json)
     splits = {k: list(v) for k, v in splits.items()}
+    if base_splits:
+        if off is None:
+            raise ValueError(f"dataset {name}: the base model's runs join only a calibrated model's dataset")
+        splits = {k: splits.get(k, []) + list(base_splits.get(k, [])) for k in {*splits, *base_splits}}
+        log.info("dataset %s: the base model's runs joined, its mechanisms off at %s", name, off)
     log.info("dataset %s: %s cases", name, {k: len(v) for k, v in splits.items()})
-    metadata = build_dataset(splits, out_path, name, tuple(parameters))
+    metadata = build_dataset(splits, out_path, name, tuple(parameters), off)
     log.info(
         "dt_frame %.4g s, %d-%d grains, velocity std %s m/frame, acceleration std %s m/frame^2",
         metadata["dt_frame"],

@@ -9,6 +9,7 @@ calibration.recovery.
 from __future__ import annotations
 
 import json
+import logging
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -32,6 +33,8 @@ from gns.dataset import read_metadata, read_training_attrs
 from gns.evaluate import runout_error_at
 from gns.simulator import load_simulator
 from pipeline.inverse import START_NAMES
+
+log = logging.getLogger(__name__)
 
 
 def model_error_from_evaluation(
@@ -84,6 +87,9 @@ def run_inverse_design(
     "budget", "n_initial"} (calibration.inverse.inverse_design's; None: the paper's L-BFGS-B).
     dataset_paths: the DEM runs of the GNS's dataset, against which the GNS's response to each
     design parameter is checked (calibration.sensitivity; none: no check).
+    A GNS of an extended model's dataset that holds the base model's runs too (metadata's
+    parameter_off) runs the base model where the mechanism's parameter is not designed: it is held
+    at its off value, or tied to the parameter that value follows (floor friction = grain friction).
     """
     if threads:
         torch.set_num_threads(threads)
@@ -92,8 +98,13 @@ def run_inverse_design(
     measured = load_column(measured_path)
     paths = [start_path] if isinstance(start_path, (str, os.PathLike)) else list(start_path)
     starts = [read_trajectory(path) for path in paths]
+    off = {k: v for k, v in (metadata.get("parameter_off") or {}).items() if k not in design_names}
+    held = {k: float(v) for k, v in off.items() if not isinstance(v, str)}
+    tied = {k: v for k, v in off.items() if isinstance(v, str)}
     for packing in starts:  # a start run of the base model records no mechanism parameter
-        packing.attrs = {**(start_values or {}), **packing.attrs}
+        packing.attrs = {**(start_values or {}), **packing.attrs, **held}
+    name = metadata["name"]
+    log.info("design %s through the GNS of dataset %s; held off %s, tied %s", design_names, name, held, tied)
     # the GNS's test-split error was read by the config's method; the design reads the column's way
     model_error = model_error_from_evaluation(evaluation_path, RunoutMethod.from_config(runout), measured.t_over_tstar)
     runout = measured.runout_reading(runout)
@@ -116,6 +127,7 @@ def run_inverse_design(
         design_names=design_names,
         runout=runout,
         reference=dataset_runs(dataset_paths, design_names, measured, runout) if dataset_paths else None,
+        tied=tied,
         **(optimiser or {}),
     )
     write_result(result, out_json)
@@ -129,7 +141,7 @@ def run_inverse_design(
     best = min(result.starts, key=lambda r: r.value)
     middle = best.iterates[len(best.iterates) // 2][0]
     plot_deposits(
-        GNSObjective(simulator, starts[0], measured, result.names, runout=runout),
+        GNSObjective(simulator, starts[0], measured, result.names, runout=runout, tied=tied),
         {"start": best.start, f"iteration {len(best.iterates) // 2}": middle, "optimum": best.params},
         out_deposits,
     )

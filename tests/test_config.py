@@ -527,3 +527,13 @@ def test_a_calibrated_models_deck_is_a_case_of_its_model_json(tmp_path):
     assert read_case == case == design[1].case
     assert row["parameters"] == design[1].parameters and set(row["parameters"]) == set(model.parameter_names)
     assert (case.L_i, case.aspect_ratio) == (0.01, 2.0) and case.friction == row["parameters"]["friction"]
+
+
+def test_one_gns_for_both_models_does_not_start_from_the_base_gns():
+    """calibration.gns_shared replaces the base model's GNS that calibration.gns_warm_start starts
+    from: both at once are refused, naming the keys."""
+    config = validated(edit=lambda c: c["calibration"].update(gns_shared=True, gns_warm_start=True))
+    assert cross_key_error(config).startswith(
+        "config key calibration.gns_shared: one GNS for both models replaces the base model's GNS, but "
+        "calibration.gns_warm_start starts the model's GNS from it"
+    )

@@ -174,3 +174,51 @@ def test_an_extended_models_dataset_takes_its_parameter_and_names_a_file_without
     with pytest.raises(DatasetError, match=r"train_0\.h5: no attribute\(s\) \['bond_number'\]"):
         build_dataset(splits, tmp_path / "bond.json", "extended", ("friction", "restitution", "bond_number"))
     assert not (tmp_path / "bond.json").exists()
+
+
+def test_the_base_models_runs_join_an_extended_models_dataset_at_its_off_values(tmp_path, three_splits):
+    """One GNS for both models (calibration.gns_shared): the base model's runs, which do not record
+    the mechanism's parameter, take its off value (a number, or the parameter it follows), in the
+    ranges and in the windows the GNS trains on; the metadata records what it filled in."""
+    from gns.data import TrajectoryWindows
+    from gns.dataset import with_off_values
+
+    splits, _ = three_splits
+    names = ("friction", "restitution", "bond_number", "gate_slowness")
+    off = {"bond_number": 0.0, "gate_slowness": "friction"}
+    meta = build_dataset(splits, tmp_path / "shared.json", "shared", names, off)
+    assert meta["parameter_off"] == off
+    assert meta["parameter_ranges"]["bond_number"] == [0.0, 0.0]
+    assert meta["parameter_ranges"]["gate_slowness"] == meta["parameter_ranges"]["friction"] == [0.2, 0.9]
+    assert load_dataset_metadata(tmp_path / "shared.json")["parameter_off"] == off
+    windows = TrajectoryWindows(splits["train"], 6, names, off=off)
+    frictions = [0.3, 0.4, 0.5]
+    assert np.allclose([f["parameters"] for f in windows.files], [[m, 0.65, 0.0, m] for m in frictions])
+    # a value the run records is its own, not the off value
+    assert with_off_values({"friction": 0.4, "bond_number": 3.0}, off) == {
+        "friction": 0.4,
+        "bond_number": 3.0,
+        "gate_slowness": 0.4,
+    }
+    with pytest.raises(DatasetError, match=r"train_0\.h5: trajectory attributes lack \['bond_number'\]"):
+        TrajectoryWindows(splits["train"], 6, names, off={"gate_slowness": 0.0})
+
+
+def test_the_dataset_stage_joins_the_base_runs_with_the_models_off_values(tmp_path, three_splits):
+    """pipeline.dataset.build: a calibrated model's dataset with the base model's runs of the column
+    (base_splits) takes each mechanism's off value from the model (here the floor friction follows
+    the grains'); the base runs join each split; without a model they are refused."""
+    from calibration.calibrated import model_record
+    from calibration.model import model_named
+    from pipeline.dataset import build
+
+    splits, _ = three_splits
+    model = tmp_path / "model.json"
+    model.write_text(json.dumps(model_record(model_named("basal_friction"), "test")))
+    own = {"train": splits["train"][:2], "valid": [], "test": []}
+    base = {"train": splits["train"][2:], "valid": splits["valid"], "test": splits["test"]}
+    meta = build(own, tmp_path / "meta.json", "calibrated_x", model, base_splits=base)
+    assert meta["parameter_off"] == {"friction_base": "friction"}
+    assert meta["splits"]["train"] == splits["train"] and meta["splits"]["test"] == splits["test"]
+    with pytest.raises(ValueError, match="dataset plain: the base model's runs join only a calibrated model's"):
+        build(own, tmp_path / "plain.json", "plain", base_splits=base)

@@ -493,3 +493,24 @@ def test_bayesian_optimisation_of_the_gns_objective_finds_a_target_made_by_the_s
     assert (tmp_path / "paths.png").stat().st_size > 10_000
     with pytest.raises(InverseDesignError, match="optimiser must be one of"):
         inverse_design(simulator, start, measured, metadata, attrs, runout=runout, optimiser="newton")
+
+
+def test_a_tied_parameter_takes_the_designed_ones_value(tiny_dataset):
+    """An extended model's GNS run as the base model: a GNS input that is not designed but tied to
+    a designed one (floor friction = grain friction) takes that one's value at every point, and
+    differentiates through it; a tie to a parameter not designed is refused, by name."""
+    metadata_path, trajectories = tiny_dataset
+    start = trajectories[0]
+    measured = column_of(start, T_POINTS, [0.1, 0.2, 0.3])
+    simulator = untrained_simulator(read_metadata(metadata_path), torch.float64)
+    both = GNSObjective(simulator, start, measured, checkpoint=False)
+    tied = GNSObjective(simulator, start, measured, ["restitution"], checkpoint=False, tied={"friction": "restitution"})
+    points = np.array([[0.45], [0.7]])
+    assert tied.values(points).tolist() == both.values(np.hstack([points, points])).tolist()
+    held = GNSObjective(simulator, start, measured, ["restitution"], checkpoint=False)
+    assert held.values(points).tolist() != tied.values(points).tolist()  # untied: friction held at the start's
+    _, gradient = tied.values_and_gradients(points[:1])
+    _, gradients = both.values_and_gradients(np.hstack([points, points])[:1])
+    assert gradient[0, 0] == pytest.approx(gradients[0].sum(), rel=1e-6)  # d/de of f(e, e)
+    with pytest.raises(InverseDesignError, match=r"tied parameter\(s\) \{'friction': 'restitution'\}"):
+        GNSObjective(simulator, start, measured, ["friction"], tied={"friction": "restitution"})

@@ -20,6 +20,7 @@ another engineer's busy process: 218 s, and 290-340 s under heavier load; at --c
 --cores 1 and nice 19 beside a busy benchmark: 345 s. E2E_CORES sets the cores (default 2).
 """
 
+import ast
 import csv
 import json
 import math
@@ -47,10 +48,10 @@ PAIR = "rolling_resistance+sidewall_friction"  # config/tiny_all.yaml's contende
 CORES = int(os.environ.get("E2E_CORES", "2"))
 PNG = b"\x89PNG\r\n\x1a\n"
 # Jobs per rule of the tiny DAG: 5 dataset cases + 10 DoE runs (3 x 3 levels + 1 centre replicate)
-# + 1 scale-ladder run + the calibrated model's 3 cases, all through the DEM rules; one GNS on the dataset and one on
-# the calibrated model's 3 cases; 9 routes
-# of the calibrated model validated; 7 trajectories exported (2 rollouts + their 2 DEM runs, 2 DoE
-# validations, the inverse validation).
+# + 1 scale-ladder run + the calibrated model's 3 cases, all through the DEM rules; one GNS on the dataset (for the
+# recovery study) and one on the calibrated model's 3 cases and the dataset's 5 (calibration.gns_shared: it runs both
+# models' inverse design); 9 routes of the calibrated model validated; 5 trajectories exported (the shared GNS's
+# rollout + its DEM run, 2 DoE validations, the inverse validation).
 EXPECTED_JOBS = {
     "dem_deck": 19,
     "dem_packing": 19,
@@ -87,7 +88,7 @@ EXPECTED_JOBS = {
     "calibrated": 1,
     "calibrated_section": 1,
     "scale_ladder": 1,
-    "export_vtk": 7,
+    "export_vtk": 5,
     "export_calibrated_vtk": 1,
     "report": 1,
     "all": 1,
@@ -260,10 +261,30 @@ def test_gns_trained_rolled_out_and_scored(results, dataset, steps):
     assert rollout.n_frames == read_trajectory(results.parent / case["dem"]).n_frames
 
 
+def test_one_gns_trained_on_both_models_runs_the_base_models_inverse_design(results):
+    """calibration.gns_shared: the model's GNS dataset holds the base dataset's runs too, its
+    mechanism off (parameter_off, the model's), and the base model's inverse design ran on it."""
+    meta = load_dataset_metadata(results / "datasets" / MODEL_DATASET / "metadata.json")
+    base = load_dataset_metadata(results / "datasets" / DATASET / "metadata.json")
+    model = load(results / "calibrated" / NAME / "model.json")
+    for split, paths in base["splits"].items():
+        assert set(paths) <= set(meta["splits"][split]), split
+    assert meta["n_cases"]["train"] == base["n_cases"]["train"] + 1
+    assert set(meta["parameter_off"]) == set(model["parameters"][2:])
+    assert list(meta["parameter_ranges"])[: len(model["parameters"])] == model["parameters"]
+    log = (results / "logs" / "inverse" / "inverse_design" / f"{NAME}.log").read_text()
+    held = re.search(r"through the GNS of dataset (\w+); held off (\{.*\}), tied (\{.*\})", log)
+    assert held and held[1] == MODEL_DATASET, log[-2000:]
+    off = {**ast.literal_eval(held[2]), **ast.literal_eval(held[3])}  # every mechanism off: held, or tied to mu
+    assert off == meta["parameter_off"]
+
+
 def test_runout_methods(results):
     study = load(results / "runout" / "methods.json")
     assert study["configured"]["method"] == "dense_front_reached"
-    assert set(study["cases"]) == {f"{DATASET} case_003", f"DoE {NAME} centre"}  # the GNS test case, the DoE centre
+    (case,) = load(results / "gns" / MODEL_DATASET / "evaluation" / "summary.json")["cases"]
+    test_case = Path(case["dem"]).stem  # the GNS's test case (its GNS_DATASETS: the shared one), the DoE centre
+    assert set(study["cases"]) == {f"{MODEL_DATASET} {test_case}", f"DoE {NAME} centre"}
     assert set(study["mean"]) == {"connected_front", "dense_front", "connected_front_reached", "dense_front_reached"}
     for name, mean in study["mean"].items():
         assert finite(mean["scatter_mean"], mean["flicker"], mean["rerun_mse"], mean["gns_mse"]), name
@@ -535,9 +556,7 @@ def test_calibrated_answer_transfer_and_prediction(results):
 # -- export and report -------------------------------------------------------------------------------
 def test_paraview_export(results):
     folders = [
-        f"gns/{DATASET}/rollouts",
         f"gns/{MODEL_DATASET}/rollouts",
-        f"dem/{DATASET}/trajectories",
         f"dem/{MODEL_DATASET}/trajectories",
         f"doe/{NAME}/validation/eq9",
         f"doe/{NAME}/validation/quadratic",

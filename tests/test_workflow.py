@@ -347,3 +347,34 @@ def test_report_rebases_fragment_links_and_sums_benchmarks(tmp_path):
             "T",
             tmp_path / "results/report/time.png",
         )
+
+
+def test_one_gns_runs_both_models_routes_in_the_default_dag(tmp_path):
+    """calibration.gns_shared (the default config): the base model's inverse design reads the model's
+    GNS, whose dataset holds the base model's runs too, and the base dataset trains no GNS of its
+    own; turned off, each model trains its own."""
+    workdir = copy_workflow(tmp_path / "shared")
+    target = "results/inverse/quartz/inverse.json"
+
+    def dry_run(*config):
+        cmd = [sys.executable, "-m", "snakemake", "-n", "all", target, "--configfile", "config/config.yaml", *config]
+        proc = subprocess.run(cmd, cwd=workdir, capture_output=True, text=True, timeout=300, env=env())
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        return proc.stdout
+
+    def inputs(text, output):
+        """The input line of the job that writes `output`."""
+        (job,) = [b for b in text.split("\nrule ") if f"\n    output: {output}" in b]
+        return job.split("input: ", 1)[1].split("\n", 1)[0].split(", ")
+
+    shared = dry_run()
+    assert "results/gns/calibrated_quartz/train/model_best.pt" in inputs(shared, target)
+    assert "results/gns/quartz_multiple/" not in shared
+    dataset = inputs(shared, "results/datasets/calibrated_quartz/metadata.json")
+    assert len([p for p in dataset if p.startswith("results/dem/quartz_multiple/trajectories/")]) == 30
+    assert job_stats(shared)["gns_train"] == 1
+    own = dry_run("--config", "calibration={'gns_shared': False}")
+    assert "results/gns/quartz_multiple/train/model_best.pt" in inputs(own, target)
+    dataset = inputs(own, "results/datasets/calibrated_quartz/metadata.json")
+    assert not [p for p in dataset if "quartz_multiple" in p]
+    assert job_stats(own)["gns_train"] == 2

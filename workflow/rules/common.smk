@@ -58,6 +58,16 @@ GNS_TEMPLATE_DATASET = (pipeline.config.gns_datasets(config) or [None])[0]
 CHANNEL_WIDTH = config["diagnosis"]["channel_width"]
 # The columns whose calibrated model has a GNS route: its dataset calibrated_<name> (the case table).
 MODEL_GNS_NAMES = pipeline.calibrated_gns.model_gns_columns(config)
+# calibration.gns_shared: the columns whose model's GNS also runs the base model's route, {name: the
+# base GNS dataset whose runs join the model's dataset, mechanism off}; and the base datasets whose
+# own GNS that makes needless (every column their GNS calibrates is one of them): {dataset: [the
+# model datasets whose GNS takes its place]} (gns.smk's GNS_DATASETS).
+SHARED_GNS = {name: INVERSE_DATASET[name] for name in MODEL_GNS_NAMES} if CALIBRATION["gns_shared"] else {}
+REPLACED_GNS = {
+    base: [f"calibrated_{name}" for name in SHARED_GNS if SHARED_GNS[name] == base]
+    for base in sorted(set(SHARED_GNS.values()))
+    if all(name in SHARED_GNS for name, dataset in INVERSE_DATASET.items() if dataset == base)
+}
 # How every stage reads L* off a run (dem.runout.RunoutMethod), read once here and passed to every
 # rule that scores a runout as a param, so changing it reruns exactly those rules. In the class's
 # key order: Snakemake compares params as written, so keys reordered in a config would rerun them.
@@ -121,6 +131,24 @@ def dataset_trajectories(dataset):
     for row in dataset_cases(dataset):
         splits[row["split"]].append(f"results/dem/{dataset}/trajectories/{row['case_id']}.h5")
     return splits
+
+
+def shared_base_splits(dataset):
+    """{split: [trajectory paths]} of the base model's runs that join `dataset`, the model's GNS
+    dataset of a column of SHARED_GNS (dataset.smk); {} for any other dataset."""
+    column = model_column(dataset)
+    if column not in SHARED_GNS or dataset != f"calibrated_{column}":
+        return {}
+    return dataset_trajectories(SHARED_GNS[column])
+
+
+def gns_dem_datasets(dataset):
+    """The datasets whose DEM runs the GNS of `dataset` trains on: itself, and the base dataset its
+    model's GNS shares (SHARED_GNS)."""
+    column = model_column(dataset)
+    if column in SHARED_GNS and dataset == f"calibrated_{column}":
+        return [dataset, SHARED_GNS[column]]
+    return [dataset]
 
 
 def gns_settings(dataset):
@@ -210,14 +238,27 @@ def gns_test_cases(dataset):
     return [row["case_id"] for row in dataset_cases(dataset) if row["split"] == "test"]
 
 
+def inverse_gns_dataset(name):
+    """The dataset whose GNS runs the base model's inverse design of measured column `name`: the
+    inverse.dataset's, or with calibration.gns_shared the model's (SHARED_GNS)."""
+    return f"calibrated_{name}" if name in SHARED_GNS else INVERSE_DATASET[name]
+
+
 def inverse_gns(name, what):
     """model / metadata / evaluation file of the GNS that calibrates measured column `name` (inverse.smk)."""
-    dataset = INVERSE_DATASET[name]
+    dataset = inverse_gns_dataset(name)
     return {
         "model": f"results/gns/{dataset}/train/model_best.pt",
         "metadata": f"results/datasets/{dataset}/metadata.json",
         "evaluation": f"results/gns/{dataset}/evaluation/summary.json",
     }[what]
+
+
+def inverse_dem_metadata(name):
+    """The metadata of the dataset whose column the DEM runs of measured column `name`'s base
+    routes take (the start run, the validation, the BO on DEM: inverse.smk): inverse.dataset's,
+    ready before the model's, whose GNS may run the base route (SHARED_GNS)."""
+    return f"results/datasets/{INVERSE_DATASET[name]}/metadata.json"
 
 
 def dem_job_benchmarks(dataset, case_ids):
@@ -226,20 +267,28 @@ def dem_job_benchmarks(dataset, case_ids):
 
 
 def gns_benchmarks(dataset):
-    """{"gns_dataset": benchmark files of GNS dataset `dataset`'s DEM jobs and its metadata job,
-    "gns_training": that of the training of its GNS}: what a GNS costs before any search on it."""
-    cases = [row["case_id"] for row in dataset_cases(dataset)]
+    """{"gns_dataset": benchmark files of the DEM jobs of GNS dataset `dataset` (gns_dem_datasets)
+    and of its metadata job, "gns_training": that of the training of its GNS}: what a GNS costs
+    before any search on it."""
+    runs = [
+        f for d in gns_dem_datasets(dataset) for f in dem_job_benchmarks(d, [r["case_id"] for r in dataset_cases(d)])
+    ]
     return {
-        "gns_dataset": dem_job_benchmarks(dataset, cases) + [f"results/benchmarks/dataset/dataset/{dataset}.tsv"],
+        "gns_dataset": runs + [f"results/benchmarks/dataset/dataset/{dataset}.tsv"],
         "gns_training": [f"results/benchmarks/gns/gns_train/{dataset}.tsv"],
     }
+
+
+def gns_dem_runs(dataset):
+    """The DEM runs the GNS of `dataset` trains on (gns_dem_datasets)."""
+    return sum(len(dataset_cases(d)) for d in gns_dem_datasets(dataset))
 
 
 def inverse_benchmarks(name):
     """Benchmark files of every job each calibration route of `name` ran (the comparison's times; inverse.smk)."""
     files = {
         "start": [f"results/benchmarks/inverse/inverse_start/{name}.tsv"],
-        **gns_benchmarks(INVERSE_DATASET[name]),
+        **gns_benchmarks(inverse_gns_dataset(name)),
         "gns_validation": [f"results/benchmarks/inverse/inverse_validate/{name}.tsv"],
         "bayesopt": [f"results/benchmarks/inverse/inverse_bayesopt/{name}.tsv"],
     }
@@ -297,9 +346,12 @@ def calibrated_cost(name, route):
     if route in ("base-inverse", "model-inverse"):
         base = inverse_benchmarks(name)  # the paper's GNS route: its dataset, training and start run
         files = base["gns_dataset"] + base["gns_training"] + base["start"]
-        runs = len(dataset_cases(INVERSE_DATASET[name]))  # each DEM run: its deck, packing and collapse
+        runs = gns_dem_runs(inverse_gns_dataset(name))  # each DEM run: its deck, packing and collapse
         if route == "base-inverse":
             return {"files": files + [f"results/benchmarks/inverse/inverse_design/{name}.tsv"], "dem_runs": runs}
+        if name in SHARED_GNS:  # one GNS for both models: its dataset, training and the start run
+            inverse = f"results/benchmarks/calibrated/calibrated_inverse/{name}.tsv"
+            return {"files": files + [inverse], "dem_runs": runs, "own_dem_runs": runs}
         # a model's GNS warm-started from the base GNS also costs that GNS's dataset and training; from
         # scratch (the default) it borrows only the base route's start run (its first frames)
         borrowed_files, borrowed_runs = (files, runs) if CALIBRATION["gns_warm_start"] else (base["start"], 0)

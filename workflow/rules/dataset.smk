@@ -5,6 +5,8 @@
 rule dataset:
     input:
         trajectories=lambda w: [p for paths in dataset_trajectories(w.dataset).values() for p in paths],
+        # with calibration.gns_shared, the base model's runs of the column join its model's dataset
+        base=lambda w: [p for paths in shared_base_splits(w.dataset).values() for p in paths],
         model=lambda w: model_json(w.dataset),
     output:
         "results/datasets/{dataset}/metadata.json",
@@ -21,6 +23,7 @@ rule dataset:
     params:
         splits=lambda w: dataset_trajectories(w.dataset),
         model_by_config=lambda w: dataset_cases(w.dataset)[0].get("model_by_config"),
+        base_splits=lambda w: shared_base_splits(w.dataset),
     script:
         "../scripts/dataset.py"
 

@@ -7,7 +7,7 @@
 # (rerun: the validation keeps only its runout curves).
 EXPORT_VTK = config["export_vtk"]
 # The GNS datasets whose test rollouts are exported: the base GNSs and the calibrated models' GNSs.
-EXPORT_GNS_DATASETS = GNS_DATASETS + [f"calibrated_{n}" for n in MODEL_GNS_NAMES]
+EXPORT_GNS_DATASETS = list(dict.fromkeys(GNS_DATASETS + [f"calibrated_{n}" for n in MODEL_GNS_NAMES]))
 
 
 rule export_vtk:

@@ -6,7 +6,11 @@
 # not a declared output, so a failed job does not delete it.
 GNS = config["gns"]
 GNS_THREADS = GNS["threads"]
-GNS_DATASETS = pipeline.config.gns_datasets(config)  # gns.datasets, checked in common.smk
+# gns.datasets (checked in common.smk), each base dataset whose model's GNS takes its place
+# (calibration.gns_shared: REPLACED_GNS) replaced by that model's dataset
+GNS_DATASETS = list(
+    dict.fromkeys(d for base in pipeline.config.gns_datasets(config) for d in REPLACED_GNS.get(base, [base]))
+)
 
 # gns_settings and gns_test_cases: common.smk
 

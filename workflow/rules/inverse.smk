@@ -11,14 +11,14 @@ INVERSE_RECOVERY = INVERSE["recovery_datasets"]
 INVERSE_BO_BOUNDS = [INVERSE["friction"] or [0.3, 0.9], INVERSE["restitution"] or [0.3, 0.9]]
 # INVERSE_DATASET (common.smk): {name: the dataset whose GNS calibrates it}; inverse.measured,
 # inverse.dataset (the column lies in that GNS's trained geometry) and inverse.recovery_datasets
-# are checked there, before any job runs (pipeline.config.check_cross_keys). inverse_gns and
-# inverse_benchmarks: common.smk.
+# are checked there, before any job runs (pipeline.config.check_cross_keys). inverse_gns,
+# inverse_dem_metadata and inverse_benchmarks: common.smk.
 
 
 rule inverse_start:
     input:
         measured=lambda w: config["measured"][w.name],
-        metadata=lambda w: inverse_gns(w.name, "metadata"),
+        metadata=lambda w: inverse_dem_metadata(w.name),
     output:
         "results/inverse/{name}/start.h5",
     log:
@@ -87,7 +87,7 @@ rule inverse_validate:
     input:
         result="results/inverse/{name}/inverse.json",
         measured=lambda w: config["measured"][w.name],
-        metadata=lambda w: inverse_gns(w.name, "metadata"),
+        metadata=lambda w: inverse_dem_metadata(w.name),
     output:
         "results/inverse/{name}/validation.h5",
     log:
@@ -110,7 +110,7 @@ rule inverse_validate:
 rule inverse_bayesopt:
     input:
         measured=lambda w: config["measured"][w.name],
-        metadata=lambda w: inverse_gns(w.name, "metadata"),
+        metadata=lambda w: inverse_dem_metadata(w.name),
     output:
         result="results/inverse/{name}/bayesopt.json",
         figure=report(
@@ -184,7 +184,7 @@ rule inverse_compare:
         "../envs/pipeline.yaml"
     params:
         benchmarks=lambda w: inverse_benchmarks(w.name),
-        dem_runs=lambda w: {"gns_dataset": len(dataset_cases(INVERSE_DATASET[w.name])), "doe": len(DOE_RUNS)},
+        dem_runs=lambda w: {"gns_dataset": gns_dem_runs(inverse_gns_dataset(w.name)), "doe": len(DOE_RUNS)},
         runout=RUNOUT,
     script:
         "../scripts/inverse_compare.py"

@@ -12,5 +12,6 @@ build(
     snakemake.wildcards.dataset,
     *snakemake.input.model,
     model_by_config=snakemake.params.model_by_config,
+    base_splits=snakemake.params.base_splits,
 )
 logging.info("wrote %s", snakemake.output[0])
