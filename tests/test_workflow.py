@@ -352,7 +352,8 @@ def test_report_rebases_fragment_links_and_sums_benchmarks(tmp_path):
 def test_one_gns_runs_both_models_routes_in_the_default_dag(tmp_path):
     """calibration.gns_shared (the default config): the base model's inverse design reads the model's
     GNS, whose dataset holds the base model's runs too, and the base dataset trains no GNS of its
-    own; turned off, each model trains its own."""
+    own; turned off, each model trains its own. The base route through the shared GNS then waits on
+    the model's chain, and goes first with it."""
     workdir = copy_workflow(tmp_path / "shared")
     target = "results/inverse/quartz/inverse.json"
 
@@ -362,10 +363,19 @@ def test_one_gns_runs_both_models_routes_in_the_default_dag(tmp_path):
         assert proc.returncode == 0, proc.stderr[-3000:]
         return proc.stdout
 
+    def job(text, output):
+        """The dry run's block of the job that writes `output`."""
+        (block,) = [b for b in text.split("\nrule ") if f"\n    output: {output}" in b]
+        return block
+
     def inputs(text, output):
         """The input line of the job that writes `output`."""
-        (job,) = [b for b in text.split("\nrule ") if f"\n    output: {output}" in b]
-        return job.split("input: ", 1)[1].split("\n", 1)[0].split(", ")
+        return job(text, output).split("input: ", 1)[1].split("\n", 1)[0].split(", ")
+
+    def priority(text, output):
+        """The scheduling priority of the job that writes `output` (a dry run prints none for 0)."""
+        block = job(text, output)
+        return int(block.split("priority: ", 1)[1].split("\n", 1)[0]) if "priority: " in block else 0
 
     shared = dry_run()
     assert "results/gns/calibrated_quartz/train/model_best.pt" in inputs(shared, target)
@@ -373,8 +383,13 @@ def test_one_gns_runs_both_models_routes_in_the_default_dag(tmp_path):
     dataset = inputs(shared, "results/datasets/calibrated_quartz/metadata.json")
     assert len([p for p in dataset if p.startswith("results/dem/quartz_multiple/trajectories/")]) == 30
     assert job_stats(shared)["gns_train"] == 1
+    base_validation = "results/calibrated/quartz/validation/base-inverse.json"
+    chain = priority(shared, "results/calibrated/quartz/inverse.json")
+    assert chain > 0
+    assert priority(shared, target) == priority(shared, base_validation) == chain
     own = dry_run("--config", "calibration={'gns_shared': False}")
     assert "results/gns/quartz_multiple/train/model_best.pt" in inputs(own, target)
     dataset = inputs(own, "results/datasets/calibrated_quartz/metadata.json")
     assert not [p for p in dataset if "quartz_multiple" in p]
     assert job_stats(own)["gns_train"] == 2
+    assert priority(own, target) == priority(own, base_validation) == 0

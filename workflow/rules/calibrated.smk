@@ -236,7 +236,7 @@ rule calibrated_validate:
         "results/logs/calibrated/calibrated_validate/{name}/{route}.log",
     benchmark:
         "results/benchmarks/calibrated/calibrated_validate/{name}/{route}.tsv"
-    priority: lambda w: MODEL_CHAIN_PRIORITY if w.route == "model-inverse" else 0
+    priority: lambda w: route_priority(w.name, w.route)
     conda:
         "../envs/pipeline.yaml"
     resources:

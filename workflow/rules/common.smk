@@ -233,6 +233,14 @@ def model_chain_priority(name):
     return MODEL_CHAIN_PRIORITY if name in MODEL_GNS_NAMES else 0
 
 
+def route_priority(name, route):
+    """Priority of validating route `route` of measured column `name`: first for the routes through
+    the model's GNS (its own, and the base model's where one GNS runs both, SHARED_GNS), for the
+    column's answer waits on them last (calibrated.smk)."""
+    through_model_gns = route == "model-inverse" or (route == "base-inverse" and name in SHARED_GNS)
+    return MODEL_CHAIN_PRIORITY if through_model_gns else 0
+
+
 def gns_test_cases(dataset):
     """case_ids of a dataset's test split, in case_id order (gns.smk, runout.smk)."""
     return [row["case_id"] for row in dataset_cases(dataset) if row["split"] == "test"]
