@@ -1,6 +1,7 @@
 """benchmarks/dag_bounds.py: the work bound and the critical path of a finished DAG run, read from
 its Snakemake log and benchmark files."""
 
+import importlib.util
 import json
 import subprocess
 import sys
@@ -58,3 +59,26 @@ def test_the_critical_path_is_the_longest_chain_and_the_work_is_shared_by_the_co
     assert [job["rule"] for job in result["critical_path"]] == ["packing", "train", "answer"]
     assert result["critical_path_minutes"] == round(60 / 60, 1) and result["work_bound_minutes"] == round(45 / 60, 1)
     assert result["lower_bound_minutes"] == 1.0 and result["target_reachable"]
+    # no priorities in the log: its order; the figure beside the training, the answer after both
+    assert result["priority_schedule_minutes"] == round(60 / 60, 1)
+
+
+def test_the_priority_schedule_starts_a_long_chain_first_only_when_its_priority_says_so():
+    """Two fillers and a short job before a long one, on 2 cores: the short job first (its priority
+    above the fillers') ends at 10 + 60 s; at equal priority the log's order starts the fillers
+    first and the long job ends at 20 + 60 s."""
+    spec = importlib.util.spec_from_file_location("dag_bounds", ROOT / "benchmarks/dag_bounds.py")
+    dag_bounds = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(dag_bounds)
+
+    def jobs(first_priority):
+        return [
+            {"output": ["x"], "input": [], "seconds": 10.0, "priority": 0},
+            {"output": ["y"], "input": [], "seconds": 10.0, "priority": 0},
+            {"output": ["a"], "input": [], "seconds": 10.0, "priority": first_priority},
+            {"output": ["b"], "input": ["a"], "seconds": 60.0, "priority": first_priority},
+        ]
+
+    assert dag_bounds.priority_schedule(jobs(5), cores=2) == 70.0
+    assert dag_bounds.priority_schedule(jobs(0), cores=2) == 80.0
+    assert dag_bounds.priority_schedule(jobs(0), cores=1) == 90.0
