@@ -234,9 +234,10 @@ def model_chain_priority(name):
 
 
 def route_priority(name, route):
-    """Priority of validating route `route` of measured column `name`: first for the routes through
-    the model's GNS (its own, and the base model's where one GNS runs both, SHARED_GNS), for the
-    column's answer waits on them last (calibrated.smk)."""
+    """Priority of route `route` of measured column `name` (its optimisation and its validation):
+    the model chain's for the routes through the model's GNS (its own, and the base model's where
+    one GNS runs both, SHARED_GNS), which cannot start before that GNS is trained, else none
+    (calibrated.smk, inverse.smk)."""
     through_model_gns = route == "model-inverse" or (route == "base-inverse" and name in SHARED_GNS)
     return MODEL_CHAIN_PRIORITY if through_model_gns else 0
 

@@ -70,8 +70,8 @@ rule inverse_design:
         "results/logs/inverse/inverse_design/{name}.log",
     benchmark:
         "results/benchmarks/inverse/inverse_design/{name}.tsv"
-    # through the model's GNS (SHARED_GNS), on the longest path: the column's answer waits on it
-    priority: lambda w: MODEL_CHAIN_PRIORITY if w.name in SHARED_GNS else 0
+    # the optimisation of the base-inverse route: its priority is that route's (route_priority)
+    priority: lambda w: route_priority(w.name, "base-inverse")
     conda:
         "../envs/pipeline.yaml"
     threads: INVERSE["threads"]
