@@ -6,7 +6,8 @@ LOG: the Snakemake log of one run (`.snakemake/log/*.snakemake.log`, or what `ba
 printed); DIR: the folder it ran in (the benchmark TSVs are read relative to it). Each job's seconds
 are its benchmark file's wall time (`s`) and CPU time; the jobs' inputs and outputs, as the log
 lists them, give the DAG's edges. Two lower bounds on the wall time follow, whatever the scheduler:
-the work bound (the jobs' seconds over the cores) and the critical path (the longest chain of jobs,
+the work bound (the jobs' core-seconds over the cores: a job's wall time, or its CPU time where that
+is more, as for a job whose batch of DEM runs has worker processes) and the critical path (the longest chain of jobs,
 each waiting for the outputs of the one before). A wall-time target, such as the default DAG under
 30 minutes on 2 cores, is out of reach on a machine where either bound exceeds it; the path says
 which jobs a trim must shorten. A third figure replays the run: a list scheduler with the jobs'
@@ -122,8 +123,12 @@ def main() -> None:
         job["seconds"], job["cpu_seconds"] = job_seconds(args.root / job["benchmark"])
     work = sum(job["seconds"] for job in jobs)
     cpu = sum(job["cpu_seconds"] for job in jobs if math.isfinite(job["cpu_seconds"]))
+    # a job holds a core for its wall time, more where its CPU time exceeds it (dem.run_ahead's workers)
+    core = sum(
+        max(job["seconds"], job["cpu_seconds"]) if math.isfinite(job["cpu_seconds"]) else job["seconds"] for job in jobs
+    )
     path_seconds, path = critical_path(jobs)
-    bounds = {"work": work / args.cores / 60, "critical_path": path_seconds / 60}
+    bounds = {"work": core / args.cores / 60, "critical_path": path_seconds / 60}
     print(
         json.dumps(
             {
@@ -133,6 +138,7 @@ def main() -> None:
                 "cores": args.cores,
                 "work_job_seconds": round(work, 1),
                 "work_cpu_seconds": round(cpu, 1),
+                "work_core_seconds": round(core, 1),
                 "work_bound_minutes": round(bounds["work"], 1),
                 "critical_path_minutes": round(bounds["critical_path"], 1),
                 "lower_bound_minutes": round(max(bounds.values()), 1),

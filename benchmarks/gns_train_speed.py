@@ -26,12 +26,14 @@ each other, the fairest comparison on a shared machine).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import statistics
 import subprocess
 import sys
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -151,6 +153,17 @@ def run_worker(tree: Path, dataset: str, scratch: Path, threads: int, steps: int
     return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
+@contextlib.contextmanager
+def checked_out(commit: str, folder: Path) -> Iterator[Path]:
+    """A `git worktree` of `commit` at `folder` for the block, removed afterwards."""
+    add = ["git", "worktree", "add", "--detach", str(folder), commit]
+    subprocess.run(add, cwd=ROOT, check=True, capture_output=True)
+    try:
+        yield folder
+    finally:
+        subprocess.run(["git", "worktree", "remove", "--force", str(folder)], cwd=ROOT, check=False)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--against", required=True, help="the old commit")
@@ -160,23 +173,13 @@ def main() -> None:
     parser.add_argument("--dataset", default=None)
     args = parser.parse_args()
     started = machine()
-    with tempfile.TemporaryDirectory() as scratch_name:
-        scratch = Path(scratch_name)
-        old_tree = scratch / "old"
-        subprocess.run(
-            ["git", "worktree", "add", "--detach", str(old_tree), args.against],
-            cwd=ROOT,
-            check=True,
-            capture_output=True,
-        )
-        try:
-            dataset = args.dataset or make_dataset(scratch)
-            settings, runs = model_settings(), {"old": [], "new": []}
-            for _ in range(args.repeats):
-                for label, tree in (("old", old_tree), ("new", ROOT)):
-                    runs[label].append(run_worker(tree, dataset, scratch, args.threads, args.train_steps, settings))
-        finally:
-            subprocess.run(["git", "worktree", "remove", "--force", str(old_tree)], cwd=ROOT, check=False)
+    with tempfile.TemporaryDirectory() as scratch_name, checked_out(args.against, Path(scratch_name) / "old") as old:
+        scratch, old_tree = Path(scratch_name), old
+        dataset = args.dataset or make_dataset(scratch)
+        settings, runs = model_settings(), {"old": [], "new": []}
+        for _ in range(args.repeats):
+            for label, tree in (("old", old_tree), ("new", ROOT)):
+                runs[label].append(run_worker(tree, dataset, scratch, args.threads, args.train_steps, settings))
     median = lambda label, key: statistics.median(r[key] for r in runs[label])  # noqa: E731
     keys = (
         "train_steps_per_s",

@@ -48,6 +48,7 @@ from calibration.optimise import OptimisationHistory, PointFailed, one_at_a_time
 from dem.case import CollapseCase
 from dem.engines import FAILURES, failure_reason, simulate_case
 from dem.grid import case_id_of
+from dem.run_ahead import run_ahead
 from dem.runout import RunoutMethod
 
 if TYPE_CHECKING:
@@ -278,6 +279,25 @@ def model_runout(
     return simulated_runout_at(t, curve, column)
 
 
+def buildable_cases(
+    model: Model,
+    column: MeasuredColumn,
+    points: Sequence[Sequence[float]],
+    settings: SimulationSettings,
+    seeds: Sequence[int],
+) -> list[CollapseCase]:
+    """The cases of `model` at each of points [n, p] on each packing seed, that can be built (a case
+    that cannot fails again, and is reported, where its run is asked for): a batch for dem.run_ahead."""
+    cases = []
+    for theta in points:
+        for seed in seeds:
+            try:
+                cases.append(model.case(column, theta, settings, seed))
+            except FAILURES:
+                pass
+    return cases
+
+
 def mse_jackknife(
     curves: Sequence[Sequence[float] | None],
     measured: ArrayLike,
@@ -328,6 +348,7 @@ def validate(
     runs done) or None."""
     started = time.perf_counter()
     seeds = [seed0 + first_packing + k for k in range(n_packings)]
+    run_ahead(buildable_cases(model, column, [theta], settings, seeds), dem_config, route)
     curves, failed = [], {}
     for k, seed in enumerate(seeds):
         within = None if progress is None else (lambda f, k=k: progress((k + f) / n_packings))

@@ -13,11 +13,12 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from calibration.calibrated import VALIDATION_SEED0
+from calibration.calibrated import VALIDATION_SEED0, buildable_cases
 from calibration.design_runs import SimulationSettings
 from calibration.measured_column import MeasuredColumn
 from calibration.model import Model
 from dem.engines import FAILURES, failure_reason, simulate_case
+from dem.run_ahead import run_ahead
 from dem.runout import RunoutMethod, final_height
 
 log = logging.getLogger(__name__)
@@ -43,6 +44,21 @@ class Prediction:
         return asdict(self)
 
 
+def predicted_column(column: MeasuredColumn, aspect_ratio: float) -> MeasuredColumn:
+    """`column` at another aspect ratio, read at t/t* = PREDICTION_TSTAR only, with nothing measured."""
+    return replace(
+        column,
+        name=f"{column.name}_a{aspect_ratio:g}",
+        aspect_ratio=float(aspect_ratio),
+        t_over_tstar=np.array([PREDICTION_TSTAR]),
+        runout=np.array([math.nan]),
+        runout_std=None,
+        profile_x=None,
+        profile_height=None,
+        profile_std=None,
+    )
+
+
 def predict(
     model: Model,
     column: MeasuredColumn,
@@ -58,19 +74,14 @@ def predict(
     simulated to t/t* = PREDICTION_TSTAR on packing `seed`, the runout read as `column`'s (its stated
     method, else `runout`). progress: callable(fraction of the columns done) or None."""
     started = time.perf_counter()
+    others = [predicted_column(column, a) for a in aspect_ratios]
+    run_ahead(
+        [case for other in others for case in buildable_cases(model, other, [theta], settings, [seed])],
+        dem_config,
+        f"predictions at a = {', '.join(f'{a:g}' for a in aspect_ratios)}",
+    )
     runouts, heights, failed = [], [], {}
-    for k, a in enumerate(aspect_ratios):
-        other = replace(
-            column,
-            name=f"{column.name}_a{a:g}",
-            aspect_ratio=float(a),
-            t_over_tstar=np.array([PREDICTION_TSTAR]),
-            runout=np.array([math.nan]),
-            runout_std=None,
-            profile_x=None,
-            profile_height=None,
-            profile_std=None,
-        )
+    for k, (a, other) in enumerate(zip(aspect_ratios, others)):
         try:
             within = None if progress is None else (lambda f, k=k: progress((k + f) / len(aspect_ratios)))
             trajectory = simulate_case(model.case(other, theta, settings, seed), dem_config, progress=within)

@@ -38,12 +38,13 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from calibration.calibrated import Validation, validate
+from calibration.calibrated import Validation, buildable_cases, validate
 from calibration.confirmation import CONFIRM_SEED0, TRUST_RADIUS, Confirmation, damped_step, local_slope, refine
 from calibration.design_runs import SimulationSettings
 from calibration.measured_column import MeasuredColumn
 from calibration.model import Model
 from dem.atomic import StrPath
+from dem.run_ahead import run_ahead
 from dem.runout import RunoutMethod
 
 # The star's arm in the unit box: long enough that a slope stands above the packing noise of the
@@ -199,6 +200,10 @@ def run_star(
     (CONFIRM_SEED0 + k); label: each run's name, "{k}" the point's index; part(offset, width): the
     progress callable of the runs from offset to offset + width, in packings' worth of runs."""
     own = {"seed0": CONFIRM_SEED0}
+    seeds = [CONFIRM_SEED0 + k for k in range(n_packings)]
+    run_ahead(
+        buildable_cases(model, column, points, settings, seeds), dem_config, label.format(k=f"0-{len(points) - 1}")
+    )
     return [
         validate(
             label.format(k=k),

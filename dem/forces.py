@@ -214,7 +214,13 @@ def _contact_forces(
                 spill_force[j, 1] -= fy
                 spill_torque[j] += radius[j] * ft - roll
                 spill_load[j] += fn
-        # walls: left, right, floor, gate (x_gate = +inf once removed); m_eff = m, R* = r
+        # walls: left, right, floor, gate (x_gate = +inf once removed); m_eff = m, R* = r.
+        # Most grains touch none: the same tests as the loop's (overlap <= 0 there is r <= gap here)
+        if ri <= xi - x_left and ri <= x_right - xi and ri <= yi - y_floor and (yi < gate_bottom or ri <= x_gate - xi):
+            for w in range(N_WALLS):
+                wall_history[i, w, 0] = 0.0
+                wall_history[i, w, 1] = 0.0
+            continue
         for w in range(N_WALLS):
             mu_w = mu_wall
             if w == 0:

@@ -35,6 +35,7 @@ import os
 import shutil
 from collections import Counter
 from collections.abc import Callable, Iterator
+from concurrent.futures import Executor
 from contextvars import ContextVar
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,11 +55,13 @@ _ACTIVE: ContextVar[RunStore | None] = ContextVar("dem_run_store", default=None)
 @dataclass
 class RunStore:
     """Stored runs in `folder`: <key>.h5 per finished run, <key>.work/ for the run in flight.
-    reused, ran: {kind ("collapse", "packing"): runs read from the store, runs made} in this attempt."""
+    reused, ran: {kind ("collapse", "packing"): runs read from the store, runs made} in this attempt;
+    workers: the processes dem.run_ahead makes runs in for this store, shut down when kept_runs ends."""
 
     folder: Path
     reused: Counter = field(default_factory=Counter)
     ran: Counter = field(default_factory=Counter)
+    workers: Executor | None = field(default=None, repr=False)  # dem.run_ahead's processes, while the block lasts
 
     def path(self, key: str) -> Path:
         return self.folder / f"{key}.h5"
@@ -128,16 +131,29 @@ def kept_runs(folder: str | os.PathLike) -> Iterator[RunStore]:
         log.info(
             "%s: %d run(s) stored by an earlier attempt of this job, reused where asked for", store.folder, earlier
         )
-    token = _ACTIVE.set(store)
     try:
-        yield store
+        with using_store(store):
+            yield store
     except BaseException:
         log.info("%s; kept for a rerun", store.summary())
         raise
     finally:
-        _ACTIVE.reset(token)
+        if store.workers is not None:
+            store.workers.shutdown(cancel_futures=True)
+            store.workers = None
     log.info("%s; folder removed", store.summary())
     shutil.rmtree(store.folder, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def using_store(store: RunStore) -> Iterator[RunStore]:
+    """Make `store` the active one inside the block, leaving its folder as it is afterwards (a worker
+    process of dem.run_ahead stores its runs in its job's store this way)."""
+    token = _ACTIVE.set(store)
+    try:
+        yield store
+    finally:
+        _ACTIVE.reset(token)
 
 
 def runs_folder(output: str | os.PathLike) -> Path:

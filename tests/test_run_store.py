@@ -211,3 +211,37 @@ def test_every_long_dem_job_keeps_its_runs_beside_its_output(script):
     assert f"import {job.__name__}\n" in text, f"workflow/scripts/{script}.py no longer calls {job.__name__}"
     beside = getattr(job, "keeps_runs_beside", None)
     assert beside in inspect.signature(job).parameters, f"{job.__name__} does not keep its DEM runs (keeps_runs)"
+
+
+def test_a_batch_made_ahead_on_two_processes_gives_the_bits_of_the_runs_made_in_turn(tmp_path, caplog):
+    """dem.run_ahead: a validation on three packings and predictions at two aspect ratios, their runs
+    made ahead by two worker processes, give the numbers of the same calls made one run after the
+    other, and the job's own calls read every run from the store (none made twice)."""
+    from calibration.calibrated import validate
+    from calibration.design_runs import SimulationSettings
+    from calibration.measured_column import MeasuredColumn
+    from calibration.prediction import predict
+    from dem.run_ahead import batch_workers, run_ahead
+
+    column = MeasuredColumn(
+        name="tiny", material="quartz", aspect_ratio=2.0, L_i=0.01, t_over_tstar=np.array([0.5, 1.0]),
+        runout=np.array([0.2, 0.8]), source="test",
+    )  # fmt: skip
+    settings, runout, theta = SimulationSettings(size_scale=4.0), RunoutMethod(), (0.5, 0.6)
+    if len(os.sched_getaffinity(0)) < 2:
+        pytest.skip("one core: no worker beside the job")
+    assert batch_workers({"workers": 2}) == 2 and batch_workers({"workers": 2, "threads": 2}) == 1
+    assert batch_workers({"workers": 10**3}) == len(os.sched_getaffinity(0)) and batch_workers(None) == 1
+    outcomes = {}
+    for workers in (1, 2):
+        dem = {"engine": "builtin", "workers": workers}
+        with kept_runs(tmp_path / f"runs{workers}") as store, caplog.at_level("INFO", logger="dem.run_ahead"):
+            validation = validate("base", Model(), column, theta, settings, runout, dem, n_packings=3)
+            prediction = predict(Model(), column, theta, settings, [1.0, 3.0], runout, dem)
+            outcomes[workers] = (validation.curves, prediction.final_runout, prediction.final_height)
+            made_here = dict(store.ran)
+        assert store.workers is None  # the job's worker processes end with its store
+        assert made_here == ({"collapse": 5, "packing": 5} if workers == 1 else {})  # all 5 read from the store
+    assert outcomes[1] == outcomes[2]  # floats compared exactly: the same bits
+    assert "3 run(s) made ahead" in caplog.text and "2 run(s) made ahead" in caplog.text
+    assert run_ahead([CASE, CASE.replace(seed=4)], {"workers": 2}) == 0  # outside a store: nothing

@@ -54,6 +54,7 @@ __all__ = [
     "Engine",
     "EngineError",
     "EngineNotInstalled",
+    "collapse_key",
     "failure_reason",
     "get_engine",
     "simulate_case",
@@ -104,6 +105,28 @@ def get_engine(name: str = "auto", config: dict | None = None) -> Engine:
     return engine
 
 
+def run_config(config: dict | None) -> dict:
+    """What of the dem section a run's result depends on: all of it but `workers` (dem.run_ahead)."""
+    return {key: value for key, value in (config or {}).items() if key != "workers"}
+
+
+def collapse_key(
+    case: CollapseCase, config: dict | None, packing: Trajectory | None = None, engine: Engine | None = None
+) -> str:
+    """The run store's name (dem.run_store.run_key) of simulate_case(case, config, packing)'s run:
+    the case, the engine (name, version, config) and the packing's bits."""
+    config = run_config(config)
+    engine = engine or get_engine(config.get("engine", "builtin"), config)
+    return run_key(
+        "collapse",
+        case=case.to_dict(),
+        engine=engine.name,
+        engine_version=engine.version(),
+        config=config,
+        packing=trajectory_digest(packing),
+    )
+
+
 def simulate_case(
     case: CollapseCase,
     config: dict | None = None,
@@ -117,20 +140,13 @@ def simulate_case(
     Inside dem.run_store.kept_runs: the stored run of the same case, engine (name, version, config)
     and packing bits when there is one (progress(1.0)), else the run made in the store's work folder
     and stored; either way the stored file read back, so that both give the same bits."""
-    config = dict(config or {})
+    config = run_config(config)
     engine = get_engine(config.get("engine", "builtin"), config)
     store = active_store()
     if store is None:
         with tempfile.TemporaryDirectory(prefix=f"dem_{engine.name}_") as work_dir:
             return engine.simulate(case, packing, work_dir, progress=progress)
-    key = run_key(
-        "collapse",
-        case=case.to_dict(),
-        engine=engine.name,
-        engine_version=engine.version(),
-        config=config,
-        packing=trajectory_digest(packing),
-    )
+    key = collapse_key(case, config, packing, engine)
     return store.kept(
         key, lambda work_dir: engine.simulate(case, packing, work_dir, progress=progress), progress, engine.resume_files
     )

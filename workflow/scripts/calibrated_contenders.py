@@ -15,7 +15,7 @@ run_contenders(
     p.settings,
     p.diagnosis,
     p.runout,
-    p.dem,
+    {**p.dem, "workers": snakemake.config["dem"]["workers"]},  # not a param: no rerun
     name=snakemake.wildcards.name,
 )
 logging.info("wrote %s", snakemake.output.result)

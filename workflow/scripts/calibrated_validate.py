@@ -11,7 +11,7 @@ job = CalibratedColumn.read(
     snakemake.input.model,
     snakemake.params.diagnosis,
     runout=snakemake.params.runout,
-    dem=snakemake.params.dem,
+    dem={**snakemake.params.dem, "workers": snakemake.config["dem"]["workers"]},  # not a param: no rerun
     name=snakemake.wildcards.name,
 )
 result = run_validation(
