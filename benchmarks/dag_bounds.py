@@ -1,4 +1,4 @@
-"""How fast a finished DAG run could have been: its work bound and its critical path; prints JSON.
+"""How fast a finished DAG run could have been: its CPU bound and its critical path; prints JSON.
 
     python benchmarks/dag_bounds.py LOG [--root DIR] [--cores 2] [--target-minutes 30]
 
@@ -6,9 +6,10 @@ LOG: the Snakemake log of one run (`.snakemake/log/*.snakemake.log`, or what `ba
 printed); DIR: the folder it ran in (the benchmark TSVs are read relative to it). Each job's seconds
 are its benchmark file's wall time (`s`) and CPU time; the jobs' inputs and outputs, as the log
 lists them, give the DAG's edges. Two lower bounds on the wall time follow, whatever the scheduler:
-the work bound (the jobs' core-seconds over the cores: a job's wall time, or its CPU time where that
-is more, as for a job whose batch of DEM runs has worker processes) and the critical path (the longest chain of jobs,
-each waiting for the outputs of the one before). A wall-time target, such as the default DAG under
+the CPU bound (the jobs' CPU seconds over the cores) and the critical path (the longest chain of jobs,
+each waiting for the outputs of the one before). The work bound, the jobs' wall seconds over the
+cores, is printed too: it was these runs' measure before jobs had worker processes, and it lies
+above the CPU bound by the jobs' start-up, I/O and waits for a core. A wall-time target, such as the default DAG under
 30 minutes on 2 cores, is out of reach on a machine where either bound exceeds it; the path says
 which jobs a trim must shorten. A third figure replays the run: a list scheduler with the jobs'
 seconds and the priorities the log shows (priority_schedule); where it lands near the real wall
@@ -123,12 +124,10 @@ def main() -> None:
         job["seconds"], job["cpu_seconds"] = job_seconds(args.root / job["benchmark"])
     work = sum(job["seconds"] for job in jobs)
     cpu = sum(job["cpu_seconds"] for job in jobs if math.isfinite(job["cpu_seconds"]))
-    # a job holds a core for its wall time, more where its CPU time exceeds it (dem.run_ahead's workers)
-    core = sum(
-        max(job["seconds"], job["cpu_seconds"]) if math.isfinite(job["cpu_seconds"]) else job["seconds"] for job in jobs
-    )
     path_seconds, path = critical_path(jobs)
-    bounds = {"work": core / args.cores / 60, "critical_path": path_seconds / 60}
+    # the jobs' CPU seconds are the strict bound: a job whose DEM runs have worker processes
+    # (dem.run_ahead) holds more than one core for part of its wall time, so its seconds undercount it
+    bounds = {"cpu": cpu / args.cores / 60, "critical_path": path_seconds / 60}
     print(
         json.dumps(
             {
@@ -138,8 +137,8 @@ def main() -> None:
                 "cores": args.cores,
                 "work_job_seconds": round(work, 1),
                 "work_cpu_seconds": round(cpu, 1),
-                "work_core_seconds": round(core, 1),
-                "work_bound_minutes": round(bounds["work"], 1),
+                "work_bound_minutes": round(work / args.cores / 60, 1),
+                "cpu_bound_minutes": round(bounds["cpu"], 1),
                 "critical_path_minutes": round(bounds["critical_path"], 1),
                 "lower_bound_minutes": round(max(bounds.values()), 1),
                 # the DAG's own priorities with these job times, in place of Snakemake's choices

@@ -12,6 +12,8 @@ For each size_scale: the settle's and the collapse's wall seconds, medians over 
 old / new of the medians and per pair (one old and one new run next to each other, the fairest
 comparison on a shared machine), and whether every run gave the same bits (sha256 of the packing's
 and the collapse's positions): a kernel change that keeps them keeps every answer of the DAG.
+Then the dense runout rule's mask (dem.runout.dense_mask) on every frame of the collapse, as the
+GNS objective reads a rollout: milliseconds a frame, and whether every run gave the same masks.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 from gns_speed import machine  # noqa: E402 - the date, machine and load the benchmarks print
-from gns_train_speed import checked_out  # noqa: E402 - a worktree of the old commit
+from gns_train_speed import checked_out, run_in_tree  # noqa: E402 - the old commit's worktree, a run in it
 
 WORKER = r"""
 import hashlib, json, sys, time
@@ -36,6 +38,7 @@ import numpy as np
 from dem.case import CollapseCase
 from dem.collapse import simulate_collapse
 from dem.packing import settle_column
+from dem.runout import RunoutMethod
 case = CollapseCase("quartz", 0.02, 6.0, 0.89, 0.734, seed=1, size_scale=float(sys.argv[1]),
                     sidewall_friction=0.112, duration_over_tstar=3.5, name="dem_speed")
 warm = case.replace(size_scale=5.0, duration_over_tstar=0.05)
@@ -45,36 +48,29 @@ packing = settle_column(case)
 t1 = time.perf_counter()
 trajectory = simulate_collapse(case, packing)
 t2 = time.perf_counter()
+dense = RunoutMethod("dense_front")  # the rule's mask on every frame, as the GNS objective reads it
+masks = np.array([dense.front_mask(p, trajectory.radius) for p in trajectory.positions])
+t3 = time.perf_counter()
 digest = hashlib.sha256(np.ascontiguousarray(packing.positions).tobytes())
 digest.update(np.ascontiguousarray(trajectory.positions).tobytes())
 print(json.dumps({"grains": case.n_particles, "settle_s": t1 - t0, "collapse_s": t2 - t1,
+                  "dense_mask_ms_per_frame": 1e3 * (t3 - t2) / len(masks),
+                  "masks_sha256": hashlib.sha256(np.packbits(masks).tobytes()).hexdigest()[:16],
                   "steps": int(trajectory.attrs["steps"]), "sha256": digest.hexdigest()[:16]}))
 """
-
-
-def run_worker(tree: Path, size_scale: float) -> dict:
-    proc = subprocess.run(
-        [sys.executable, "-c", WORKER, str(size_scale)],
-        cwd=tree,
-        env=dict(os.environ, PYTHONPATH=str(tree)),
-        capture_output=True,
-        text=True,
-        check=False,
-    )
-    if proc.returncode != 0:
-        sys.exit(f"worker in {tree} failed:\n{proc.stderr[-3000:]}")
-    return json.loads(proc.stdout.strip().splitlines()[-1])
 
 
 def summary(old: list[dict], new: list[dict]) -> dict:
     """Medians, ratios old / new and per pair, and whether all runs gave the same bits."""
     median = lambda runs, key: statistics.median(r[key] for r in runs)  # noqa: E731
     out = {"grains": new[0]["grains"], "collapse_steps": new[0]["steps"]}
-    for key in ("settle_s", "collapse_s"):
+    for key in ("settle_s", "collapse_s", "dense_mask_ms_per_frame"):
+        name = key.removesuffix("_s").removesuffix("_ms_per_frame")
         out[f"old_{key}"], out[f"new_{key}"] = round(median(old, key), 3), round(median(new, key), 3)
-        out[f"{key.removesuffix('_s')}_speedup"] = round(median(old, key) / median(new, key), 3)
-        out[f"{key.removesuffix('_s')}_speedup_per_pair"] = [round(o[key] / n[key], 3) for o, n in zip(old, new)]
+        out[f"{name}_speedup"] = round(median(old, key) / median(new, key), 3)
+        out[f"{name}_speedup_per_pair"] = [round(o[key] / n[key], 3) for o, n in zip(old, new)]
     out["same_bits"] = len({r["sha256"] for r in old + new}) == 1
+    out["same_dense_masks"] = len({r["masks_sha256"] for r in old + new}) == 1
     return out
 
 
@@ -91,7 +87,7 @@ def main() -> None:
         for _ in range(args.repeats):
             for scale in scales:
                 for label, tree in (("old", old_tree), ("new", ROOT)):
-                    runs[scale][label].append(run_worker(tree, scale))
+                    runs[scale][label].append(run_in_tree(tree, WORKER, str(scale)))
     against = subprocess.run(["git", "rev-parse", "--short", args.against], cwd=ROOT, capture_output=True, text=True)
     result = {
         "benchmark": "dem_speed",

@@ -139,11 +139,15 @@ def make_dataset(folder: Path) -> str:
 
 def run_worker(tree: Path, dataset: str, scratch: Path, threads: int, steps: int, settings: dict) -> dict:
     out = tempfile.mkdtemp(dir=scratch)
-    environment = dict(os.environ, PYTHONPATH=str(tree))
+    return run_in_tree(tree, WORKER, dataset, out, str(threads), json.dumps(settings), str(steps))
+
+
+def run_in_tree(tree: Path, script: str, *argv: str) -> dict:
+    """The JSON line `python -c script *argv` prints last, run in a fresh process on the code of `tree`."""
     proc = subprocess.run(
-        [sys.executable, "-c", WORKER, dataset, out, str(threads), json.dumps(settings), str(steps)],
+        [sys.executable, "-c", script, *argv],
         cwd=tree,
-        env=environment,
+        env=dict(os.environ, PYTHONPATH=str(tree)),
         capture_output=True,
         text=True,
         check=False,

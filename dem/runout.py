@@ -221,8 +221,10 @@ def dense_mask(
     diameters of their own centre. positions [N, 2] (m), radius [N] (m)."""
     positions = np.asarray(positions, np.float64)
     reach = neighbour_radius * 2.0 * float(np.mean(radius))
-    count = cKDTree(positions).query_ball_point(positions, reach, return_length=True) - 1  # not itself
-    return count >= n_neighbours
+    # each pair within reach once, counted for both grains: the same counts as a ball query per
+    # grain (itself excluded), in under half its time on a collapse's frames
+    pairs = cKDTree(positions).query_pairs(reach, output_type="ndarray")
+    return np.bincount(pairs.ravel(), minlength=len(positions)) >= n_neighbours
 
 
 # -- the deposit ----------------------------------------------------------------------------------

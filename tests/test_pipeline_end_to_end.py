@@ -182,6 +182,9 @@ def test_every_stage_ran_each_planned_job_and_nothing_is_left_to_do(run):
     assert len(rows) > 100
     stale = [(r[0], r[4], r[5]) for r in rows if r[4] != "ok" or r[5] != "no update"]
     assert not stale, stale  # every declared output exists and a rerun would do nothing
+    # the processes a job makes its DEM runs in (dem.workers) change no result: nothing to rerun
+    other = snakemake(workdir, "--summary", *own, "dem={workers: 1}", configfile=CONFIG, cores=CORES).stdout
+    assert [line.split("\t")[5] for line in other.strip().splitlines()[1:]] == ["no update"] * len(rows)
     for output, *_ in rows:  # every figure a rule declares is drawn
         if output.endswith(".png"):
             assert_png(workdir / output)

@@ -93,6 +93,22 @@ def test_dense_front_is_the_farthest_grain_of_the_dense_body():
     assert RunoutMethod("dense_front_reached").front_position(positions, radius) == pytest.approx(10 * D)
 
 
+def test_dense_mask_counts_as_every_pair_distance_does():
+    """On scattered grains (a dense clump, a sparse spray) the mask is the brute-force count of the
+    other centres within neighbour_radius mean diameters, for several thresholds."""
+    rng = np.random.default_rng(3)
+    positions = np.vstack([rng.uniform(0, 6 * D, (150, 2)), rng.uniform(0, 40 * D, (60, 2))])
+    radius = rng.uniform(0.8, 1.2, len(positions)) * R
+    distance = np.linalg.norm(positions[:, None] - positions[None], axis=-1)
+    for n_neighbours, neighbour_radius in ((8, 2.4), (3, 1.5), (20, 3.0)):
+        reach = neighbour_radius * 2.0 * radius.mean()
+        count = (distance <= reach).sum(axis=1) - 1
+        expected = count >= n_neighbours
+        assert 0 < expected.sum() < len(positions)
+        assert dense_mask(positions, radius, n_neighbours, neighbour_radius).tolist() == expected.tolist()
+    assert not dense_mask(positions[:1], radius[:1], 1).any()  # a lone grain has no neighbour
+
+
 def test_dense_rule_counts_other_centres_within_the_radius_centre_to_centre():
     """A grain ringed by k grains at distance rho (in D): dense iff k >= n_neighbours (itself not
     counted) and rho <= neighbour_radius (centre to centre, not gap)."""
