@@ -392,4 +392,24 @@ def test_one_gns_runs_both_models_routes_in_the_default_dag(tmp_path):
     dataset = inputs(own, "results/datasets/calibrated_quartz/metadata.json")
     assert not [p for p in dataset if "quartz_multiple" in p]
     assert job_stats(own)["gns_train"] == 2
-    assert priority(own, target) == priority(own, base_validation) == 0
+    # without the shared GNS the base route waits on its own GNS: the answer's priority, below the chain
+    assert 0 < priority(own, target) == priority(own, base_validation) < chain
+    for text in (shared, own):
+        assert_no_job_waits_on_a_lower_priority(text)
+
+
+def assert_no_job_waits_on_a_lower_priority(dry_run_text):
+    """Every job's priority is at least that of each job that reads its outputs (common.smk's
+    ANSWER_PRIORITY): a job left at a lower one starts after the fillers and holds its chain."""
+    jobs = []
+    for block in re.split(r"\n(?:local)?rule ", dry_run_text)[1:]:
+        field = dict(re.findall(r"^    (input|output|priority): (.*)$", block, flags=re.M))
+        jobs.append((block.split(":", 1)[0], field.get("input", "").split(", "), field.get("output", "").split(", "),
+                     int(field.get("priority", 0))))  # fmt: skip
+    assert len(jobs) > 100
+    producer = {path: (rule, priority) for rule, _, outputs, priority in jobs for path in outputs if path}
+    waiting = sorted(
+        {(producer[p][0], producer[p][1], rule, priority) for rule, inputs, _, priority in jobs for p in inputs
+         if p in producer and producer[p][1] < priority}
+    )  # fmt: skip
+    assert not waiting, f"(rule, its priority, a rule waiting on it, that one's priority): {waiting[:5]}"

@@ -111,6 +111,7 @@ rule calibrated_doe:
         "results/logs/calibrated/calibrated_doe/{name}.log",
     benchmark:
         "results/benchmarks/calibrated/calibrated_doe/{name}.tsv"
+    priority: ANSWER_PRIORITY
     conda:
         "../envs/pipeline.yaml"
     resources:
@@ -143,6 +144,7 @@ rule calibrated_bayesopt:
         "results/logs/calibrated/calibrated_bayesopt/{name}.log",
     benchmark:
         "results/benchmarks/calibrated/calibrated_bayesopt/{name}.tsv"
+    priority: ANSWER_PRIORITY
     conda:
         "../envs/pipeline.yaml"
     resources:
@@ -288,7 +290,7 @@ rule calibrated:
         "results/logs/calibrated/calibrated/{name}.log",
     benchmark:
         "results/benchmarks/calibrated/calibrated/{name}.tsv"
-    priority: 10
+    priority: ANSWER_PRIORITY
     conda:
         "../envs/pipeline.yaml"
     resources:

@@ -212,10 +212,13 @@ def critical_priority(dataset):
     """Scheduling priority of a dataset's jobs. The DAG's longest paths run through the GNS of an
     inverse-design column and the calibrated model's GNS (DEM runs -> diagnosis -> the model's DEM
     runs -> its GNS -> inverse design -> validation): first in the queue, so that the many shorter
-    jobs fill the other core around them (dem.smk, dataset.smk, gns.smk)."""
-    if model_column(dataset):
+    jobs fill the other core around them (dem.smk, dataset.smk, gns.smk). Where one GNS runs both
+    models (SHARED_GNS), the base dataset's runs train it and the DoE's runs feed its base inverse
+    design (inverse.smk): they hold the model chain's priority too."""
+    feeds_shared_gns = dataset in SHARED_GNS.values() or dataset in {f"doe_{name}" for name in SHARED_GNS}
+    if model_column(dataset) or feeds_shared_gns:
         return MODEL_CHAIN_PRIORITY
-    return 10 if dataset in INVERSE_DATASET.values() else 0
+    return ANSWER_PRIORITY if dataset in INVERSE_DATASET.values() else 0
 
 
 # The jobs whose time a DEM run costs: its settle and its collapse (its deck is a JSON written locally).
@@ -225,21 +228,26 @@ DEM_JOB_RULES = ("dem_packing", "dem_run")
 # The longest path of all: a measured column's diagnosis decides the model whose GNS dataset is run
 # and trained from scratch (diagnosis.smk, calibrated.smk); it goes before the base GNS's jobs.
 MODEL_CHAIN_PRIORITY = 15
+# A column's answer (calibrated.smk) and every job it waits on, below the model chain and above the
+# jobs no answer waits on. A job's priority is at least that of any job waiting on it: a job of
+# priority 0 that a chain waits on is started last, and the chain waits with it
+# (docs/experiments/dag-wall-time.md).
+ANSWER_PRIORITY = 10
 
 
 def model_chain_priority(name):
     """Priority of the diagnosis and model jobs of measured column `name`: first where its model
-    gets a GNS (MODEL_GNS_NAMES, calibrated.smk), else none."""
-    return MODEL_CHAIN_PRIORITY if name in MODEL_GNS_NAMES else 0
+    gets a GNS (MODEL_GNS_NAMES, calibrated.smk), else the answer's."""
+    return MODEL_CHAIN_PRIORITY if name in MODEL_GNS_NAMES else ANSWER_PRIORITY
 
 
 def route_priority(name, route):
     """Priority of route `route` of measured column `name` (its optimisation and its validation):
     the model chain's for the routes through the model's GNS (its own, and the base model's where
-    one GNS runs both, SHARED_GNS), which cannot start before that GNS is trained, else none
-    (calibrated.smk, inverse.smk)."""
+    one GNS runs both, SHARED_GNS), which cannot start before that GNS is trained, else the
+    answer's, which waits on every route (calibrated.smk, inverse.smk, doe.smk)."""
     through_model_gns = route == "model-inverse" or (route == "base-inverse" and name in SHARED_GNS)
-    return MODEL_CHAIN_PRIORITY if through_model_gns else 0
+    return MODEL_CHAIN_PRIORITY if through_model_gns else ANSWER_PRIORITY
 
 
 def gns_test_cases(dataset):

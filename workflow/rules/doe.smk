@@ -29,6 +29,7 @@ rule doe_design:
         "results/logs/doe/doe_design/{name}.log",
     benchmark:
         "results/benchmarks/doe/doe_design/{name}.tsv"
+    priority: lambda w: route_priority(w.name, "base-inverse")
     localrule: True
     conda:
         "../envs/pipeline.yaml"
@@ -63,6 +64,7 @@ rule doe_analyse:
         "results/logs/doe/doe_analyse/{name}.log",
     benchmark:
         "results/benchmarks/doe/doe_analyse/{name}.tsv"
+    priority: lambda w: route_priority(w.name, "base-inverse")
     conda:
         "../envs/pipeline.yaml"
     resources:

@@ -27,7 +27,7 @@ rule inverse_start:
         "results/benchmarks/inverse/inverse_start/{name}.tsv"
     # on the longest path (the calibrated model's GNS inverse design starts from it) but ready long
     # before: without it the DEM jobs queued ahead of it held that path ~3 min in a timed default run
-    priority: 10
+    priority: lambda w: model_chain_priority(w.name)
     conda:
         "../envs/pipeline.yaml"
     resources:
@@ -127,6 +127,7 @@ rule inverse_bayesopt:
         "results/logs/inverse/inverse_bayesopt/{name}.log",
     benchmark:
         "results/benchmarks/inverse/inverse_bayesopt/{name}.tsv"
+    priority: lambda w: route_priority(w.name, "base-bayesopt")
     conda:
         "../envs/pipeline.yaml"
     resources:
