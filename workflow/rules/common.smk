@@ -212,13 +212,15 @@ def critical_priority(dataset):
     """Scheduling priority of a dataset's jobs. The DAG's longest paths run through the GNS of an
     inverse-design column and the calibrated model's GNS (DEM runs -> diagnosis -> the model's DEM
     runs -> its GNS -> inverse design -> validation): first in the queue, so that the many shorter
-    jobs fill the other core around them (dem.smk, dataset.smk, gns.smk). Where one GNS runs both
-    models (SHARED_GNS), the base dataset's runs train it and the DoE's runs feed its base inverse
-    design (inverse.smk): they hold the model chain's priority too."""
-    feeds_shared_gns = dataset in SHARED_GNS.values() or dataset in {f"doe_{name}" for name in SHARED_GNS}
-    if model_column(dataset) or feeds_shared_gns:
+    jobs fill the other core around them (dem.smk, dataset.smk, gns.smk). The base dataset of a
+    column whose model has a GNS starts that GNS's inverse design (inverse_start), and where one GNS
+    runs both models (SHARED_GNS) the DoE's runs feed its base inverse design (inverse.smk): they
+    hold the model chain's priority too; the other base and DoE datasets, the answer's."""
+    feeds_chain = {INVERSE_DATASET.get(name) for name in MODEL_GNS_NAMES} | {f"doe_{name}" for name in SHARED_GNS}
+    if model_column(dataset) or dataset in feeds_chain:
         return MODEL_CHAIN_PRIORITY
-    return ANSWER_PRIORITY if dataset in INVERSE_DATASET.values() else 0
+    feeds_answer = set(INVERSE_DATASET.values()) | {f"doe_{name}" for name in DOE_NAMES}
+    return ANSWER_PRIORITY if dataset in feeds_answer else 0
 
 
 # The jobs whose time a DEM run costs: its settle and its collapse (its deck is a JSON written locally).
