@@ -341,14 +341,16 @@ def validate(
     progress: Callable[[float], None] | None = None,
     first_packing: int = 0,
     seed0: int = VALIDATION_SEED0,
+    made_ahead: bool = False,
 ) -> Validation:
     """The model at theta [p] run on n_packings packings, seeds seed0 + first_packing + k (by default
     the validation packings, which no calibration uses); dem_runs and calibration_seconds: what the
     route spent to find theta (reported beside the score). progress: callable(fraction of all the
-    runs done) or None."""
+    runs done) or None. made_ahead: the caller has made these runs ahead (dem.run_ahead) already."""
     started = time.perf_counter()
     seeds = [seed0 + first_packing + k for k in range(n_packings)]
-    run_ahead(buildable_cases(model, column, [theta], settings, seeds), dem_config, route)
+    if not made_ahead:
+        run_ahead(buildable_cases(model, column, [theta], settings, seeds), dem_config, route)
     curves, failed = [], {}
     for k, seed in enumerate(seeds):
         within = None if progress is None else (lambda f, k=k: progress((k + f) / n_packings))

@@ -199,7 +199,7 @@ def run_star(
     """Each star point [n, p] (star_points) run at `settings` on n_packings confirmation packings
     (CONFIRM_SEED0 + k); label: each run's name, "{k}" the point's index; part(offset, width): the
     progress callable of the runs from offset to offset + width, in packings' worth of runs."""
-    own = {"seed0": CONFIRM_SEED0}
+    own = {"seed0": CONFIRM_SEED0, "made_ahead": True}  # the whole star is made ahead here
     seeds = [CONFIRM_SEED0 + k for k in range(n_packings)]
     run_ahead(
         buildable_cases(model, column, points, settings, seeds), dem_config, label.format(k=f"0-{len(points) - 1}")

@@ -9,11 +9,13 @@ What the job gets is therefore the stored file either way, the same bits as made
 (tests/test_run_store.py), and the loop's order, failures and logging are unchanged: a run that
 fails in a worker is not stored and fails again, the same way, when the loop asks for it.
 
-The job still holds one core of the scheduler's: a worker beside another job shares a core with it
-(the work is the same, so is the machine's throughput), a worker beside an idle core uses it. The
-workers are config dem.workers, capped by the cores this process may run on (a SLURM job's
-allocation) and 1 where a run is itself threaded (dem.threads > 1: threads that wait on each other
-slow down many times on a busy core). Outside a run store, or with one worker, it does nothing.
+The job still holds one core of the scheduler's, so its workers run at a lower priority (nice
+WORKER_NICENESS): beside another job they yield to it and the job gets about the one core the
+scheduler gave it (a GNS training on the DAG's critical path is not slowed by them), beside an idle
+core they use it; the machine's throughput is the same either way. The workers are config
+dem.workers, capped by the cores this process may run on (a SLURM job's allocation) and 1 where a
+run is itself threaded (dem.threads > 1: threads that wait on each other slow down many times on a
+busy core). Outside a run store, or with one worker, it does nothing.
 """
 
 from __future__ import annotations
@@ -36,6 +38,10 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
+# A worker process's niceness: on a busy core a nice-0 process gets ~90% of the time against it
+# (Linux CFS weights 1024 and 110), so the workers take what the scheduled jobs leave.
+WORKER_NICENESS = 10
+
 
 def batch_workers(config: dict | None) -> int:
     """Worker processes for a batch of runs of `config` (the workflow's dem section): its `workers`
@@ -54,7 +60,8 @@ def run_ahead(cases: Sequence[CollapseCase], config: dict | None, label: str = "
     workers = batch_workers(config)
     if store is None or workers < 2:
         return 0
-    engine = get_engine(run_config(config).get("engine", "builtin"), run_config(config))
+    settings = run_config(config)
+    engine = get_engine(settings.get("engine", "builtin"), settings)
     todo = {collapse_key(case, config, engine=engine): case for case in cases}
     todo = [case for key, case in todo.items() if not store.path(key).exists()]
     if len(todo) < 2:
@@ -63,7 +70,9 @@ def run_ahead(cases: Sequence[CollapseCase], config: dict | None, label: str = "
     if store.workers is None:  # started once for the job, ended with its store
         # forked: a spawned worker would import the job's script again as its main module (a
         # Snakemake script runs its job at the top level) and pay the imports (~1 s) once more
-        store.workers = ProcessPoolExecutor(workers, mp_context=get_context("fork"))
+        store.workers = ProcessPoolExecutor(
+            workers, mp_context=get_context("fork"), initializer=os.nice, initargs=(WORKER_NICENESS,)
+        )
     futures = [store.workers.submit(_stored_run, str(store.folder), case, config) for case in todo]
     progress = progress_logger(f"{label}: {len(todo)} runs made ahead on {workers} processes", log)
     for done, future in enumerate(as_completed(futures), 1):

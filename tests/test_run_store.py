@@ -216,12 +216,13 @@ def test_every_long_dem_job_keeps_its_runs_beside_its_output(script):
 def test_a_batch_made_ahead_on_two_processes_gives_the_bits_of_the_runs_made_in_turn(tmp_path, caplog):
     """dem.run_ahead: a validation on three packings and predictions at two aspect ratios, their runs
     made ahead by two worker processes, give the numbers of the same calls made one run after the
-    other, and the job's own calls read every run from the store (none made twice)."""
+    other, and the job's own calls read every run from the store (none made twice); the workers run
+    niced."""
     from calibration.calibrated import validate
     from calibration.design_runs import SimulationSettings
     from calibration.measured_column import MeasuredColumn
     from calibration.prediction import predict
-    from dem.run_ahead import batch_workers, run_ahead
+    from dem.run_ahead import WORKER_NICENESS, batch_workers, run_ahead
 
     column = MeasuredColumn(
         name="tiny", material="quartz", aspect_ratio=2.0, L_i=0.01, t_over_tstar=np.array([0.5, 1.0]),
@@ -240,6 +241,8 @@ def test_a_batch_made_ahead_on_two_processes_gives_the_bits_of_the_runs_made_in_
             prediction = predict(Model(), column, theta, settings, [1.0, 3.0], runout, dem)
             outcomes[workers] = (validation.curves, prediction.final_runout, prediction.final_height)
             made_here = dict(store.ran)
+            if workers == 2:  # the workers yield to the scheduled jobs (nice), the job itself does not
+                assert store.workers.submit(os.nice, 0).result() == min(19, os.nice(0) + WORKER_NICENESS)
         assert store.workers is None  # the job's worker processes end with its store
         assert made_here == ({"collapse": 5, "packing": 5} if workers == 1 else {})  # all 5 read from the store
     assert outcomes[1] == outcomes[2]  # floats compared exactly: the same bits
