@@ -1,6 +1,7 @@
 """How fast a finished DAG run could have been: its CPU bound and its critical path; prints JSON.
 
     python benchmarks/dag_bounds.py LOG [--root DIR] [--cores 2] [--target-minutes 30]
+                                    [--what-if RULE=THREADS:SECONDS ...]
 
 LOG: the Snakemake log of one run (`.snakemake/log/*.snakemake.log`, or what `bash run.sh main`
 printed); DIR: the folder it ran in (the benchmark TSVs are read relative to it). Each job's seconds
@@ -14,7 +15,9 @@ above the CPU bound by the jobs' start-up, I/O and waits for a core. A wall-time
 which jobs a trim must shorten. A third figure replays the run: a list scheduler with the jobs'
 seconds and the priorities the log shows (priority_schedule); where it lands near the real wall
 time, the gap between it and the bounds is what the priorities cost, and a change of priorities
-can be tried on it before a run.
+can be tried on it before a run. `--what-if` replays the run again with every job of RULE on THREADS
+cores for SECONDS each (a thread count measured for that job alone, say), and prints that replay
+beside the run's.
 """
 
 from __future__ import annotations
@@ -27,16 +30,25 @@ import re
 from pathlib import Path
 
 RULE = re.compile(r"^(?:local)?rule (\w+):$")
-FIELD = re.compile(r"^\s+(input|output|benchmark|jobid|wildcards|priority): (.*)$")
+FIELD = re.compile(r"^\s+(input|output|benchmark|jobid|wildcards|priority|threads): (.*)$")
 
 
 def parse_jobs(log: Path) -> list[dict]:
-    """[{rule, jobid, input [paths], output [paths], benchmark, wildcards}] of the jobs the log started."""
+    """[{rule, jobid, input [paths], output [paths], benchmark, wildcards, priority, threads}] of the jobs
+    the log started (Snakemake writes a job's threads only when more than 1)."""
     jobs, job = [], None
     for line in log.read_text().splitlines():
         match = RULE.match(line)
         if match:
-            job = {"rule": match.group(1), "input": [], "output": [], "benchmark": None, "wildcards": "", "priority": 0}
+            job = {
+                "rule": match.group(1),
+                "input": [],
+                "output": [],
+                "benchmark": None,
+                "wildcards": "",
+                "priority": 0,
+                "threads": 1,
+            }
             jobs.append(job)
             continue
         match = FIELD.match(line)
@@ -44,7 +56,7 @@ def parse_jobs(log: Path) -> list[dict]:
             key, value = match.groups()
             if key in ("input", "output"):
                 job[key] = [p.strip() for p in value.split(",") if p.strip()]
-            elif key == "priority":
+            elif key in ("priority", "threads"):
                 job[key] = int(value)
             else:
                 job[key] = value.strip()
@@ -84,27 +96,48 @@ def critical_path(jobs: list[dict]) -> tuple[float, list[dict]]:
 
 
 def priority_schedule(jobs: list[dict], cores: int) -> float:
-    """Seconds a list scheduler takes over `jobs` on `cores` cores, each job one core for its
-    seconds: whenever a core is free it starts the ready job of the highest priority (ties: the
-    log's order), as Snakemake's priorities ask. Above the two bounds by the time the priorities
-    leave a core idle while a long chain waits."""
+    """Seconds a list scheduler takes over `jobs` on `cores` cores, each job its `threads` cores
+    (default 1) for its seconds: whenever cores are free it starts the ready jobs in order of
+    priority (ties: the log's order), each that fits the free cores, as Snakemake's priorities ask;
+    a job of more threads than are free waits while lower ones fill them. Above the two bounds by
+    the time the priorities leave a core idle while a long chain waits."""
     producer = {path: k for k, job in enumerate(jobs) for path in job["output"]}
     needs = [{producer[p] for p in job["input"] if p in producer and producer[p] != k} for k, job in enumerate(jobs)]
     done, running, clock, free = set(), [], 0.0, cores
     waiting = set(range(len(jobs)))
     while waiting or running:
         ready = sorted((k for k in waiting if needs[k] <= done), key=lambda k: (-jobs[k]["priority"], k))
-        for k in ready[:free]:
-            waiting.discard(k)
-            running.append((clock + jobs[k]["seconds"], k))
-            free -= 1
+        for k in ready:
+            threads = min(jobs[k].get("threads", 1), cores)
+            if threads <= free:
+                waiting.discard(k)
+                running.append((clock + jobs[k]["seconds"], k, threads))
+                free -= threads
         if not running:
             raise ValueError("jobs wait on outputs no job makes")
         running.sort()
-        clock, k = running.pop(0)
+        clock, k, threads = running.pop(0)
         done.add(k)
-        free += 1
+        free += threads
     return clock
+
+
+def what_if(jobs: list[dict], changes: list[str], cores: int) -> dict:
+    """{what_if: {rule: {threads, seconds}}, what_if_schedule_minutes} for changes "RULE=THREADS:SECONDS"
+    (each job of RULE), {} for none."""
+    if not changes:
+        return {}
+    changed = {}
+    for change in changes:
+        match = re.fullmatch(r"(\w+)=(\d+):([0-9.]+)", change)
+        if not match:
+            raise SystemExit(f"--what-if {change!r}: expected RULE=THREADS:SECONDS, e.g. calibrated_inverse=2:146")
+        rule, threads, seconds = match.group(1), int(match.group(2)), float(match.group(3))
+        if not any(job["rule"] == rule for job in jobs):
+            raise SystemExit(f"--what-if {change!r}: no timed job of rule {rule} in the log")
+        changed[rule] = {"threads": threads, "seconds": seconds}
+    replayed = [dict(job, **changed.get(job["rule"], {})) for job in jobs]
+    return {"what_if": changed, "what_if_schedule_minutes": round(priority_schedule(replayed, cores) / 60, 1)}
 
 
 def main() -> None:
@@ -113,6 +146,9 @@ def main() -> None:
     parser.add_argument("--root", type=Path, default=Path("."), help="the folder the DAG ran in")
     parser.add_argument("--cores", type=int, default=2)
     parser.add_argument("--target-minutes", type=float, default=30.0)
+    parser.add_argument(
+        "--what-if", action="append", default=[], metavar="RULE=THREADS:SECONDS", help="replay with these jobs changed"
+    )
     args = parser.parse_args()
     parsed = parse_jobs(args.log)
     timed = [bool(job["benchmark"]) and (args.root / job["benchmark"]).exists() for job in parsed]
@@ -143,6 +179,7 @@ def main() -> None:
                 "lower_bound_minutes": round(max(bounds.values()), 1),
                 # the DAG's own priorities with these job times, in place of Snakemake's choices
                 "priority_schedule_minutes": round(priority_schedule(jobs, args.cores) / 60, 1),
+                **what_if(jobs, args.what_if, args.cores),
                 "target_minutes": args.target_minutes,
                 "target_reachable": max(bounds.values()) <= args.target_minutes,
                 "critical_path": [

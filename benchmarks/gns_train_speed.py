@@ -13,6 +13,13 @@ Both trees time the same work, alternately (old, new, old, new, ...), each in a 
   trajectory rolled out from its first C frames to its last; ms per GNS step and faults per step;
 - batched rollout: the same, from 4 copies of its start side by side as 4 graphs of one batch, the
   shape of the GNS inverse design's rollouts (one point, S = 4 packings);
+- the matrix products (aten mm, addmm, bmm; forward and backward) of as many training steps more,
+  each timed where it runs: ms a step and GFLOP/s. Were everything else in a step free, the step
+  would take the products' time: `products_alone_cap_over_old` is that speed over old's steps/s,
+  the most any implementation of this model running these products could gain (3x is
+  `threefold_reachable_with_these_products`); `products_at_large_product_rate_cap_over_old` is the
+  same were the products as fast as one large square product (2048^3) is on this machine, the
+  nearest a kernel of these skinny shapes (K = 48) could come to its peak;
 - the weights after the timed steps, hashed: the same hash in both trees says the change kept the
   training's numbers, so its validation accuracy at equal steps is the old one by construction.
 The data: --dataset, or (default) a dataset made here from one builtin-DEM collapse of the
@@ -83,6 +90,31 @@ for _ in range(steps):
     trainer.train_step()
 train_s, train_faults = time.perf_counter() - t0, faults() - f0
 weights = hashlib.sha256(b"".join(p.detach().numpy().tobytes() for p in trainer.simulator.parameters())).hexdigest()
+# the matrix products of the same number of steps more, each timed where it runs (forward and backward)
+from torch.utils._python_dispatch import TorchDispatchMode
+PRODUCTS = {torch.ops.aten.mm.default, torch.ops.aten.addmm.default, torch.ops.aten.bmm.default}
+class ProductClock(TorchDispatchMode):
+    seconds, flops = 0.0, 0.0
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        if func not in PRODUCTS:
+            return func(*args, **(kwargs or {}))
+        t = time.perf_counter()
+        out = func(*args, **(kwargs or {}))
+        self.seconds += time.perf_counter() - t
+        a, b = args[-2:] if func is not torch.ops.aten.addmm.default else args[1:3]
+        self.flops += 2.0 * a.numel() * b.shape[-1]
+        return out
+clock = ProductClock()
+with clock:
+    for _ in range(steps):
+        trainer.train_step()
+# this machine's rate on one large product (2048^3, the shape a GEMM kernel runs nearest its peak)
+square = torch.randn(2048, 2048)
+torch.mm(square, square)
+t0 = time.perf_counter()
+for _ in range(5):
+    torch.mm(square, square)
+peak_gflop_per_s = 5 * 2 * 2048**3 / (time.perf_counter() - t0) / 1e9
 model = trainer.averaged.eval()
 dem = read_trajectory(split_paths(read_metadata(sys.argv[1]), "test")[0])
 rollout_trajectory(model, dem, n_steps=2)
@@ -104,6 +136,9 @@ with torch.no_grad():
 batch_s, batch_faults = time.perf_counter() - t0, faults() - f0
 print(json.dumps({"batch4_rollout_ms_per_step": 1e3 * batch_s / n, "batch4_rollout_faults_per_step": batch_faults / n,
                   "train_steps_per_s": steps / train_s, "train_faults_per_step": train_faults / steps,
+                  "product_ms_per_step": 1e3 * clock.seconds / steps,
+                  "product_gflop_per_s": clock.flops / clock.seconds / 1e9,
+                  "product_gflop_per_step": clock.flops / steps / 1e9, "large_product_gflop_per_s": peak_gflop_per_s,
                   "rollout_ms_per_step": 1e3 * rollout_s / n, "rollout_faults_per_step": rollout_faults / n,
                   "rollout_steps": n, "weights_sha256": weights[:16]}))
 """
@@ -192,7 +227,16 @@ def main() -> None:
         "rollout_faults_per_step",
         "batch4_rollout_ms_per_step",
         "batch4_rollout_faults_per_step",
+        "product_ms_per_step",
+        "product_gflop_per_s",
+        "product_gflop_per_step",
+        "large_product_gflop_per_s",
     )
+    # were everything but the products free, new would train 1000 / product_ms steps/s
+    product_cap = 1e3 / median("new", "product_ms_per_step") / median("old", "train_steps_per_s")
+    # and were the products as fast as one large product is here
+    flop_cap = median("new", "large_product_gflop_per_s") / median("new", "product_gflop_per_step")
+    flop_cap /= median("old", "train_steps_per_s")
     result = {
         "benchmark": "gns_train_speed",
         **started,
@@ -215,6 +259,9 @@ def main() -> None:
         "rollout_speedup_per_pair": [
             round(o["rollout_ms_per_step"] / n["rollout_ms_per_step"], 3) for o, n in zip(runs["old"], runs["new"])
         ],
+        "products_alone_cap_over_old": round(product_cap, 3),
+        "threefold_reachable_with_these_products": product_cap >= 3.0,
+        "products_at_large_product_rate_cap_over_old": round(flop_cap, 3),
         "same_weights_after_training": len({r["weights_sha256"] for r in runs["old"] + runs["new"]}) == 1,
         "runs": runs,
         "load_average_1min_at_end": round(os.getloadavg()[0], 2),
