@@ -7,6 +7,16 @@ if not workflow.overwrite_configfiles:
     configfile: "config/config.yaml"
 
 
+# Snakemake rate-limits job starts (--max-jobs-per-timespan, default 100/1s) by waking its scheduler
+# one timespan after every pass; each wake-up sets the next, and every finished job starts one more
+# such chain: by the default DAG's end they kept Snakemake at 15-25% of a core, and its exit waits
+# for the last one (benchmarks/scheduler_overhead.py). A local run has no queue to shield from a
+# burst of submissions, so its scheduler runs without the limiter; a cluster executor keeps it.
+onstart:
+    if workflow.local_exec and hasattr(workflow.scheduler, "job_rate_limiter"):
+        workflow.scheduler.job_rate_limiter = None
+
+
 # Snakemake's HTML report (snakemake --report results/report.html): this description first, then
 # every figure and table registered with report() in the rules, grouped by stage.
 report: "workflow/report/workflow.rst"

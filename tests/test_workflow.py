@@ -413,3 +413,20 @@ def assert_no_job_waits_on_a_lower_priority(dry_run_text):
          if p in producer and producer[p][1] < priority}
     )  # fmt: skip
     assert not waiting, f"(rule, its priority, a rule waiting on it, that one's priority): {waiting[:5]}"
+
+
+def test_a_local_run_starts_its_jobs_without_snakemake_s_rate_limit(tmp_path):
+    """The Snakefile's onstart drops the limiter of job starts from a local run. Under a limit of one
+    job an hour three jobs would take two hours, and Snakemake's exit would wait for its timer; with
+    the project's onstart they all run and Snakemake exits (a minute is ample: a few seconds here).
+    The hook is read from the Snakefile, so the test follows it."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from scheduler_overhead import project_hook
+
+    snakefile = project_hook() + '\n\nrule all:\n    input: expand("done/{k}", k=range(3))\n'
+    snakefile += 'rule one:\n    output: "done/{k}"\n    shell: "touch {output}"\n'
+    (tmp_path / "Snakefile").write_text(snakefile)
+    command = [sys.executable, "-m", "snakemake", "--cores", "2", "--max-jobs-per-timespan", "1/1h"]
+    proc = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=60, check=False)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert sorted(p.name for p in (tmp_path / "done").iterdir()) == ["0", "1", "2"]
